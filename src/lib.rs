@@ -1,0 +1,6 @@
+//! mireg: point cloud registration for robotics logs with MI-RANSAC.
+#![warn(missing_docs)]
+
+pub mod error;
+
+pub use error::{Error, Result};
