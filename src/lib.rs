@@ -4,3 +4,5 @@
 pub mod error;
 
 pub use error::{Error, Result};
+pub mod correspondence;
+pub mod ransac;

@@ -1,0 +1,3 @@
+//! Putative correspondences: matching in feature space and ranking by how likely each is an inlier.
+
+pub mod ranking;
