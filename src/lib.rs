@@ -4,5 +4,7 @@
 pub mod error;
 
 pub use error::{Error, Result};
+pub mod cli;
 pub mod correspondence;
 pub mod ransac;
+pub mod simulate;

@@ -40,8 +40,11 @@ pub enum Scoring {
 #[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Termination {
-    /// Standard adaptive RANSAC: stop after `log(1 − confidence) / log(1 − wˢ)` hypotheses, `w` the
-    /// best inlier ratio so far.
+    /// Adaptive RANSAC: stop after `log(1 − confidence) / log(1 − qˢ)` hypotheses, where `q` is the
+    /// probability that one draw of the sampler picks an inlier of the best model so far. For the
+    /// uniform sampler `q` is the inlier ratio `w` (Fischler & Bolles 1981); for samplers that expose
+    /// their law ([`Sampler::draw_probability`], e.g. Lévy) it is the law's mass on the inliers, so a
+    /// ranking that puts inliers first also stops earlier. Samplers without a fixed law use `w`.
     #[default]
     Adaptive,
     /// Additionally apply PROSAC's non-randomness + maximality rule (Chum & Matas 2005, Sec. 2.3),
@@ -242,8 +245,16 @@ pub fn run_consensus<S: Sampler, E: Estimator>(
                 &mut inlier_buf,
             );
             out.best_found_at = Some(h);
-            let w = score.inliers as f64 / n as f64;
-            limit = limit.min(required_hypotheses(config.confidence, w, s));
+            // NOTE: the paper does not say how MI-RANSAC stops; uniform RANSAC's rule would ignore the
+            // ranking. `qˢ` treats the s draws as independent, a close approximation for s ≪ n.
+            let q = match sampler.draw_probability(0) {
+                Some(_) => (0..n)
+                    .filter(|&i| estimator.residual_sq(&model, i) < threshold_sq)
+                    .map(|i| sampler.draw_probability(i).unwrap_or(0.0))
+                    .sum::<f64>(),
+                None => score.inliers as f64 / n as f64,
+            };
+            limit = limit.min(required_hypotheses(config.confidence, q.min(1.0), s));
             if let Some(p) = &prosac {
                 let flags: Vec<bool> = (0..n)
                     .map(|i| estimator.residual_sq(&model, i) < threshold_sq)

@@ -208,7 +208,7 @@ pub fn kabsch_indexed(
         svd.singular_values[2],
     ];
     sv.sort_unstable_by(|a, b| b.total_cmp(a));
-    if !(sv[0] > 0.0) || sv[1] < min_singular_ratio * sv[0] {
+    if sv[0].is_nan() || sv[0] <= 0.0 || sv[1] < min_singular_ratio * sv[0] {
         return None;
     }
     let (u, v_t) = (svd.u?, svd.v_t?);

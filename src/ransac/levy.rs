@@ -68,7 +68,7 @@ impl TruncatedLevy {
         }
         let erf_a = erf(Self::z_of(mu, c, 0.0));
         let mass = erf_a - erf(Self::z_of(mu, c, window));
-        if !(mass > 0.0) {
+        if mass.is_nan() || mass <= 0.0 {
             return Err(Error::InvalidInput(format!(
                 "Lévy(mu = {mu}, c = {c}) has no representable mass on [0, {window}]"
             )));
@@ -221,6 +221,10 @@ impl Sampler for Levy {
             check_sample_len(sample.len(), self.n);
             fill_distinct(sample, || self.draw_rank(rng));
         }
+    }
+
+    fn draw_probability(&self, i: usize) -> Option<f64> {
+        Some(self.rank_probability(i))
     }
 }
 

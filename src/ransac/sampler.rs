@@ -21,6 +21,13 @@ pub trait Sampler: Sync {
     ///
     /// Panics if `sample.len()` exceeds `n` or [`MAX_SAMPLE_SIZE`] (a programming error).
     fn draw<R: Rng + ?Sized>(&self, hypothesis: u64, rng: &mut R, sample: &mut [usize]);
+
+    /// Probability that a single draw picks item `i`, when the sampler's law does not change with the
+    /// hypothesis number; `None` otherwise (e.g. PROSAC). The consensus loop uses it for adaptive
+    /// termination. Default: `None`.
+    fn draw_probability(&self, _i: usize) -> Option<f64> {
+        None
+    }
 }
 
 /// Fills `sample` with distinct values produced by `draw_one`, redrawing a slot whenever it repeats
@@ -76,6 +83,10 @@ impl Sampler for Uniform {
     fn draw<R: Rng + ?Sized>(&self, _hypothesis: u64, rng: &mut R, sample: &mut [usize]) {
         check_sample_len(sample.len(), self.n);
         fill_distinct(sample, || uniform_index(rng, self.n));
+    }
+
+    fn draw_probability(&self, _i: usize) -> Option<f64> {
+        Some(1.0 / self.n as f64)
     }
 }
 

@@ -1,0 +1,108 @@
+//! Kabsch against known rigid transforms, forward and inverse; degenerate samples rejected.
+
+use mireg::ransac::estimator::DEFAULT_MIN_SINGULAR_RATIO;
+use mireg::ransac::kabsch;
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use rand::{RngExt, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+
+fn random_isometry(rng: &mut Pcg64Mcg) -> Isometry3<f64> {
+    // Uniform rotation: normalised 4-D Gaussian-ish vector (rejection from the unit ball).
+    let q = loop {
+        let v: [f64; 4] = std::array::from_fn(|_| rng.random_range(-1.0..1.0));
+        let n2: f64 = v.iter().map(|x| x * x).sum();
+        if n2 > 1e-6 && n2 <= 1.0 {
+            break nalgebra::Quaternion::new(v[0], v[1], v[2], v[3]);
+        }
+    };
+    let t = Vector3::from_fn(|_, _| rng.random_range(-10.0..10.0));
+    Isometry3::from_parts(Translation3::from(t), UnitQuaternion::from_quaternion(q))
+}
+
+fn random_points(rng: &mut Pcg64Mcg, n: usize) -> Vec<Point3<f64>> {
+    (0..n)
+        .map(|_| Point3::from(Vector3::from_fn(|_, _| rng.random_range(-5.0..5.0))))
+        .collect()
+}
+
+fn pose_error(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
+    let d = a.inverse() * b;
+    (d.rotation.angle(), d.translation.vector.norm())
+}
+
+#[test]
+fn recovers_random_transforms_forward_and_inverse() {
+    let mut rng = Pcg64Mcg::seed_from_u64(42);
+    for n in [3, 4, 10, 100] {
+        for _ in 0..50 {
+            let gt = random_isometry(&mut rng);
+            let src = random_points(&mut rng, n);
+            let tgt: Vec<_> = src.iter().map(|p| gt * p).collect();
+            let est = kabsch(&src, &tgt, DEFAULT_MIN_SINGULAR_RATIO).expect("non-degenerate");
+            let (r, t) = pose_error(&gt, &est);
+            assert!(r < 1e-9 && t < 1e-9, "n {n}: rot {r:e} rad, trans {t:e} m");
+            let inv = kabsch(&tgt, &src, DEFAULT_MIN_SINGULAR_RATIO).expect("non-degenerate");
+            let (r, t) = pose_error(&gt.inverse(), &inv);
+            assert!(
+                r < 1e-9 && t < 1e-9,
+                "inverse n {n}: rot {r:e} rad, trans {t:e} m"
+            );
+        }
+    }
+}
+
+#[test]
+fn rejects_degenerate_samples() {
+    let mut rng = Pcg64Mcg::seed_from_u64(7);
+    let gt = random_isometry(&mut rng);
+    let map = |pts: &[Point3<f64>]| pts.iter().map(|p| gt * p).collect::<Vec<_>>();
+    // Too few points.
+    let two = [Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 0.0, 0.0)];
+    assert!(kabsch(&two, &map(&two), DEFAULT_MIN_SINGULAR_RATIO).is_none());
+    // Collinear.
+    let line: Vec<_> = (0..5)
+        .map(|i| Point3::new(i as f64, 2.0 * i as f64, -(i as f64)))
+        .collect();
+    assert!(kabsch(&line, &map(&line), DEFAULT_MIN_SINGULAR_RATIO).is_none());
+    // Near-collinear: 0.1 mm off a 1 m line.
+    let near = [
+        Point3::new(0.0, 0.0, 0.0),
+        Point3::new(1.0, 0.0, 0.0),
+        Point3::new(0.5, 1e-4, 0.0),
+    ];
+    assert!(kabsch(&near, &map(&near), DEFAULT_MIN_SINGULAR_RATIO).is_none());
+    // Coincident (a sample that repeats one correspondence).
+    let same = [Point3::new(1.0, 2.0, 3.0); 3];
+    assert!(kabsch(&same, &map(&same), DEFAULT_MIN_SINGULAR_RATIO).is_none());
+    // A proper triangle 10 cm wide over 1 m passes.
+    let tri = [
+        Point3::new(0.0, 0.0, 0.0),
+        Point3::new(1.0, 0.0, 0.0),
+        Point3::new(0.5, 0.1, 0.0),
+    ];
+    let est = kabsch(&tri, &map(&tri), DEFAULT_MIN_SINGULAR_RATIO).expect("triangle is fine");
+    let (r, t) = pose_error(&gt, &est);
+    assert!(r < 1e-9 && t < 1e-9);
+}
+
+#[test]
+fn planar_points_with_reflection_ambiguity_give_a_rotation() {
+    // Coplanar points admit a reflection with zero residual; Kabsch must return a proper rotation.
+    let mut rng = Pcg64Mcg::seed_from_u64(9);
+    let gt = random_isometry(&mut rng);
+    let src: Vec<_> = (0..20)
+        .map(|_| {
+            Point3::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                0.0,
+            )
+        })
+        .collect();
+    let tgt: Vec<_> = src.iter().map(|p| gt * p).collect();
+    let est = kabsch(&src, &tgt, DEFAULT_MIN_SINGULAR_RATIO).unwrap();
+    let det = est.rotation.to_rotation_matrix().matrix().determinant();
+    assert!((det - 1.0).abs() < 1e-12);
+    let (r, t) = pose_error(&gt, &est);
+    assert!(r < 1e-9 && t < 1e-9);
+}
