@@ -1,0 +1,1 @@
+//! Pose file readers.
