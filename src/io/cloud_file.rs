@@ -41,7 +41,7 @@ pub fn read_points(path: &Path) -> Result<Vec<Point3<f64>>> {
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase)
         .unwrap_or_default();
-    let parse: fn(&[u8], &Path) -> Result<Vec<Point3<f64>>> = match ext.as_str() {
+    let parse: Parser = match ext.as_str() {
         "ply" => parse_ply,
         "pcd" => parse_pcd,
         "npy" => parse_npy,
@@ -61,6 +61,9 @@ pub fn read_points(path: &Path) -> Result<Vec<Point3<f64>>> {
     })?;
     parse(&bytes, path)
 }
+
+/// A format parser: bytes and the path for error messages in, points out.
+type Parser = fn(&[u8], &Path) -> Result<Vec<Point3<f64>>>;
 
 /// Builds an [`Error::Format`] for `path`.
 fn format_err(path: &Path, detail: impl Into<String>) -> Error {

@@ -18,7 +18,7 @@ const KITTI_POINT_BYTES: usize = 16;
 /// # Errors
 /// [`crate::Error::Format`] if the length is not a multiple of 16 bytes.
 pub fn parse_kitti_bin(bytes: &[u8], path: &Path) -> Result<Vec<Point3<f64>>> {
-    if bytes.len() % KITTI_POINT_BYTES != 0 {
+    if !bytes.len().is_multiple_of(KITTI_POINT_BYTES) {
         return Err(format_err(
             path,
             format!(
