@@ -2,8 +2,9 @@
 //! `trajectory.log`) and the Stanford bunny `bun.conf`.
 //!
 //! Every pose is returned as an `Isometry3<f64>` (translation in the file's units, metres for
-//! all data sets mireg uses). Rotations are validated: RᵀR must equal I within
-//! [`ROTATION_TOLERANCE`] and det R must be positive; the rotation is then re-normalised.
+//! all data sets mireg uses). Rotations are validated: every entry of RᵀR − I must be within
+//! [`ROTATION_TOLERANCE`] ([`LOG_ROTATION_TOLERANCE`] for `.log` files) and det R must be
+//! positive; the nearest rotation (polar decomposition) is then used.
 
 use std::path::Path;
 
@@ -11,8 +12,15 @@ use nalgebra::{Isometry3, Matrix3, Matrix4, Quaternion, Rotation3, Translation3,
 
 use crate::{Error, Result};
 
-/// Largest allowed |RᵀR − I| entry for a rotation read from a file (unitless).
+/// Largest allowed |RᵀR − I| entry for a rotation read from a 4×4 matrix file (unitless).
 pub const ROTATION_TOLERANCE: f64 = 1e-6;
+
+/// Largest allowed |RᵀR − I| entry for a rotation in a `.log` file (unitless).
+///
+/// NOTE: looser than [`ROTATION_TOLERANCE`] because the published 3DMatch `gt.log` files are
+/// not orthonormal to 1e-6: over the 8 3DMatch + 8 3DLoMatch scenes, 3364 of 3625 records
+/// exceed 1e-6 and the worst (7-scenes-redkitchen, pair 0 39) reaches 5.1e-4.
+pub const LOG_ROTATION_TOLERANCE: f64 = 1e-3;
 
 /// Largest allowed deviation of a `bun.conf` quaternion's norm from 1 (unitless); the file
 /// stores six significant digits.
@@ -43,7 +51,10 @@ fn parse_numbers(line: &str) -> std::result::Result<Vec<f64>, String> {
 
 /// Converts a homogeneous 4×4 matrix into an isometry, checking the bottom row is `0 0 0 1`,
 /// the translation is finite and the rotation block is a proper rotation.
-fn isometry_from_matrix(m: &Matrix4<f64>) -> std::result::Result<Isometry3<f64>, String> {
+fn isometry_from_matrix(
+    m: &Matrix4<f64>,
+    tolerance: f64,
+) -> std::result::Result<Isometry3<f64>, String> {
     let bottom = [m[(3, 0)], m[(3, 1)], m[(3, 2)], m[(3, 3)]];
     if bottom
         .iter()
@@ -58,15 +69,20 @@ fn isometry_from_matrix(m: &Matrix4<f64>) -> std::result::Result<Isometry3<f64>,
         return Err("matrix has a non-finite entry".into());
     }
     let err = (r.transpose() * r - Matrix3::identity()).abs().max();
-    if err > ROTATION_TOLERANCE {
+    if err > tolerance {
         return Err(format!(
-            "rotation block is not orthonormal: max |RᵀR − I| = {err:.3e} > {ROTATION_TOLERANCE:e}"
+            "rotation block is not orthonormal: max |RᵀR − I| = {err:.3e} > {tolerance:e}"
         ));
     }
     if r.determinant() <= 0.0 {
         return Err("rotation block has negative determinant (a reflection)".into());
     }
-    let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
+    // Nearest rotation in the Frobenius norm: U·Vᵀ of the SVD (det > 0 was checked above).
+    let svd = r.svd(true, true);
+    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else {
+        return Err("rotation block: SVD failed".into());
+    };
+    let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(u * v_t));
     let q = UnitQuaternion::new_normalize(q.into_inner());
     Ok(Isometry3::from_parts(Translation3::from(t), q))
 }
@@ -85,7 +101,7 @@ pub fn parse_matrix4(text: &str, path: &Path) -> Result<Isometry3<f64>> {
             format!("4×4 matrix: expected 16 numbers, found {}", v.len()),
         ));
     }
-    isometry_from_matrix(&Matrix4::from_row_slice(&v))
+    isometry_from_matrix(&Matrix4::from_row_slice(&v), ROTATION_TOLERANCE)
         .map_err(|d| format_err(path, format!("4×4 matrix: {d}")))
 }
 
@@ -119,7 +135,8 @@ pub struct LogRecord {
 ///
 /// # Errors
 /// [`Error::Format`] naming the line for a malformed header or matrix row, a file that ends
-/// inside a record, or an invalid transform.
+/// inside a record, or an invalid transform (rotation checked within
+/// [`LOG_ROTATION_TOLERANCE`]).
 pub fn parse_log(text: &str, path: &Path) -> Result<Vec<LogRecord>> {
     let mut lines = text
         .lines()
@@ -160,7 +177,7 @@ pub fn parse_log(text: &str, path: &Path) -> Result<Vec<LogRecord>> {
                 m[(row, col)] = x;
             }
         }
-        let pose = isometry_from_matrix(&m).map_err(|d| {
+        let pose = isometry_from_matrix(&m, LOG_ROTATION_TOLERANCE).map_err(|d| {
             format_err(
                 path,
                 format!("log record '{i} {j} {n}' (line {header_no}): {d}"),
