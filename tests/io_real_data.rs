@@ -167,3 +167,36 @@ fn kitti_bin_point_count() {
     let max_range = pts.iter().map(|p| p.coords.norm()).fold(0.0, f64::max);
     assert!((20.0..150.0).contains(&max_range), "max range {max_range}");
 }
+
+#[test]
+fn icl_nuim_fixture_aligns_with_ground_truth_trajectory() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/icl_nuim");
+    let frame0 = read_points(&dir.join("rgbd5_00000.ply")).unwrap();
+    let frame4 = read_points(&dir.join("rgbd5_00004.ply")).unwrap();
+    let trajectory = read_log(&dir.join("trajectory.log")).unwrap();
+    assert_eq!(trajectory.len(), 5);
+    // trajectory.log headers are `k k k+1`; poses are world_from_camera_k.
+    let world_from_0 = find_log_pair(&trajectory, 0, 0).unwrap().pose;
+    let world_from_4 = find_log_pair(&trajectory, 4, 4).unwrap().pose;
+    let target_from_source = world_from_0.inverse() * world_from_4;
+    // Depths of a living room seen from ~2 m: positive, under 6 m.
+    for p in frame0.iter().chain(&frame4) {
+        assert!(p.z > 0.3 && p.z < 6.0, "depth {}", p.z);
+    }
+    let aligned = median_nn_distance(&transform(&target_from_source, &frame4), &frame0, 2000);
+    let raw = median_nn_distance(&frame4, &frame0, 2000);
+    // The inverse composition (T4⁻¹·T0) applies the motion the wrong way round.
+    let backwards = world_from_4.inverse() * world_from_0;
+    let wrong = median_nn_distance(&transform(&backwards, &frame4), &frame0, 2000);
+    eprintln!(
+        "ICL-NUIM frame 4→0 median NN: ground truth {aligned:.4} m, identity {raw:.4} m, T4⁻¹·T0 {wrong:.4} m ({} / {} points)",
+        frame4.len(),
+        frame0.len()
+    );
+    assert!(aligned < 0.01, "aligned median {aligned}");
+    assert!(raw > 3.0 * aligned, "identity {raw} vs aligned {aligned}");
+    assert!(
+        wrong > 3.0 * aligned,
+        "T4⁻¹·T0 {wrong} vs aligned {aligned}"
+    );
+}
