@@ -217,6 +217,71 @@ mod tests {
         assert!(matches!(err, Error::Io { .. }), "{err}");
     }
 
+    /// Small valid files of each binary format, built by hand.
+    fn sample_files() -> Vec<(&'static str, Vec<u8>)> {
+        let mut ply = b"ply\nformat binary_little_endian 1.0\nelement vertex 2\nproperty float x\n\
+                        property list uchar int n\nproperty float y\nproperty float z\nend_header\n"
+            .to_vec();
+        for k in 0..2u8 {
+            ply.extend(1.0f32.to_le_bytes());
+            ply.push(1);
+            ply.extend(i32::from(k).to_le_bytes());
+            ply.extend(2.0f32.to_le_bytes());
+            ply.extend(3.0f32.to_le_bytes());
+        }
+        let mut pcd = b"FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nWIDTH 2\nHEIGHT 1\nPOINTS 2\n\
+                        DATA binary_compressed\n"
+            .to_vec();
+        let raw: Vec<u8> = [1.0f32, 4.0, 2.0, 5.0, 3.0, 6.0]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        pcd.extend(25u32.to_le_bytes());
+        pcd.extend(24u32.to_le_bytes());
+        pcd.push(23);
+        pcd.extend(&raw);
+        let mut npy = b"\x93NUMPY\x01\x00".to_vec();
+        let dict = "{'descr': '<f8', 'fortran_order': False, 'shape': (1, 3), }\n";
+        npy.extend((dict.len() as u16).to_le_bytes());
+        npy.extend(dict.as_bytes());
+        [1.0f64, 2.0, 3.0]
+            .iter()
+            .for_each(|v| npy.extend(v.to_le_bytes()));
+        vec![("a.ply", ply), ("a.pcd", pcd), ("a.npy", npy)]
+    }
+
+    fn parse_by_name(name: &str, bytes: &[u8]) -> Result<Vec<Point3<f64>>> {
+        let path = Path::new(name);
+        match name {
+            "a.ply" => parse_ply(bytes, path),
+            "a.pcd" => parse_pcd(bytes, path),
+            _ => parse_npy(bytes, path),
+        }
+    }
+
+    #[test]
+    fn truncation_and_byte_corruption_never_panic() {
+        for (name, bytes) in sample_files() {
+            let full = parse_by_name(name, &bytes).unwrap();
+            assert_eq!(full.len(), if name == "a.npy" { 1 } else { 2 }, "{name}");
+            for cut in 0..bytes.len() {
+                // Every strict prefix of a binary file lacks data: it must be an error.
+                let r = parse_by_name(name, &bytes[..cut]);
+                assert!(
+                    matches!(r, Err(Error::Format { .. })),
+                    "{name} cut at {cut}: {r:?}"
+                );
+            }
+            for at in 0..bytes.len() {
+                for v in [0x00, 0xff, b'9', b' ', b'\n'] {
+                    let mut b = bytes.clone();
+                    b[at] = v;
+                    let _ = parse_by_name(name, &b); // any result but a panic
+                }
+            }
+        }
+    }
+
     #[test]
     fn scalar_decoding_matches_construction() {
         let b = (-2.5f32).to_be_bytes();

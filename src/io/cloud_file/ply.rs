@@ -190,6 +190,20 @@ pub fn parse_ply(bytes: &[u8], path: &Path) -> Result<Vec<Point3<f64>>> {
     }
     let mut values = vec![0.0; vertex.props.len()];
     for el in &elements[..vi] {
+        if el.props.is_empty() {
+            continue; // occupies no data, whatever its count
+        }
+        if let (Encoding::Binary(_), Some(stride)) = (encoding, el.fixed_stride()) {
+            let skip = el.count.checked_mul(stride).filter(|&n| n <= data.len());
+            let skip = skip.ok_or_else(|| {
+                format_err(
+                    path,
+                    format!("PLY element {} ({} records) truncated", el.name, el.count),
+                )
+            })?;
+            data = &data[skip..];
+            continue;
+        }
         for k in 0..el.count {
             read_record(&mut data, el, encoding, &mut values)
                 .map_err(|d| format_err(path, format!("PLY element {} {k}: {d}", el.name)))?;
@@ -476,6 +490,29 @@ mod tests {
         expect_format_err(
             b"ply\nformat ascii 1.0\nelement vertex -1\nend_header\n",
             "bad count '-1'",
+        );
+    }
+
+    #[test]
+    fn elements_before_vertex_are_skipped_even_when_huge_or_empty() {
+        let mut b = b"ply\nformat binary_big_endian 1.0\nelement marker 18446744073709551615\n\
+                      element grid 2\nproperty short a\nproperty double b\n\
+                      element vertex 1\nproperty double x\nproperty double y\nproperty double z\nend_header\n"
+            .to_vec();
+        b.extend([0xAAu8; 20]); // two grid records of 10 bytes
+        for v in [0.5f64, -1.0, 2.0] {
+            b.extend(v.to_be_bytes());
+        }
+        assert_eq!(
+            parse_ply(&b, p()).unwrap(),
+            vec![Point3::new(0.5, -1.0, 2.0)]
+        );
+        let huge_grid = b"ply\nformat binary_little_endian 1.0\nelement grid 999999999999999999\n\
+                          property int a\nelement vertex 0\nproperty float x\nproperty float y\n\
+                          property float z\nend_header\n";
+        expect_format_err(
+            huge_grid,
+            "element grid (999999999999999999 records) truncated",
         );
     }
 
