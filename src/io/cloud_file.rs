@@ -30,7 +30,8 @@ pub use ply::parse_ply;
 /// Reads the points of a cloud file, choosing the format by extension (case-insensitive):
 /// `.ply`, `.pcd`, `.npy`, or `.bin` (KITTI velodyne: little-endian f32 x, y, z, intensity).
 ///
-/// Non-finite points are dropped (see the module docs).
+/// The whole file is read into memory first. Non-finite points are dropped (see the module
+/// docs).
 ///
 /// # Errors
 /// [`Error::Io`] if the file cannot be read; [`Error::Format`] for an unknown extension or
@@ -209,6 +210,18 @@ mod tests {
         let msg = err.to_string();
         assert!(matches!(err, Error::Format { .. }), "{msg}");
         assert!(msg.contains("cloud.xyz") && msg.contains(".xyz"), "{msg}");
+    }
+
+    #[test]
+    fn read_points_dispatches_on_case_insensitive_extension() {
+        let dir = std::env::temp_dir().join(format!("mireg-io-test-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("cloud.PCD");
+        let text = "FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nPOINTS 1\nDATA ascii\n0.5 -1 2\n";
+        std::fs::write(&path, text).unwrap();
+        let pts = read_points(&path);
+        std::fs::remove_dir_all(&dir).unwrap();
+        assert_eq!(pts.unwrap(), vec![Point3::new(0.5, -1.0, 2.0)]);
     }
 
     #[test]
