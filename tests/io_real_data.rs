@@ -83,33 +83,37 @@ fn bunny_ply_counts_and_metre_scale() {
 
 #[test]
 fn bunny_conf_convention_aligns_scans() {
-    let (Some(conf), Some(p0), Some(p45)) = (
-        shared_data("bunny/bun.conf"),
-        shared_data("bunny/bun000.ply"),
-        shared_data("bunny/bun045.ply"),
-    ) else {
+    let Some(conf) = shared_data("bunny/bun.conf") else {
         return;
     };
     let conf = std::fs::read_to_string(conf).unwrap();
-    let world_from_0 = bunny_pose(&conf, "bun000.ply").unwrap();
-    let world_from_45 = bunny_pose(&conf, "bun045.ply").unwrap();
-    let scan0 = read_points(&p0).unwrap();
-    let scan45 = read_points(&p45).unwrap();
-    let target_from_source = world_from_0.inverse() * world_from_45;
-    let aligned = median_nn_distance(&transform(&target_from_source, &scan45), &scan0, 2000);
-    // The "obvious" reading world = R·x + t: rotation q instead of q⁻¹.
-    let wrong = |w: Isometry3<f64>| Isometry3::from_parts(w.translation, w.rotation.inverse());
-    let wrong_t_s = wrong(world_from_0).inverse() * wrong(world_from_45);
-    let misaligned = median_nn_distance(&transform(&wrong_t_s, &scan45), &scan0, 2000);
-    let untransformed = median_nn_distance(&scan45, &scan0, 2000);
-    eprintln!(
-        "bun045→bun000 median NN: R(q)ᵀ convention {aligned:.5} m, R(q) convention {misaligned:.5} m, identity {untransformed:.5} m"
-    );
-    assert!(aligned < 0.002, "aligned median {aligned}");
-    assert!(
-        misaligned > 5.0 * aligned,
-        "wrong convention {misaligned} vs {aligned}"
-    );
+    // Neighbouring scans (45° apart) overlap enough for a median to measure alignment.
+    for (source, target) in [("bun045.ply", "bun000.ply"), ("bun090.ply", "bun045.ply")] {
+        let (Some(sp), Some(tp)) = (
+            shared_data(&format!("bunny/{source}")),
+            shared_data(&format!("bunny/{target}")),
+        ) else {
+            return;
+        };
+        let (src, tgt) = (read_points(&sp).unwrap(), read_points(&tp).unwrap());
+        let world_from_s = bunny_pose(&conf, source).unwrap();
+        let world_from_t = bunny_pose(&conf, target).unwrap();
+        let target_from_source = world_from_t.inverse() * world_from_s;
+        let aligned = median_nn_distance(&transform(&target_from_source, &src), &tgt, 2000);
+        // The "obvious" reading world = R·x + t: rotation q instead of q⁻¹.
+        let wrong = |w: Isometry3<f64>| Isometry3::from_parts(w.translation, w.rotation.inverse());
+        let wrong_t_s = wrong(world_from_t).inverse() * wrong(world_from_s);
+        let misaligned = median_nn_distance(&transform(&wrong_t_s, &src), &tgt, 2000);
+        let untransformed = median_nn_distance(&src, &tgt, 2000);
+        eprintln!(
+            "{source}→{target} median NN: R(q)ᵀ convention {aligned:.5} m, R(q) convention {misaligned:.5} m, identity {untransformed:.5} m"
+        );
+        assert!(aligned < 0.002, "{source}: aligned median {aligned}");
+        assert!(
+            misaligned > 5.0 * aligned,
+            "{source}: wrong convention {misaligned} vs {aligned}"
+        );
+    }
 }
 
 #[test]
