@@ -2,6 +2,7 @@
 #![warn(missing_docs)]
 
 pub mod error;
+pub mod io;
 
 pub use error::{Error, Result};
 pub mod cli;

@@ -1,0 +1,436 @@
+//! Pose file readers: a 4×4 text matrix, Redwood/3DMatch `.log` files (`gt.log`,
+//! `trajectory.log`) and the Stanford bunny `bun.conf`.
+//!
+//! Every pose is returned as an `Isometry3<f64>` (translation in the file's units, metres for
+//! all data sets mireg uses). Rotations are validated: every entry of RᵀR − I must be within
+//! [`ROTATION_TOLERANCE`] ([`LOG_ROTATION_TOLERANCE`] for `.log` files) and det R must be
+//! positive; the nearest rotation (polar decomposition) is then used.
+
+use std::path::Path;
+
+use nalgebra::{Isometry3, Matrix3, Matrix4, Quaternion, Rotation3, Translation3, UnitQuaternion};
+
+use crate::{Error, Result};
+
+/// Largest allowed |RᵀR − I| entry for a rotation read from a 4×4 matrix file (unitless).
+pub const ROTATION_TOLERANCE: f64 = 1e-6;
+
+/// Largest allowed |RᵀR − I| entry for a rotation in a `.log` file (unitless).
+///
+/// NOTE: looser than [`ROTATION_TOLERANCE`] because the published 3DMatch `gt.log` files are
+/// not orthonormal to 1e-6: over the 8 3DMatch + 8 3DLoMatch scenes, 3364 of 3625 records
+/// exceed 1e-6 and the worst (7-scenes-redkitchen, pair 0 39) reaches 5.1e-4.
+pub const LOG_ROTATION_TOLERANCE: f64 = 1e-3;
+
+/// Largest allowed deviation of a `bun.conf` quaternion's norm from 1 (unitless); the file
+/// stores six significant digits.
+pub const QUATERNION_NORM_TOLERANCE: f64 = 1e-4;
+
+fn format_err(path: &Path, detail: impl Into<String>) -> Error {
+    Error::Format {
+        path: path.to_path_buf(),
+        detail: detail.into(),
+    }
+}
+
+fn read_text(path: &Path) -> Result<String> {
+    std::fs::read_to_string(path).map_err(|source| Error::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+fn parse_numbers(line: &str) -> std::result::Result<Vec<f64>, String> {
+    line.split_whitespace()
+        .map(|t| {
+            t.parse::<f64>()
+                .map_err(|_| format!("'{t}' is not a number"))
+        })
+        .collect()
+}
+
+/// Converts a homogeneous 4×4 matrix into an isometry, checking the bottom row is `0 0 0 1`,
+/// the translation is finite and the rotation block is a proper rotation.
+fn isometry_from_matrix(
+    m: &Matrix4<f64>,
+    tolerance: f64,
+) -> std::result::Result<Isometry3<f64>, String> {
+    let bottom = [m[(3, 0)], m[(3, 1)], m[(3, 2)], m[(3, 3)]];
+    if bottom
+        .iter()
+        .zip([0.0, 0.0, 0.0, 1.0])
+        .any(|(a, b)| (a - b).abs() > 1e-12)
+    {
+        return Err(format!("bottom row is {bottom:?}, expected [0, 0, 0, 1]"));
+    }
+    let r: Matrix3<f64> = m.fixed_view::<3, 3>(0, 0).into_owned();
+    let t = m.fixed_view::<3, 1>(0, 3).into_owned();
+    if !r.iter().chain(t.iter()).all(|v| v.is_finite()) {
+        return Err("matrix has a non-finite entry".into());
+    }
+    let err = (r.transpose() * r - Matrix3::identity()).abs().max();
+    if err > tolerance {
+        return Err(format!(
+            "rotation block is not orthonormal: max |RᵀR − I| = {err:.3e} > {tolerance:e}"
+        ));
+    }
+    if r.determinant() <= 0.0 {
+        return Err("rotation block has negative determinant (a reflection)".into());
+    }
+    // Nearest rotation in the Frobenius norm: U·Vᵀ of the SVD (det > 0 was checked above).
+    let svd = r.svd(true, true);
+    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else {
+        return Err("rotation block: SVD failed".into());
+    };
+    let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(u * v_t));
+    let q = UnitQuaternion::new_normalize(q.into_inner());
+    Ok(Isometry3::from_parts(Translation3::from(t), q))
+}
+
+/// Parses a 4×4 homogeneous transform written as 16 whitespace-separated numbers in
+/// row-major order (line breaks are not significant); `path` is used only in errors.
+///
+/// # Errors
+/// [`Error::Format`] if there are not exactly 16 numbers, the bottom row is not `0 0 0 1`, or
+/// the rotation block is not a rotation within [`ROTATION_TOLERANCE`].
+pub fn parse_matrix4(text: &str, path: &Path) -> Result<Isometry3<f64>> {
+    let v = parse_numbers(text).map_err(|d| format_err(path, format!("4×4 matrix: {d}")))?;
+    if v.len() != 16 {
+        return Err(format_err(
+            path,
+            format!("4×4 matrix: expected 16 numbers, found {}", v.len()),
+        ));
+    }
+    isometry_from_matrix(&Matrix4::from_row_slice(&v), ROTATION_TOLERANCE)
+        .map_err(|d| format_err(path, format!("4×4 matrix: {d}")))
+}
+
+/// Reads a 4×4 text matrix file (see [`parse_matrix4`]).
+///
+/// # Errors
+/// [`Error::Io`] if the file cannot be read, else as [`parse_matrix4`].
+pub fn read_matrix4(path: &Path) -> Result<Isometry3<f64>> {
+    parse_matrix4(&read_text(path)?, path)
+}
+
+/// One record of a Redwood/3DMatch `.log` file: a header line `i j n` and a 4×4 matrix.
+///
+/// The meaning of `pose` depends on the file: in a 3DMatch `gt.log` it maps fragment `j` into
+/// fragment `i` (`i_from_j`, i.e. target = `i`, source = `j`); in a Redwood
+/// `trajectory.log` (header `k k k+1`) it is camera `k`'s pose, `world_from_camera_k`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LogRecord {
+    /// First id of the header line (the target fragment in `gt.log`).
+    pub i: usize,
+    /// Second id of the header line (the source fragment in `gt.log`).
+    pub j: usize,
+    /// Third number of the header line (number of fragments in `gt.log`).
+    pub n: usize,
+    /// The record's transform (see the type docs for its frames).
+    pub pose: Isometry3<f64>,
+}
+
+/// Parses a Redwood/3DMatch `.log` file: records of a header line of three integers followed
+/// by four lines of four numbers. Blank lines are ignored; `path` is used only in errors.
+///
+/// # Errors
+/// [`Error::Format`] naming the line for a malformed header or matrix row, a file that ends
+/// inside a record, or an invalid transform (rotation checked within
+/// [`LOG_ROTATION_TOLERANCE`]).
+pub fn parse_log(text: &str, path: &Path) -> Result<Vec<LogRecord>> {
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .map(|(k, l)| (k + 1, l))
+        .filter(|(_, l)| !l.trim().is_empty());
+    let mut records = Vec::new();
+    while let Some((header_no, header)) = lines.next() {
+        let ids: Option<Vec<usize>> = header.split_whitespace().map(|t| t.parse().ok()).collect();
+        let [i, j, n] = ids.as_deref().unwrap_or_default() else {
+            return Err(format_err(
+                path,
+                format!(
+                    "log line {header_no}: expected a record header of 3 integers, got '{header}'"
+                ),
+            ));
+        };
+        let mut m = Matrix4::zeros();
+        for row in 0..4 {
+            let (no, line) = lines.next().ok_or_else(|| {
+                format_err(
+                    path,
+                    format!("log record '{i} {j} {n}' (line {header_no}): file ends after {row} of 4 matrix rows"),
+                )
+            })?;
+            let v =
+                parse_numbers(line).map_err(|d| format_err(path, format!("log line {no}: {d}")))?;
+            if v.len() != 4 {
+                return Err(format_err(
+                    path,
+                    format!(
+                        "log line {no}: expected 4 numbers in matrix row, found {}",
+                        v.len()
+                    ),
+                ));
+            }
+            for (col, x) in v.into_iter().enumerate() {
+                m[(row, col)] = x;
+            }
+        }
+        let pose = isometry_from_matrix(&m, LOG_ROTATION_TOLERANCE).map_err(|d| {
+            format_err(
+                path,
+                format!("log record '{i} {j} {n}' (line {header_no}): {d}"),
+            )
+        })?;
+        records.push(LogRecord {
+            i: *i,
+            j: *j,
+            n: *n,
+            pose,
+        });
+    }
+    Ok(records)
+}
+
+/// Reads a Redwood/3DMatch `.log` file (see [`parse_log`]).
+///
+/// # Errors
+/// [`Error::Io`] if the file cannot be read, else as [`parse_log`].
+pub fn read_log(path: &Path) -> Result<Vec<LogRecord>> {
+    parse_log(&read_text(path)?, path)
+}
+
+/// The first record whose header starts with `i j`, or `None` if the pair is absent.
+/// For a 3DMatch `gt.log`, its `pose` is `i_from_j` (fragment `j` into fragment `i`).
+pub fn find_log_pair(records: &[LogRecord], i: usize, j: usize) -> Option<&LogRecord> {
+    records.iter().find(|r| r.i == i && r.j == j)
+}
+
+/// One `bmesh` line of a Stanford `bun.conf`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BunnyScan {
+    /// The scan's file name as written in the conf file, e.g. `bun045.ply`.
+    pub file: String,
+    /// Maps scan coordinates into the common (world) frame, metres.
+    pub world_from_scan: Isometry3<f64>,
+}
+
+/// Parses a Stanford `bun.conf`: lines `bmesh FILE tx ty tz qx qy qz qw`; `camera` lines and
+/// blank lines are ignored; `path` is used only in errors.
+///
+/// Convention (checked on the real scans, see the `io_real_data` test): a scan point x maps
+/// to `world = R(q)ᵀ·x + t`, with R the rotation of the unit quaternion (qx, qy, qz, qw) —
+/// *not* the obvious `R·x + t`. So `world_from_scan` has rotation q⁻¹ and translation t.
+///
+/// # Errors
+/// [`Error::Format`] naming the line for an unknown keyword, a wrong number of values, or a
+/// quaternion whose norm is not 1 within [`QUATERNION_NORM_TOLERANCE`].
+pub fn parse_bunny_conf(text: &str, path: &Path) -> Result<Vec<BunnyScan>> {
+    let mut scans = Vec::new();
+    for (k, line) in text.lines().enumerate() {
+        let no = k + 1;
+        let mut words = line.split_whitespace();
+        match words.next() {
+            None | Some("camera") => continue,
+            Some("bmesh") => {}
+            Some(other) => {
+                return Err(format_err(
+                    path,
+                    format!("conf line {no}: unknown keyword '{other}'"),
+                ));
+            }
+        }
+        let file = words.next().ok_or_else(|| {
+            format_err(path, format!("conf line {no}: bmesh without a file name"))
+        })?;
+        let rest: Vec<&str> = words.collect();
+        let v = parse_numbers(&rest.join(" "))
+            .map_err(|d| format_err(path, format!("conf line {no} ({file}): {d}")))?;
+        let [tx, ty, tz, qx, qy, qz, qw] = v[..] else {
+            return Err(format_err(
+                path,
+                format!(
+                    "conf line {no} ({file}): expected 7 numbers (tx ty tz qx qy qz qw), found {}",
+                    v.len()
+                ),
+            ));
+        };
+        let q = Quaternion::new(qw, qx, qy, qz);
+        if (q.norm() - 1.0).abs() > QUATERNION_NORM_TOLERANCE || !q.norm().is_finite() {
+            return Err(format_err(
+                path,
+                format!(
+                    "conf line {no} ({file}): quaternion norm {} is not 1",
+                    q.norm()
+                ),
+            ));
+        }
+        let r = UnitQuaternion::from_quaternion(q);
+        scans.push(BunnyScan {
+            file: file.to_string(),
+            world_from_scan: Isometry3::from_parts(Translation3::new(tx, ty, tz), r.inverse()),
+        });
+    }
+    Ok(scans)
+}
+
+/// `world_from_scan` for `scan_file` (e.g. `"bun045.ply"`) from the text of a `bun.conf`
+/// (convention in [`parse_bunny_conf`]); errors name the file `bun.conf`.
+///
+/// To register scan A (source) onto scan B (target), the ground truth is
+/// `target_from_source = bunny_pose(conf, B)?.inverse() * bunny_pose(conf, A)?`.
+///
+/// # Errors
+/// As [`parse_bunny_conf`], or [`Error::Format`] if the conf has no `bmesh` line for the scan.
+pub fn bunny_pose(conf_text: &str, scan_file: &str) -> Result<Isometry3<f64>> {
+    let path = Path::new("bun.conf");
+    parse_bunny_conf(conf_text, path)?
+        .into_iter()
+        .find(|s| s.file == scan_file)
+        .map(|s| s.world_from_scan)
+        .ok_or_else(|| format_err(path, format!("no bmesh line for '{scan_file}'")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Point3, Vector3};
+
+    fn p() -> &'static Path {
+        Path::new("pose.txt")
+    }
+
+    fn expect_format_err<T: std::fmt::Debug>(r: Result<T>, needle: &str) {
+        match r {
+            Err(e @ Error::Format { .. }) => {
+                let msg = e.to_string();
+                assert!(msg.contains(needle), "expected '{needle}' in '{msg}'");
+            }
+            other => panic!("expected a format error containing '{needle}', got {other:?}"),
+        }
+    }
+
+    /// A 90° rotation about z (x → y) and translation (1, 2, 3), written row-major.
+    const ROT_Z90: &str = "0 -1 0 1\n1 0 0 2\n0 0 1 3\n0 0 0 1\n";
+
+    #[test]
+    fn matrix4_maps_points_as_written() {
+        let iso = parse_matrix4(ROT_Z90, p()).unwrap();
+        // R·(1, 0, 0) + t = (0, 1, 0) + (1, 2, 3)
+        let q = iso * Point3::new(1.0, 0.0, 0.0);
+        assert!((q - Point3::new(1.0, 3.0, 3.0)).norm() < 1e-12, "{q}");
+        // Same numbers on one line work too.
+        let one_line = ROT_Z90.replace('\n', " ");
+        assert_eq!(parse_matrix4(&one_line, p()).unwrap(), iso);
+    }
+
+    #[test]
+    fn matrix4_rejections() {
+        expect_format_err(
+            parse_matrix4("1 0 0 0 0 1 0 0 0 0 1 0 0 0 0", p()),
+            "expected 16 numbers, found 15",
+        );
+        expect_format_err(
+            parse_matrix4("1 0 0 0 0 1 0 0 0 0 1 0 0 0 1 1", p()),
+            "bottom row",
+        );
+        expect_format_err(
+            parse_matrix4("1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 x", p()),
+            "'x' is not a number",
+        );
+        // Scaled: not orthonormal.
+        expect_format_err(
+            parse_matrix4("1.001 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1", p()),
+            "not orthonormal",
+        );
+        // Reflection: orthonormal but det = −1.
+        expect_format_err(
+            parse_matrix4("1 0 0 0 0 1 0 0 0 0 -1 0 0 0 0 1", p()),
+            "reflection",
+        );
+        // Within tolerance: accepted, and re-normalised.
+        let iso = parse_matrix4("1.0000001 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1", p()).unwrap();
+        assert!((iso.rotation.into_inner().norm() - 1.0).abs() < 1e-15);
+    }
+
+    #[test]
+    fn log_records_and_pair_lookup() {
+        let text =
+            format!("0\t 1\t 3\t\n{ROT_Z90}\n\n2 5 3\n1 0 0 0.5\n0 1 0 0\n0 0 1 0\n0 0 0 1\n");
+        let recs = parse_log(&text, Path::new("gt.log")).unwrap();
+        assert_eq!(recs.len(), 2);
+        assert_eq!((recs[1].i, recs[1].j, recs[1].n), (2, 5, 3));
+        let r = find_log_pair(&recs, 2, 5).unwrap();
+        assert_eq!(r.pose.translation.vector, Vector3::new(0.5, 0.0, 0.0));
+        let r = find_log_pair(&recs, 0, 1).unwrap();
+        let q = r.pose * Point3::new(0.0, 1.0, 0.0);
+        assert!((q - Point3::new(0.0, 2.0, 3.0)).norm() < 1e-12, "{q}");
+        assert!(find_log_pair(&recs, 1, 0).is_none());
+    }
+
+    #[test]
+    fn log_rejections_name_the_line() {
+        let g = Path::new("gt.log");
+        expect_format_err(
+            parse_log("0 1\n", g),
+            "gt.log: log line 1: expected a record header",
+        );
+        expect_format_err(
+            parse_log("0 1 2\n1 0 0 0\n0 1 0 0\n", g),
+            "ends after 2 of 4",
+        );
+        expect_format_err(
+            parse_log("0 1 2\n1 0 0 0\n0 1 0\n0 0 1 0\n0 0 0 1\n", g),
+            "log line 3: expected 4 numbers",
+        );
+        expect_format_err(
+            parse_log("0 1 2\n2 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n", g),
+            "(line 1): rotation block is not orthonormal",
+        );
+        expect_format_err(
+            parse_log("0 1 2\n1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 2\n", g),
+            "bottom row",
+        );
+    }
+
+    #[test]
+    fn bunny_conf_uses_transposed_rotation() {
+        // q = (qx, qy, qz, qw) = (0, 0, sin 45°, cos 45°): R(q) rotates +90° about z.
+        let s = std::f64::consts::FRAC_1_SQRT_2;
+        let conf = format!(
+            "camera 0 0 0 0 0 0 1\nbmesh a.ply 0 0 0 0 0 0 1\nbmesh b.ply 1 2 3 0 0 {s} {s}\n"
+        );
+        let a = bunny_pose(&conf, "a.ply").unwrap();
+        assert_eq!(a, Isometry3::identity());
+        let b = bunny_pose(&conf, "b.ply").unwrap();
+        // world = R(q)ᵀ·x + t: Rᵀ rotates −90° about z, so (1, 0, 0) → (0, −1, 0).
+        let w = b * Point3::new(1.0, 0.0, 0.0);
+        assert!((w - Point3::new(1.0, 1.0, 3.0)).norm() < 1e-12, "{w}");
+        // target_from_source between the two scans.
+        let a_from_b = a.inverse() * b;
+        assert!((a_from_b * Point3::origin() - Point3::new(1.0, 2.0, 3.0)).norm() < 1e-12);
+    }
+
+    #[test]
+    fn bunny_conf_rejections() {
+        let c = Path::new("bun.conf");
+        expect_format_err(
+            bunny_pose("bmesh a.ply 0 0 0 0 0 0 1\n", "z.ply"),
+            "bun.conf: no bmesh line for 'z.ply'",
+        );
+        expect_format_err(
+            parse_bunny_conf("bmesh a.ply 0 0 0 0 0 1\n", c),
+            "(a.ply): expected 7 numbers",
+        );
+        expect_format_err(
+            parse_bunny_conf("bmesh a.ply 0 0 0 0 0 0.5 0.5\n", c),
+            "quaternion norm",
+        );
+        expect_format_err(
+            parse_bunny_conf("mesh a.ply 0 0 0 0 0 0 1\n", c),
+            "unknown keyword 'mesh'",
+        );
+        expect_format_err(parse_bunny_conf("bmesh\n", c), "without a file name");
+    }
+}
