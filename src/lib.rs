@@ -1,11 +1,16 @@
-//! mireg: point cloud registration for robotics logs with MI-RANSAC.
+//! mireg: point cloud registration for robotics logs with MI-RANSAC (More Informed RANSAC,
+//! Zhang & Chen).
+//!
+//! The core is pure: [`ransac`] (samplers, estimators, the consensus loop) and
+//! [`correspondence`] (ranking metrics) take slices and nalgebra types; [`io`] reads files;
+//! [`cli`] maps the command line onto them.
 #![warn(missing_docs)]
 
-pub mod error;
-pub mod io;
-
-pub use error::{Error, Result};
 pub mod cli;
 pub mod correspondence;
+pub mod error;
+pub mod io;
 pub mod ransac;
 pub mod simulate;
+
+pub use error::{Error, Result};
