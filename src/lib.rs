@@ -2,5 +2,7 @@
 #![warn(missing_docs)]
 
 pub mod error;
+pub mod features;
+pub mod geometry;
 
 pub use error::{Error, Result};
