@@ -9,6 +9,8 @@
 pub mod cli;
 pub mod correspondence;
 pub mod error;
+pub mod features;
+pub mod geometry;
 pub mod io;
 pub mod ransac;
 pub mod simulate;

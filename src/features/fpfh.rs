@@ -1,0 +1,351 @@
+//! Fast Point Feature Histograms (Rusu, Blodow & Beetz, "Fast Point Feature Histograms (FPFH) for
+//! 3D Registration", ICRA 2009) with Open3D's exact parameterisation and scale
+//! (`open3d.pipelines.registration.compute_fpfh_feature`).
+//!
+//! Per point p with hybrid neighbourhood N(p) (radius + max count, p itself first):
+//! - SPFH(p): for every neighbour q after the first entry, the pair features (θ, α, φ) of (p, q)
+//!   (Sec. II of the paper) are binned into 3 blocks of 11 bins, each hit adding
+//!   `100 / (|N(p)| − 1)`, so every block sums to 100.
+//! - FPFH(p) = SPFH(p) + Σ_q SPFH(q) / ‖p − q‖², where each 11-bin block of the weighted sum is
+//!   rescaled to sum to 100. Each block of the result therefore sums to 200 (600 in all).
+//!
+//! NOTE: the paper (Eq. 3) weights by 1/(k·ω_k) with ω_k the distance; Open3D (and we) weight by
+//! the inverse *squared* distance and normalise each block instead of dividing by k.
+
+use nalgebra::{Point3, Vector3};
+use rayon::prelude::*;
+
+use crate::geometry::KdTree;
+use crate::geometry::normals::check_search_params;
+use crate::{Error, Result};
+
+/// Number of histogram bins: 11 for each of the three angular features.
+pub const FPFH_BINS: usize = 33;
+
+/// Bins per angular feature.
+const BINS_PER_FEATURE: usize = 11;
+
+/// Mass of one 11-bin block of an SPFH (and of each half of an FPFH block), as Open3D.
+const BLOCK_MASS: f64 = 100.0;
+
+/// One FPFH descriptor: blocks [θ | α | φ] of 11 bins, each block summing to 200 (see module docs).
+pub type Fpfh = [f32; FPFH_BINS];
+
+/// Computes the FPFH descriptor of every point, exactly as Open3D's `compute_fpfh_feature` with
+/// `KDTreeSearchParamHybrid(radius_m, max_nn)` (Open3D registration default: `radius_m = 5 *
+/// voxel`, `max_nn = 100`).
+///
+/// `normals[i]` is the unit normal of `points[i]`; their signs matter (use the same orientation
+/// policy on both clouds). A point whose neighbourhood holds only itself gets an all-zero
+/// descriptor, as in Open3D. Neighbours at zero distance do not contribute to the weighted sum.
+///
+/// Arithmetic is f64; the result is rounded to f32. Runs in parallel (rayon), each SPFH computed
+/// once; the result does not depend on the thread count.
+///
+/// Errors: [`Error::InvalidInput`] on length mismatch, non-finite points, `radius_m` not finite and
+/// positive, or `max_nn == 0`.
+pub fn compute_fpfh(
+    points: &[Point3<f64>],
+    normals: &[Vector3<f64>],
+    radius_m: f64,
+    max_nn: usize,
+) -> Result<Vec<Fpfh>> {
+    let tree = KdTree::new(points)?;
+    compute_fpfh_with_tree(points, normals, &tree, radius_m, max_nn)
+}
+
+/// [`compute_fpfh`] with a prebuilt tree over exactly `points`.
+pub fn compute_fpfh_with_tree(
+    points: &[Point3<f64>],
+    normals: &[Vector3<f64>],
+    tree: &KdTree,
+    radius_m: f64,
+    max_nn: usize,
+) -> Result<Vec<Fpfh>> {
+    check_search_params(radius_m, max_nn)?;
+    if normals.len() != points.len() || tree.len() != points.len() {
+        return Err(Error::InvalidInput(format!(
+            "{} points, {} normals and a kd-tree of {} points: lengths must agree",
+            points.len(),
+            normals.len(),
+            tree.len()
+        )));
+    }
+    let nbhd = tree.hybrid_neighbourhoods(points, radius_m, max_nn);
+
+    // Simplified histograms, flat: N × 33.
+    let mut spfh = vec![0.0f64; points.len() * FPFH_BINS];
+    spfh.par_chunks_mut(FPFH_BINS)
+        .enumerate()
+        .for_each(|(i, hist)| {
+            let (idx, _) = nbhd.get(i);
+            if idx.len() < 2 {
+                return;
+            }
+            // The first entry is the query point itself (distance 0, nearest first); Open3D skips
+            // the first entry whatever it is, and so do we.
+            let incr = BLOCK_MASS / (idx.len() - 1) as f64;
+            for &j in &idx[1..] {
+                let j = j as usize;
+                let f = pair_features(&points[i], &normals[i], &points[j], &normals[j]);
+                hist[angle_bin(f.theta)] += incr;
+                hist[BINS_PER_FEATURE + unit_bin(f.alpha)] += incr;
+                hist[2 * BINS_PER_FEATURE + unit_bin(f.phi)] += incr;
+            }
+        });
+
+    Ok((0..points.len())
+        .into_par_iter()
+        .map(|i| {
+            let mut out = [0.0f32; FPFH_BINS];
+            let (idx, d2) = nbhd.get(i);
+            if idx.len() < 2 {
+                return out;
+            }
+            let mut acc = [0.0f64; FPFH_BINS];
+            let mut block_sum = [0.0f64; 3];
+            for (&j, &dist_sq) in idx[1..].iter().zip(&d2[1..]) {
+                if dist_sq == 0.0 {
+                    continue;
+                }
+                let neighbour = &spfh[j as usize * FPFH_BINS..(j as usize + 1) * FPFH_BINS];
+                for (b, (a, s)) in acc.iter_mut().zip(neighbour).enumerate() {
+                    let w = s / dist_sq;
+                    *a += w;
+                    block_sum[b / BINS_PER_FEATURE] += w;
+                }
+            }
+            let own = &spfh[i * FPFH_BINS..(i + 1) * FPFH_BINS];
+            for b in 0..FPFH_BINS {
+                let s = block_sum[b / BINS_PER_FEATURE];
+                let scale = if s != 0.0 { BLOCK_MASS / s } else { 0.0 };
+                out[b] = (acc[b] * scale + own[b]) as f32;
+            }
+            out
+        })
+        .collect())
+}
+
+/// The Darboux-frame pair features of Rusu et al. 2009, Sec. II, in Open3D's conventions.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct PairFeatures {
+    /// θ = atan2(w · n_t, u · n_t) ∈ [−π, π].
+    theta: f64,
+    /// α = v · n_t ∈ [−1, 1].
+    alpha: f64,
+    /// φ = u · (p_t − p_s) / d ∈ [−1, 1].
+    phi: f64,
+}
+
+/// Pair features of (p1, n1) and (p2, n2). The source is the point whose normal makes the smaller
+/// angle with the connecting line (Eq. 1 of the paper); the frame is u = n_s, v = d × u / ‖·‖,
+/// w = u × v. Coincident points, or a normal parallel to the connecting line, give all-zero
+/// features (Open3D's convention; they then land in the middle bin of each block).
+///
+/// NOTE: Open3D compares `acos(|cos|)`; we compare `|cos|` directly (equivalent, monotone), which
+/// can only differ where acos rounds two distinct inputs to the same value.
+fn pair_features(
+    p1: &Point3<f64>,
+    n1: &Vector3<f64>,
+    p2: &Point3<f64>,
+    n2: &Vector3<f64>,
+) -> PairFeatures {
+    const ZERO: PairFeatures = PairFeatures {
+        theta: 0.0,
+        alpha: 0.0,
+        phi: 0.0,
+    };
+    let mut d = p2 - p1;
+    let dist = d.norm();
+    if dist == 0.0 {
+        return ZERO;
+    }
+    let cos1 = n1.dot(&d) / dist;
+    let cos2 = n2.dot(&d) / dist;
+    let (ns, nt, phi) = if cos1.abs() < cos2.abs() {
+        d = -d;
+        (n2, n1, -cos2)
+    } else {
+        (n1, n2, cos1)
+    };
+    let v = d.cross(ns);
+    let v_norm = v.norm();
+    if v_norm == 0.0 {
+        return ZERO;
+    }
+    let v = v / v_norm;
+    let w = ns.cross(&v);
+    PairFeatures {
+        theta: w.dot(nt).atan2(ns.dot(nt)),
+        alpha: v.dot(nt),
+        phi,
+    }
+}
+
+/// Bin of an angle in [−π, π] among 11 equal bins (clamped).
+fn angle_bin(theta: f64) -> usize {
+    let b = (BINS_PER_FEATURE as f64 * (theta + std::f64::consts::PI)
+        / (2.0 * std::f64::consts::PI))
+        .floor();
+    clamp_bin(b)
+}
+
+/// Bin of a cosine-like value in [−1, 1] among 11 equal bins (clamped).
+fn unit_bin(x: f64) -> usize {
+    clamp_bin((BINS_PER_FEATURE as f64 * (x + 1.0) * 0.5).floor())
+}
+
+fn clamp_bin(b: f64) -> usize {
+    b.clamp(0.0, (BINS_PER_FEATURE - 1) as f64) as usize
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Isometry3, Rotation3, Translation3, Unit};
+    use rand::{RngExt, SeedableRng};
+    use rand_pcg::Pcg64;
+
+    /// A bumpy closed surface (sphere with a height field) with analytic-ish normals from PCA.
+    fn bumpy_cloud(n: usize, seed: u64) -> (Vec<Point3<f64>>, Vec<Vector3<f64>>) {
+        let mut rng = Pcg64::seed_from_u64(seed);
+        let points: Vec<Point3<f64>> = (0..n)
+            .map(|_| {
+                let d = Vector3::new(
+                    rng.random_range(-1.0..1.0f64),
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                )
+                .normalize();
+                let r = 1.0 + 0.15 * (3.0 * d.x).sin() * (2.0 * d.y).cos() + 0.1 * d.z * d.z;
+                Point3::from(d * r)
+            })
+            .collect();
+        let normals =
+            crate::geometry::estimate_normals(&points, 0.2, 30, Some(Point3::origin())).unwrap();
+        (points, normals)
+    }
+
+    #[test]
+    fn blocks_sum_to_open3d_scale() {
+        let (points, normals) = bumpy_cloud(1500, 61);
+        let f = compute_fpfh(&points, &normals, 0.3, 100).unwrap();
+        for h in &f {
+            for block in h.chunks(BINS_PER_FEATURE) {
+                let s: f32 = block.iter().sum();
+                assert!((s - 200.0).abs() < 1e-3, "block sums to {s}");
+            }
+        }
+    }
+
+    #[test]
+    fn invariant_to_rigid_motion() {
+        let (points, normals) = bumpy_cloud(1500, 71);
+        let mut rng = Pcg64::seed_from_u64(72);
+        let axis = Unit::new_normalize(Vector3::new(0.3, -0.8, 0.5));
+        let motion = Isometry3::from_parts(
+            Translation3::new(
+                rng.random_range(-5.0..5.0),
+                rng.random_range(-5.0..5.0),
+                2.0,
+            ),
+            Rotation3::from_axis_angle(&axis, rng.random_range(0.5..3.0)).into(),
+        );
+        let moved: Vec<Point3<f64>> = points.iter().map(|p| motion * p).collect();
+        let turned: Vec<Vector3<f64>> = normals.iter().map(|n| motion * n).collect();
+        let a = compute_fpfh(&points, &normals, 0.3, 100).unwrap();
+        let b = compute_fpfh(&moved, &turned, 0.3, 100).unwrap();
+        // A rigid motion perturbs coordinates by rounding only; a pair feature can then flip
+        // bins at an exact boundary, so compare by relative L2 distance per descriptor.
+        let mut rel: Vec<f64> = a
+            .iter()
+            .zip(&b)
+            .map(|(x, y)| {
+                let diff: f64 = x
+                    .iter()
+                    .zip(y)
+                    .map(|(p, q)| f64::from(p - q).powi(2))
+                    .sum::<f64>()
+                    .sqrt();
+                let norm: f64 = x.iter().map(|p| f64::from(*p).powi(2)).sum::<f64>().sqrt();
+                diff / norm
+            })
+            .collect();
+        rel.sort_by(f64::total_cmp);
+        assert!(
+            rel[rel.len() / 2] < 1e-4,
+            "median relative diff {}",
+            rel[rel.len() / 2]
+        );
+        assert!(
+            rel[rel.len() * 99 / 100] < 1e-2,
+            "p99 relative diff {}",
+            rel[rel.len() * 99 / 100]
+        );
+    }
+
+    #[test]
+    fn pair_features_of_constructed_configurations() {
+        let o = Point3::origin();
+        // Parallel normals perpendicular to the connecting line: θ = 0, α = 0, φ = 0.
+        let f = pair_features(
+            &o,
+            &Vector3::z(),
+            &Point3::new(1.0, 0.0, 0.0),
+            &Vector3::z(),
+        );
+        assert_eq!((f.theta, f.alpha, f.phi), (0.0, 0.0, 0.0));
+        // Source normal at 45° to the line, target normal tilted about the line:
+        // n1 = (1,0,1)/√2, line = +x => φ = cos 45°; n2 = z: α = v·n2 with v = d × n1 ∝ (0,-1,0)... = 0.
+        let n1 = Vector3::new(1.0, 0.0, 1.0).normalize();
+        let f = pair_features(&o, &n1, &Point3::new(2.0, 0.0, 0.0), &Vector3::z());
+        assert!((f.phi - std::f64::consts::FRAC_1_SQRT_2).abs() < 1e-15);
+        assert!(f.alpha.abs() < 1e-15);
+        // u = n1, w = u × v with v = (0,-1,0): w = (1/√2)(1,0,1)×(0,-1,0) = (1/√2)(1,0,-1);
+        // θ = atan2(w·z, u·z) = atan2(-1/√2, 1/√2) = -π/4.
+        assert!((f.theta + std::f64::consts::FRAC_PI_4).abs() < 1e-15);
+        // Swapped roles: the second normal makes the smaller angle with the line.
+        let g = pair_features(&Point3::new(2.0, 0.0, 0.0), &Vector3::z(), &o, &n1);
+        assert!((g.phi - f.phi).abs() < 1e-15 && (g.theta - f.theta).abs() < 1e-15);
+        // Coincident points: all zero.
+        assert_eq!(
+            pair_features(&o, &n1, &o, &Vector3::z()),
+            PairFeatures {
+                theta: 0.0,
+                alpha: 0.0,
+                phi: 0.0
+            }
+        );
+        // Bin edges.
+        assert_eq!(
+            (
+                angle_bin(-std::f64::consts::PI),
+                angle_bin(std::f64::consts::PI),
+                angle_bin(0.0)
+            ),
+            (0, 10, 5)
+        );
+        assert_eq!((unit_bin(-1.0), unit_bin(1.0), unit_bin(0.0)), (0, 10, 5));
+    }
+
+    #[test]
+    fn isolated_points_are_zero_and_threads_do_not_matter() {
+        let (mut points, mut normals) = bumpy_cloud(800, 81);
+        points.push(Point3::new(10.0, 0.0, 0.0));
+        normals.push(Vector3::z());
+        let run = |t| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(t)
+                .build()
+                .unwrap()
+                .install(|| compute_fpfh(&points, &normals, 0.3, 50).unwrap())
+        };
+        let one = run(1);
+        assert_eq!(one, run(3));
+        assert_eq!(one.last().unwrap(), &[0.0f32; FPFH_BINS]);
+        assert!(matches!(
+            compute_fpfh(&points, &normals[1..], 0.3, 50),
+            Err(Error::InvalidInput(_))
+        ));
+    }
+}

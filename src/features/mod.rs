@@ -1,0 +1,5 @@
+//! Local point descriptors.
+
+pub mod fpfh;
+
+pub use fpfh::{FPFH_BINS, Fpfh, compute_fpfh, compute_fpfh_with_tree};

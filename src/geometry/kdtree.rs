@@ -1,0 +1,291 @@
+//! A small 3-D kd-tree adapter over kiddo's `ImmutableKdTree<f64, 3>`.
+//!
+//! Every query returns neighbours sorted by (squared distance, index), so results are identical
+//! whatever the thread count. Radius queries are strict (`distance < radius`), as in nanoflann,
+//! which Open3D's `KDTreeFlann` wraps.
+
+use std::num::NonZeroUsize;
+
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use nalgebra::Point3;
+use rayon::prelude::*;
+
+use crate::{Error, Result};
+
+/// One neighbour of a query point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Neighbour {
+    /// Index of the neighbour in the slice the tree was built from.
+    pub index: usize,
+    /// Squared Euclidean distance to the query point [m²].
+    pub distance_sq: f64,
+}
+
+/// Neighbourhoods of many query points in one flat (CSR) layout: no per-query allocation survives.
+#[derive(Debug, Clone, Default)]
+pub struct Neighbourhoods {
+    offsets: Vec<usize>,
+    indices: Vec<u32>,
+    distances_sq: Vec<f64>,
+}
+
+impl Neighbourhoods {
+    /// Number of query points.
+    pub fn len(&self) -> usize {
+        self.offsets.len().saturating_sub(1)
+    }
+
+    /// `true` when there are no query points.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Neighbour indices and squared distances [m²] of query `i`, nearest first.
+    pub fn get(&self, i: usize) -> (&[u32], &[f64]) {
+        let range = self.offsets[i]..self.offsets[i + 1];
+        (&self.indices[range.clone()], &self.distances_sq[range])
+    }
+}
+
+/// Kd-tree over a fixed set of 3-D points (coordinates in metres).
+pub struct KdTree {
+    tree: Option<ImmutableKdTree<f64, 3>>,
+    len: usize,
+}
+
+/// Queries processed per rayon task when building [`Neighbourhoods`].
+const QUERY_CHUNK: usize = 256;
+
+impl KdTree {
+    /// Builds the tree. Fails with [`Error::InvalidInput`] on a non-finite coordinate or more than
+    /// `u32::MAX` points. An empty slice gives a tree on which every query returns nothing.
+    pub fn new(points: &[Point3<f64>]) -> Result<Self> {
+        if points.len() > u32::MAX as usize {
+            return Err(Error::InvalidInput(format!(
+                "kd-tree supports at most {} points, got {}",
+                u32::MAX,
+                points.len()
+            )));
+        }
+        if let Some(i) = points
+            .iter()
+            .position(|p| !p.coords.iter().all(|c| c.is_finite()))
+        {
+            return Err(Error::InvalidInput(format!(
+                "point {i} has a non-finite coordinate: {:?}",
+                points[i]
+            )));
+        }
+        if points.is_empty() {
+            return Ok(Self { tree: None, len: 0 });
+        }
+        let coords: Vec<[f64; 3]> = points.iter().map(|p| [p.x, p.y, p.z]).collect();
+        let tree = ImmutableKdTree::new_from_slice(&coords)
+            .map_err(|e| Error::InvalidInput(format!("kd-tree construction failed: {e}")))?;
+        Ok(Self {
+            tree: Some(tree),
+            len: points.len(),
+        })
+    }
+
+    /// Number of points in the tree.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// `true` when the tree holds no point.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// The `k` nearest points to `query`, nearest first (fewer if the tree is smaller).
+    pub fn nearest_k(&self, query: &Point3<f64>, k: usize) -> Vec<Neighbour> {
+        let (Some(tree), Some(k)) = (&self.tree, NonZeroUsize::new(k)) else {
+            return Vec::new();
+        };
+        let q = [query.x, query.y, query.z];
+        let mut out: Vec<Neighbour> = tree
+            .query(&q)
+            .nearest_n::<SquaredEuclidean<f64>>(k)
+            .execute()
+            .into_iter()
+            .map(|r| Neighbour {
+                index: r.item as usize,
+                distance_sq: r.distance,
+            })
+            .collect();
+        sort_neighbours(&mut out);
+        out
+    }
+
+    /// Points strictly closer than `radius_m` to `query`, nearest first, at most `max_nn` of them
+    /// (Open3D's `KDTreeSearchParamHybrid(radius, max_nn)` search). The query point itself is
+    /// included when it is in the tree (distance 0).
+    pub fn within_radius(
+        &self,
+        query: &Point3<f64>,
+        radius_m: f64,
+        max_nn: usize,
+    ) -> Vec<Neighbour> {
+        let (Some(tree), Some(max_nn)) = (&self.tree, NonZeroUsize::new(max_nn)) else {
+            return Vec::new();
+        };
+        let q = [query.x, query.y, query.z];
+        let mut out: Vec<Neighbour> = tree
+            .query(&q)
+            .nearest_n::<SquaredEuclidean<f64>>(max_nn)
+            .within(radius_m * radius_m)
+            .exclusive_boundaries()
+            .execute()
+            .into_iter()
+            .map(|r| Neighbour {
+                index: r.item as usize,
+                distance_sq: r.distance,
+            })
+            .collect();
+        sort_neighbours(&mut out);
+        out
+    }
+
+    /// [`Self::within_radius`] for every point of `queries`, in parallel, stored flat.
+    pub fn hybrid_neighbourhoods(
+        &self,
+        queries: &[Point3<f64>],
+        radius_m: f64,
+        max_nn: usize,
+    ) -> Neighbourhoods {
+        let chunks: Vec<(Vec<usize>, Vec<u32>, Vec<f64>)> = queries
+            .par_chunks(QUERY_CHUNK)
+            .map(|chunk| {
+                let mut counts = Vec::with_capacity(chunk.len());
+                let mut indices = Vec::with_capacity(chunk.len() * max_nn.min(64));
+                let mut distances_sq = Vec::with_capacity(indices.capacity());
+                for q in chunk {
+                    let nn = self.within_radius(q, radius_m, max_nn);
+                    counts.push(nn.len());
+                    for n in nn {
+                        indices.push(n.index as u32);
+                        distances_sq.push(n.distance_sq);
+                    }
+                }
+                (counts, indices, distances_sq)
+            })
+            .collect();
+        let total: usize = chunks.iter().map(|c| c.1.len()).sum();
+        let mut out = Neighbourhoods {
+            offsets: Vec::with_capacity(queries.len() + 1),
+            indices: Vec::with_capacity(total),
+            distances_sq: Vec::with_capacity(total),
+        };
+        out.offsets.push(0);
+        for (counts, indices, distances_sq) in chunks {
+            for c in counts {
+                out.offsets
+                    .push(out.offsets.last().copied().unwrap_or(0) + c);
+            }
+            out.indices.extend_from_slice(&indices);
+            out.distances_sq.extend_from_slice(&distances_sq);
+        }
+        out
+    }
+}
+
+/// Sorts by squared distance, ties by index, so the order never depends on tree internals.
+fn sort_neighbours(nn: &mut [Neighbour]) {
+    nn.sort_unstable_by(|a, b| {
+        a.distance_sq
+            .total_cmp(&b.distance_sq)
+            .then(a.index.cmp(&b.index))
+    });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+    use rand_pcg::Pcg64;
+
+    fn random_cloud(n: usize, seed: u64) -> Vec<Point3<f64>> {
+        let mut rng = Pcg64::seed_from_u64(seed);
+        (0..n)
+            .map(|_| {
+                Point3::new(
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                )
+            })
+            .collect()
+    }
+
+    fn brute_force(points: &[Point3<f64>], q: &Point3<f64>) -> Vec<Neighbour> {
+        let mut all: Vec<Neighbour> = points
+            .iter()
+            .enumerate()
+            .map(|(index, p)| Neighbour {
+                index,
+                distance_sq: (p - q).norm_squared(),
+            })
+            .collect();
+        sort_neighbours(&mut all);
+        all
+    }
+
+    #[test]
+    fn nearest_k_matches_brute_force() {
+        let points = random_cloud(2000, 1);
+        let tree = KdTree::new(&points).unwrap();
+        for q in random_cloud(50, 2) {
+            let expected: Vec<Neighbour> = brute_force(&points, &q).into_iter().take(17).collect();
+            assert_eq!(tree.nearest_k(&q, 17), expected);
+        }
+    }
+
+    #[test]
+    fn within_radius_matches_brute_force_and_caps_at_max_nn() {
+        let points = random_cloud(2000, 3);
+        let tree = KdTree::new(&points).unwrap();
+        let radius = 0.2;
+        let mut capped = 0;
+        for q in random_cloud(50, 4).iter().chain(points.iter().take(50)) {
+            let inside: Vec<Neighbour> = brute_force(&points, q)
+                .into_iter()
+                .filter(|n| n.distance_sq < radius * radius)
+                .collect();
+            assert_eq!(tree.within_radius(q, radius, 10_000), inside);
+            let cap = 5;
+            capped += usize::from(inside.len() > cap);
+            assert_eq!(
+                tree.within_radius(q, radius, cap),
+                inside[..inside.len().min(cap)]
+            );
+        }
+        assert!(capped > 10, "test must exercise the max_nn cap");
+    }
+
+    #[test]
+    fn hybrid_neighbourhoods_equal_single_queries() {
+        let points = random_cloud(1000, 5);
+        let tree = KdTree::new(&points).unwrap();
+        let nbhd = tree.hybrid_neighbourhoods(&points, 0.15, 30);
+        assert_eq!(nbhd.len(), points.len());
+        for (i, p) in points.iter().enumerate() {
+            let single = tree.within_radius(p, 0.15, 30);
+            let (idx, d2) = nbhd.get(i);
+            assert_eq!(idx.len(), single.len());
+            assert_eq!(idx[0] as usize, i, "a point is its own nearest neighbour");
+            for (k, n) in single.iter().enumerate() {
+                assert_eq!((idx[k] as usize, d2[k]), (n.index, n.distance_sq));
+            }
+        }
+    }
+
+    #[test]
+    fn empty_and_invalid_inputs() {
+        let tree = KdTree::new(&[]).unwrap();
+        assert!(tree.within_radius(&Point3::origin(), 1.0, 10).is_empty());
+        assert!(tree.nearest_k(&Point3::origin(), 3).is_empty());
+        let bad = [Point3::new(0.0, f64::NAN, 0.0)];
+        assert!(matches!(KdTree::new(&bad), Err(Error::InvalidInput(_))));
+    }
+}

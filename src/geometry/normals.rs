@@ -1,0 +1,374 @@
+//! Surface normals by PCA over a hybrid (radius + max count) neighbourhood, as Open3D's
+//! `PointCloud::estimate_normals(KDTreeSearchParamHybrid(radius, max_nn))`.
+
+use nalgebra::{Matrix3, Point3, Vector3};
+use rayon::prelude::*;
+
+use super::kdtree::KdTree;
+use crate::{Error, Result};
+
+/// Normal given to a point whose neighbourhood cannot define a plane (fewer than
+/// [`MIN_NEIGHBOURS`] neighbours, or all neighbours coincident): +z, as Open3D.
+pub const FALLBACK_NORMAL: Vector3<f64> = Vector3::new(0.0, 0.0, 1.0);
+
+/// Fewest neighbours (the query point included) for which a covariance is computed (Open3D: 3).
+pub const MIN_NEIGHBOURS: usize = 3;
+
+/// Estimates one unit normal per point.
+///
+/// For each point, the neighbourhood is every point strictly within `radius_m` [m], at most the
+/// `max_nn` nearest (the point itself included), exactly Open3D's `KDTreeSearchParamHybrid`; the
+/// normal is the eigenvector of the smallest eigenvalue of the neighbourhood covariance. Open3D's
+/// defaults in registration pipelines: `radius_m = 2 * voxel`, `max_nn = 30`.
+///
+/// Orientation:
+/// - `towards_sensor = Some(o)`: each normal is flipped to point towards `o` (`n · (o − p) ≥ 0`),
+///   as Open3D's `orient_normals_towards_camera_location(o)`.
+/// - `None`: Open3D's default for a cloud without normals, which is *no* orientation: the sign is
+///   whatever its closed-form eigen solver yields. [`smallest_eigenvector`] follows the same
+///   algorithm and sign conventions, so signs agree with Open3D except at numerical near-ties.
+///
+/// Points with fewer than [`MIN_NEIGHBOURS`] neighbours, or whose neighbours all coincide, get
+/// [`FALLBACK_NORMAL`] (then oriented if requested), as in Open3D.
+///
+/// Runs in parallel (rayon); the result does not depend on the thread count.
+///
+/// Errors: [`Error::InvalidInput`] for a non-finite point, `radius_m` not finite and positive, or
+/// `max_nn == 0`.
+pub fn estimate_normals(
+    points: &[Point3<f64>],
+    radius_m: f64,
+    max_nn: usize,
+    towards_sensor: Option<Point3<f64>>,
+) -> Result<Vec<Vector3<f64>>> {
+    let tree = KdTree::new(points)?;
+    estimate_normals_with_tree(points, &tree, radius_m, max_nn, towards_sensor)
+}
+
+/// [`estimate_normals`] with a prebuilt tree over exactly `points` (reuse it for features).
+pub fn estimate_normals_with_tree(
+    points: &[Point3<f64>],
+    tree: &KdTree,
+    radius_m: f64,
+    max_nn: usize,
+    towards_sensor: Option<Point3<f64>>,
+) -> Result<Vec<Vector3<f64>>> {
+    check_search_params(radius_m, max_nn)?;
+    if tree.len() != points.len() {
+        return Err(Error::InvalidInput(format!(
+            "kd-tree holds {} points but {} were given",
+            tree.len(),
+            points.len()
+        )));
+    }
+    Ok(points
+        .par_iter()
+        .map(|p| {
+            let nn = tree.within_radius(p, radius_m, max_nn);
+            let normal = if nn.len() < MIN_NEIGHBOURS {
+                FALLBACK_NORMAL
+            } else {
+                let cov = covariance(points, nn.iter().map(|n| n.index));
+                smallest_eigenvector(&cov).unwrap_or(FALLBACK_NORMAL)
+            };
+            match towards_sensor {
+                Some(o) if normal.dot(&(o - p)) < 0.0 => -normal,
+                _ => normal,
+            }
+        })
+        .collect())
+}
+
+/// Validates a hybrid search's radius [m] and neighbour cap.
+pub(crate) fn check_search_params(radius_m: f64, max_nn: usize) -> Result<()> {
+    if !(radius_m.is_finite() && radius_m > 0.0) {
+        return Err(Error::InvalidInput(format!(
+            "radius_m must be finite and > 0, got {radius_m}"
+        )));
+    }
+    if max_nn == 0 {
+        return Err(Error::InvalidInput("max_nn must be > 0".into()));
+    }
+    Ok(())
+}
+
+/// Population covariance (divided by n) of the indexed points.
+///
+/// NOTE: Open3D accumulates raw moments (E[xxᵀ] − E[x]E[x]ᵀ), which cancels catastrophically far
+/// from the origin (map-frame robotics clouds); we centre on the mean first. The matrices agree to
+/// rounding near the origin.
+fn covariance(
+    points: &[Point3<f64>],
+    indices: impl Iterator<Item = usize> + Clone,
+) -> Matrix3<f64> {
+    let mut mean = Vector3::zeros();
+    let mut n = 0usize;
+    for i in indices.clone() {
+        mean += points[i].coords;
+        n += 1;
+    }
+    mean /= n as f64;
+    let mut cov = Matrix3::zeros();
+    for i in indices {
+        let d = points[i].coords - mean;
+        cov += d * d.transpose();
+    }
+    cov / n as f64
+}
+
+/// Unit eigenvector of the smallest eigenvalue of a symmetric 3×3 matrix, `None` for the zero
+/// matrix.
+///
+/// Closed form after D. Eberly, "A Robust Eigensolver for 3×3 Symmetric Matrices" (Geometric
+/// Tools, 2014), the algorithm Open3D's `FastEigen3x3` implements: eigenvalues from the
+/// trigonometric solution of the characteristic cubic of the scaled, shifted matrix; the
+/// well-separated extreme eigenvector from the largest cross product of two rows of `A − λI`; the
+/// middle one from a 2×2 null space in the plane orthogonal to it; the third as a cross product.
+/// Accurate to ~1e-15 also for repeated eigenvalues (planes, lines). The sign conventions follow
+/// the paper (and Open3D), which fixes the sign of unoriented normals.
+pub fn smallest_eigenvector(a: &Matrix3<f64>) -> Option<Vector3<f64>> {
+    let scale = a.amax();
+    if scale == 0.0 || !scale.is_finite() {
+        return None;
+    }
+    let a = a / scale;
+    let off = a[(0, 1)].powi(2) + a[(0, 2)].powi(2) + a[(1, 2)].powi(2);
+    if off == 0.0 {
+        // Diagonal: the axis of the strictly smallest diagonal entry, z on ties (Open3D's order).
+        let d = a.diagonal();
+        return Some(if d.x < d.y && d.x < d.z {
+            Vector3::x()
+        } else if d.y < d.x && d.y < d.z {
+            Vector3::y()
+        } else {
+            Vector3::z()
+        });
+    }
+    let q = a.trace() / 3.0;
+    let b = a - Matrix3::identity() * q;
+    let p = ((b[(0, 0)].powi(2) + b[(1, 1)].powi(2) + b[(2, 2)].powi(2) + 2.0 * off) / 6.0).sqrt();
+    let half_det = (0.5 * b.determinant() / (p * p * p)).clamp(-1.0, 1.0);
+    let angle = half_det.acos() / 3.0;
+    const TWO_THIRDS_PI: f64 = 2.0 * std::f64::consts::FRAC_PI_3;
+    let beta_hi = 2.0 * angle.cos();
+    let beta_lo = 2.0 * (angle + TWO_THIRDS_PI).cos();
+    let beta_mid = -(beta_lo + beta_hi);
+    let (lo, mid, hi) = (q + p * beta_lo, q + p * beta_mid, q + p * beta_hi);
+
+    // The eigenvalue farther from the middle one is well separated: solve for it directly.
+    if half_det >= 0.0 {
+        let v_hi = isolated_eigenvector(&a, hi);
+        if hi < lo && hi < mid {
+            return Some(v_hi);
+        }
+        let v_mid = second_eigenvector(&a, &v_hi, mid);
+        if mid < lo && mid < hi {
+            return Some(v_mid);
+        }
+        Some(v_mid.cross(&v_hi))
+    } else {
+        let v_lo = isolated_eigenvector(&a, lo);
+        if lo < mid && lo < hi {
+            return Some(v_lo);
+        }
+        let v_mid = second_eigenvector(&a, &v_lo, mid);
+        if mid < lo && mid < hi {
+            return Some(v_mid);
+        }
+        Some(v_lo.cross(&v_mid))
+    }
+}
+
+/// Eigenvector of a simple eigenvalue `lambda`: the longest cross product of two rows of
+/// `A − λI` (the first of equal ones).
+fn isolated_eigenvector(a: &Matrix3<f64>, lambda: f64) -> Vector3<f64> {
+    let m = a - Matrix3::identity() * lambda;
+    let (r0, r1, r2) = (
+        m.row(0).transpose(),
+        m.row(1).transpose(),
+        m.row(2).transpose(),
+    );
+    let candidates = [r0.cross(&r1), r0.cross(&r2), r1.cross(&r2)];
+    let mut best = candidates[0];
+    let mut best_sq = best.norm_squared();
+    for c in &candidates[1..] {
+        let sq = c.norm_squared();
+        if sq > best_sq {
+            best = *c;
+            best_sq = sq;
+        }
+    }
+    best / best_sq.sqrt()
+}
+
+/// Eigenvector of `lambda` orthogonal to the known unit eigenvector `w`: the null vector of the
+/// 2×2 restriction of `A − λI` to an orthonormal basis (u, v) of w's orthogonal plane.
+fn second_eigenvector(a: &Matrix3<f64>, w: &Vector3<f64>, lambda: f64) -> Vector3<f64> {
+    let u = if w.x.abs() > w.y.abs() {
+        Vector3::new(-w.z, 0.0, w.x) / (w.x * w.x + w.z * w.z).sqrt()
+    } else {
+        Vector3::new(0.0, w.z, -w.y) / (w.y * w.y + w.z * w.z).sqrt()
+    };
+    let v = w.cross(&u);
+    let (au, av) = (a * u, a * v);
+    let m00 = u.dot(&au) - lambda;
+    let m01 = u.dot(&av);
+    let m11 = v.dot(&av) - lambda;
+    // Take the row with the larger diagonal; its null direction is (row[1], −row[0]), signed by
+    // the row's dominant entry (ties to the diagonal), as in Eberly's normalisation.
+    let (row, diag_first) = if m00.abs() >= m11.abs() {
+        ((m00, m01), true)
+    } else {
+        ((m01, m11), false)
+    };
+    let len = row.0.hypot(row.1);
+    if len == 0.0 {
+        return u;
+    }
+    let (diag, other) = if diag_first {
+        (row.0, row.1)
+    } else {
+        (row.1, row.0)
+    };
+    let sign = if diag.abs() >= other.abs() {
+        diag.signum()
+    } else {
+        other.signum()
+    };
+    (u * row.1 - v * row.0) * (sign / len)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Rotation3, Unit};
+    use rand::{RngExt, SeedableRng};
+    use rand_pcg::Pcg64;
+
+    #[test]
+    fn eigenvector_matches_a_constructed_spectrum() {
+        let mut rng = Pcg64::seed_from_u64(21);
+        for _ in 0..500 {
+            let axis = Unit::new_normalize(Vector3::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+            ));
+            let r = Rotation3::from_axis_angle(&axis, rng.random_range(0.0..6.0));
+            // Distinct, repeated-large (plane) and all-but-one-zero (line) spectra.
+            let smallest: f64 = rng.random_range(0.0..1e-3);
+            let spectra = [[smallest, 0.3, 1.0], [smallest, 1.0, 1.0], [0.0, 0.0, 1.0]];
+            for (k, s) in spectra.iter().enumerate() {
+                let m = r.matrix()
+                    * Matrix3::from_diagonal(&Vector3::from(*s))
+                    * r.matrix().transpose();
+                let v = smallest_eigenvector(&m).unwrap();
+                assert!((v.norm() - 1.0).abs() < 1e-12);
+                if k < 2 {
+                    let expected = r.matrix().column(0);
+                    assert!(
+                        v.dot(&expected).abs() > 1.0 - 1e-10,
+                        "spectrum {s:?}: {v} vs {expected}"
+                    );
+                } else {
+                    // Double zero eigenvalue: any unit vector orthogonal to the third column.
+                    assert!(v.dot(&r.matrix().column(2)).abs() < 1e-10);
+                }
+            }
+        }
+        assert_eq!(smallest_eigenvector(&Matrix3::zeros()), None);
+        assert_eq!(
+            smallest_eigenvector(&Matrix3::from_diagonal(&Vector3::new(2.0, 1.0, 3.0))),
+            Some(Vector3::y())
+        );
+    }
+
+    #[test]
+    fn plane_gives_its_exact_normal() {
+        // Random points on the plane through c with unit normal n, jittered only in-plane.
+        let mut rng = Pcg64::seed_from_u64(31);
+        let n = Vector3::new(1.0, -2.0, 0.5).normalize();
+        let u = n.cross(&Vector3::z()).normalize();
+        let v = n.cross(&u);
+        let c = Point3::new(0.3, -0.1, 2.0);
+        let points: Vec<Point3<f64>> = (0..2000)
+            .map(|_| c + u * rng.random_range(-1.0..1.0) + v * rng.random_range(-1.0..1.0))
+            .collect();
+        let sensor = c + n * 3.0;
+        let normals = estimate_normals(&points, 0.1, 30, Some(sensor)).unwrap();
+        for m in &normals {
+            assert!((m - n).norm() < 1e-9, "{m} vs {n}");
+        }
+        let away = estimate_normals(&points, 0.1, 30, Some(c - n * 3.0)).unwrap();
+        assert!(away.iter().all(|m| (m + n).norm() < 1e-9));
+    }
+
+    #[test]
+    fn sphere_normals_are_radial_and_oriented() {
+        let mut rng = Pcg64::seed_from_u64(41);
+        let centre = Point3::new(1.0, 2.0, -0.5);
+        let radius = 0.8;
+        let points: Vec<Point3<f64>> = (0..4000)
+            .map(|_| {
+                let d = Vector3::new(
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                );
+                centre + d.normalize() * radius
+            })
+            .filter(|p| p.coords.iter().all(|c: &f64| c.is_finite()))
+            .collect();
+        // Sensor at the centre: normals point inward.
+        let inward = estimate_normals(&points, 0.15, 30, Some(centre)).unwrap();
+        for (p, m) in points.iter().zip(&inward) {
+            let radial = (p - centre).normalize();
+            assert!(m.dot(&radial) < -0.995, "{m} vs {radial}");
+        }
+        // Unoriented: parallel to the radial direction, either sign.
+        let free = estimate_normals(&points, 0.15, 30, None).unwrap();
+        for (p, m) in points.iter().zip(&free) {
+            assert!(m.dot(&(p - centre).normalize()).abs() > 0.995);
+        }
+    }
+
+    #[test]
+    fn isolated_points_get_the_fallback_and_output_is_thread_independent() {
+        let points = [
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(0.01, 0.0, 0.0),
+            Point3::new(5.0, 0.0, 0.0),
+        ];
+        let n = estimate_normals(&points, 0.1, 30, None).unwrap();
+        assert_eq!(n, vec![FALLBACK_NORMAL; 3]);
+        let n = estimate_normals(&points, 0.1, 30, Some(Point3::new(0.0, 0.0, -1.0))).unwrap();
+        assert_eq!(n[2], -FALLBACK_NORMAL);
+        assert!(matches!(
+            estimate_normals(&points, 0.0, 30, None),
+            Err(Error::InvalidInput(_))
+        ));
+        assert!(matches!(
+            estimate_normals(&points, 0.1, 0, None),
+            Err(Error::InvalidInput(_))
+        ));
+
+        let mut rng = Pcg64::seed_from_u64(51);
+        let cloud: Vec<Point3<f64>> = (0..5000)
+            .map(|_| {
+                Point3::new(
+                    rng.random_range(0.0..1.0),
+                    rng.random_range(0.0..1.0),
+                    rng.random_range(0.0..0.05),
+                )
+            })
+            .collect();
+        let run = |t| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(t)
+                .build()
+                .unwrap()
+                .install(|| estimate_normals(&cloud, 0.05, 30, None).unwrap())
+        };
+        assert_eq!(run(1), run(3));
+    }
+}
