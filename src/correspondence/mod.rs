@@ -1,0 +1,3 @@
+//! Putative correspondences between source and target features.
+
+pub mod matching;
