@@ -592,6 +592,8 @@ mod tests {
                 registration_icp_point_to_plane(&source, &forward_target, &init, &config).unwrap();
             let (rot_deg, trans_m) = pose_error(&forward.target_from_source, &target_from_source);
             assert!(forward.converged, "{forward:?}");
+            // Gauss-Newton on exact data converges quadratically: a handful of updates.
+            assert!(forward.iterations <= 10, "{forward:?}");
             assert!(
                 rot_deg < 0.01 && trans_m < 1e-4,
                 "{rot_deg} deg {trans_m} m"
@@ -604,6 +606,7 @@ mod tests {
                     .unwrap();
             let (rot_deg, trans_m) = pose_error(&inverse.target_from_source, &source_from_target);
             assert!(inverse.converged, "{inverse:?}");
+            assert!(inverse.iterations <= 10, "{inverse:?}");
             assert!(
                 rot_deg < 0.01 && trans_m < 1e-4,
                 "{rot_deg} deg {trans_m} m"
