@@ -99,17 +99,15 @@ pub fn match_features_with(source: &[Fpfh], target: &[Fpfh], config: &MatchConfi
     let count_radius_sq = config.count_radius.map(|r| r * r);
     let scans = match config.method {
         MatchMethod::BruteForce => {
-            let source_rows = pad_rows(source);
-            let target_rows = pad_rows(target);
-            let scans = scan_all(&source_rows, &target_rows, count_radius_sq);
+            let scans = scan_all(source, &to_blocks(target), count_radius_sq);
             if config.mutual {
                 // Reverse search only for targets that some source picked.
                 let mut picked: Vec<u32> = scans.iter().map(|s| s.best_index).collect();
                 picked.sort_unstable();
                 picked.dedup();
-                let picked_rows: Vec<Row> =
-                    picked.iter().map(|&j| target_rows[j as usize]).collect();
-                let reverse = scan_all(&picked_rows, &source_rows, None);
+                let picked_descriptors: Vec<Fpfh> =
+                    picked.iter().map(|&j| target[j as usize]).collect();
+                let reverse = scan_all(&picked_descriptors, &to_blocks(source), None);
                 return collect(scans, config, |i, j| {
                     let k = picked.binary_search(&j).expect("picked target");
                     reverse[k].best_index == i
@@ -142,7 +140,7 @@ pub fn count_within(source: &[Fpfh], target: &[Fpfh], radius: f32) -> Vec<u32> {
     if target.is_empty() {
         return vec![0; source.len()];
     }
-    let scans = scan_all(&pad_rows(source), &pad_rows(target), Some(radius * radius));
+    let scans = scan_all(source, &to_blocks(target), Some(radius * radius));
     scans.iter().map(|s| s.count).collect()
 }
 
@@ -200,91 +198,106 @@ fn collect(scans: Vec<Scan>, config: &MatchConfig, keep: impl Fn(u32, u32) -> bo
 // ---------------------------------------------------------------------------------------------
 // Brute force
 
-/// Floats per padded row: 33 rounded up to a multiple of [`LANES`].
-const ROW: usize = 40;
-/// Independent accumulators in the distance kernel (one AVX register, two SSE registers).
+/// Database descriptors per block, stored dimension-major so one vector register holds the same
+/// dimension of `LANES` descriptors: distances to `LANES` descriptors come out of the lanes with
+/// no horizontal sums.
 const LANES: usize = 8;
-/// Query rows scanned together, so each target row is read once per tile.
+/// Query descriptors scanned together (each loaded block serves all of them).
 const TILE: usize = 4;
-/// Query rows per parallel work unit.
-const WORK_ROWS: usize = 32;
+/// Query descriptors per parallel work unit.
+const WORK_QUERIES: usize = 64;
+/// Database blocks per cache chunk (256 × 1056 B ≈ 270 kB, fits L2): every query of a work unit
+/// is scanned against one chunk before moving to the next.
+const CHUNK_BLOCKS: usize = 256;
 
-#[derive(Clone, Copy)]
-#[repr(C, align(32))]
-struct Row([f32; ROW]);
+/// `LANES` database descriptors, dimension-major. Unused lanes hold +∞ (distance +∞: never
+/// nearest, never counted).
+type Block = [[f32; LANES]; FPFH_DIM];
 
-fn pad_rows(descriptors: &[Fpfh]) -> Vec<Row> {
+fn to_blocks(descriptors: &[Fpfh]) -> Vec<Block> {
     descriptors
-        .iter()
-        .map(|d| {
-            let mut row = [0.0; ROW];
-            row[..FPFH_DIM].copy_from_slice(d);
-            Row(row)
+        .chunks(LANES)
+        .map(|chunk| {
+            let mut block = [[f32::INFINITY; LANES]; FPFH_DIM];
+            for (l, d) in chunk.iter().enumerate() {
+                for (dim, &v) in d.iter().enumerate() {
+                    block[dim][l] = v;
+                }
+            }
+            block
         })
         .collect()
 }
 
-/// Squared Euclidean distance with a fixed summation order (lane-wise, then a fixed tree), so
-/// the result is the same whatever vector width the compiler picks.
+/// Squared distances from `TILE` queries to the `LANES` descriptors of `block`, each summed
+/// over dimensions 0..33 in order (the same as a sequential scalar loop, whatever the vector
+/// width).
 #[inline(always)]
-fn squared_distance(a: &Row, b: &Row) -> f32 {
-    let mut acc = [0.0f32; LANES];
-    for c in 0..ROW / LANES {
-        for l in 0..LANES {
-            let d = a.0[c * LANES + l] - b.0[c * LANES + l];
-            acc[l] += d * d;
+fn tile_distances(queries: &[Fpfh; TILE], block: &Block) -> [[f32; LANES]; TILE] {
+    let mut acc = [[0.0f32; LANES]; TILE];
+    for (dim, t) in block.iter().enumerate() {
+        for k in 0..TILE {
+            let q = queries[k][dim];
+            for l in 0..LANES {
+                let x = q - t[l];
+                acc[k][l] += x * x;
+            }
         }
     }
-    ((acc[0] + acc[4]) + (acc[2] + acc[6])) + ((acc[1] + acc[5]) + (acc[3] + acc[7]))
+    acc
 }
 
 #[inline(always)]
-fn scan_rows_generic(queries: &[Row], targets: &[Row], radius_sq: f32, out: &mut [Scan]) {
-    let mut q = 0;
-    while q + TILE <= queries.len() {
-        let tile: &[Row; TILE] = queries[q..q + TILE].try_into().expect("tile");
-        let mut state = [Scan::EMPTY; TILE];
-        for (j, t) in targets.iter().enumerate() {
+fn scan_generic(queries: &[Fpfh], blocks: &[Block], radius_sq: f32, out: &mut [Scan]) {
+    let mut tile = [[0.0f32; FPFH_DIM]; TILE];
+    for (c, chunk) in blocks.chunks(CHUNK_BLOCKS).enumerate() {
+        let first_block = c * CHUNK_BLOCKS;
+        for (qs, states) in queries.chunks(TILE).zip(out.chunks_mut(TILE)) {
+            // A short last tile repeats its last query; the extra results are dropped.
             for k in 0..TILE {
-                state[k].offer(j as u32, squared_distance(&tile[k], t), radius_sq);
+                tile[k] = qs[k.min(qs.len() - 1)];
             }
+            let mut local = [Scan::EMPTY; TILE];
+            local[..states.len()].copy_from_slice(states);
+            for (b, block) in chunk.iter().enumerate() {
+                let base = ((first_block + b) * LANES) as u32;
+                let d = tile_distances(&tile, block);
+                for k in 0..TILE {
+                    for l in 0..LANES {
+                        local[k].offer(base + l as u32, d[k][l], radius_sq);
+                    }
+                }
+            }
+            states.copy_from_slice(&local[..states.len()]);
         }
-        out[q..q + TILE].copy_from_slice(&state);
-        q += TILE;
-    }
-    for (query, slot) in queries[q..].iter().zip(&mut out[q..]) {
-        let mut state = Scan::EMPTY;
-        for (j, t) in targets.iter().enumerate() {
-            state.offer(j as u32, squared_distance(query, t), radius_sq);
-        }
-        *slot = state;
     }
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn scan_rows_avx2(queries: &[Row], targets: &[Row], radius_sq: f32, out: &mut [Scan]) {
-    scan_rows_generic(queries, targets, radius_sq, out)
+fn scan_avx2(queries: &[Fpfh], blocks: &[Block], radius_sq: f32, out: &mut [Scan]) {
+    scan_generic(queries, blocks, radius_sq, out)
 }
 
-fn scan_rows(queries: &[Row], targets: &[Row], radius_sq: f32, out: &mut [Scan]) {
+fn scan(queries: &[Fpfh], blocks: &[Block], radius_sq: f32, out: &mut [Scan]) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU supports AVX2 (checked above).
-        unsafe { scan_rows_avx2(queries, targets, radius_sq, out) };
+        unsafe { scan_avx2(queries, blocks, radius_sq, out) };
         return;
     }
-    scan_rows_generic(queries, targets, radius_sq, out)
+    scan_generic(queries, blocks, radius_sq, out)
 }
 
-/// Nearest, second nearest and (if `radius_sq` is set) neighbour count for every query row.
-fn scan_all(queries: &[Row], targets: &[Row], radius_sq: Option<f32>) -> Vec<Scan> {
+/// Nearest, second nearest and (if `radius_sq` is set) neighbour count of every query among
+/// the database `blocks`.
+fn scan_all(queries: &[Fpfh], blocks: &[Block], radius_sq: Option<f32>) -> Vec<Scan> {
     // Without a radius, count nothing: −∞ never satisfies `d <= radius_sq`.
     let radius_sq = radius_sq.unwrap_or(f32::NEG_INFINITY);
     let mut out = vec![Scan::EMPTY; queries.len()];
-    out.par_chunks_mut(WORK_ROWS)
-        .zip(queries.par_chunks(WORK_ROWS))
-        .for_each(|(out, queries)| scan_rows(queries, targets, radius_sq, out));
+    out.par_chunks_mut(WORK_QUERIES)
+        .zip(queries.par_chunks(WORK_QUERIES))
+        .for_each(|(out, queries)| scan(queries, blocks, radius_sq, out));
     out
 }
 
