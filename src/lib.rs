@@ -13,6 +13,7 @@ pub mod features;
 pub mod geometry;
 pub mod io;
 pub mod ransac;
+pub mod refine;
 pub mod simulate;
 
 pub use error::{Error, Result};

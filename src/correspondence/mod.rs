@@ -1,3 +1,4 @@
 //! Putative correspondences: matching in feature space and ranking by how likely each is an inlier.
 
+pub mod matching;
 pub mod ranking;

@@ -1,0 +1,777 @@
+//! Point-to-plane ICP, following Open3D's `registration_icp` with
+//! `TransformationEstimationPointToPlane` and `ICPConvergenceCriteria`.
+//!
+//! Each iteration pairs every source point (moved by the current `target_from_source`) with its
+//! nearest target point, keeps pairs closer than `max_correspondence_distance_m`, and minimises the
+//! point-to-plane error `Σ w_i ((T s_i − q_i) · n_i)²` of Chen & Medioni ("Object modelling by
+//! registration of multiple range images", 1992), linearised with the small-angle approximation of
+//! Low ("Linear least-squares optimization for point-to-plane ICP surface registration", TR04-004,
+//! UNC 2004): `R ≈ I + [ω]ₓ`, which makes the residual linear in `x = (ω, t)`:
+//! `r_i(x) ≈ r_i + (p_i × n_i) · ω + n_i · t` with `p_i = T s_i`.
+
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
+use rayon::prelude::*;
+
+use crate::{Error, Result};
+
+/// Default [`IcpConfig::max_iterations`] (Open3D's `ICPConvergenceCriteria` default).
+pub const DEFAULT_MAX_ITERATIONS: usize = 30;
+/// Default [`IcpConfig::relative_fitness`] (Open3D's default), dimensionless.
+pub const DEFAULT_RELATIVE_FITNESS: f64 = 1e-6;
+/// Default [`IcpConfig::relative_rmse`] (Open3D's default), metres.
+pub const DEFAULT_RELATIVE_RMSE_M: f64 = 1e-6;
+
+/// Source points per work unit of the parallel correspondence pass. Partial sums are formed per
+/// chunk and added in chunk order, so results are bit-identical for any number of threads.
+const CHUNK_POINTS: usize = 512;
+
+/// Robust kernel applied to point-to-plane residuals as iteratively reweighted least squares
+/// (same weight functions as Open3D's `robust_kernel`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum RobustKernel {
+    /// Plain least squares: every inlier has weight 1.
+    L2,
+    /// Huber: weight 1 for `|r| ≤ scale_m`, `scale_m / |r|` beyond.
+    Huber {
+        /// Residual at which the loss turns linear [m].
+        scale_m: f64,
+    },
+    /// Tukey biweight: weight `(1 − (r/scale_m)²)²` for `|r| ≤ scale_m`, 0 beyond.
+    Tukey {
+        /// Residual beyond which a correspondence is ignored [m].
+        scale_m: f64,
+    },
+}
+
+impl RobustKernel {
+    /// IRLS weight of a residual `residual_m` [m].
+    pub fn weight(&self, residual_m: f64) -> f64 {
+        let r = residual_m.abs();
+        match *self {
+            RobustKernel::L2 => 1.0,
+            RobustKernel::Huber { scale_m } => {
+                if r <= scale_m {
+                    1.0
+                } else {
+                    scale_m / r
+                }
+            }
+            RobustKernel::Tukey { scale_m } => {
+                if r <= scale_m {
+                    let u = r / scale_m;
+                    (1.0 - u * u).powi(2)
+                } else {
+                    0.0
+                }
+            }
+        }
+    }
+
+    fn validate(&self) -> Result<()> {
+        match *self {
+            RobustKernel::L2 => Ok(()),
+            RobustKernel::Huber { scale_m } | RobustKernel::Tukey { scale_m } => {
+                if scale_m.is_finite() && scale_m > 0.0 {
+                    Ok(())
+                } else {
+                    Err(Error::InvalidInput(format!(
+                        "robust kernel scale must be finite and > 0 m, got {scale_m}"
+                    )))
+                }
+            }
+        }
+    }
+}
+
+/// Configuration of [`registration_icp_point_to_plane`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IcpConfig {
+    /// Source/target pairs farther apart than this (point-to-point, after moving the source) are
+    /// not correspondences [m]. No default: it depends on the data (Open3D requires it too).
+    pub max_correspondence_distance_m: f64,
+    /// Maximum number of transformation updates. Default: [`DEFAULT_MAX_ITERATIONS`] (`30`).
+    pub max_iterations: usize,
+    /// Stop when fitness changes by less than this between iterations (together with
+    /// [`Self::relative_rmse`]). Dimensionless. Default: [`DEFAULT_RELATIVE_FITNESS`] (`1e-6`).
+    pub relative_fitness: f64,
+    /// Stop when the inlier RMSE changes by less than this between iterations (together with
+    /// [`Self::relative_fitness`]). Despite Open3D's name this is an absolute change [m].
+    /// Default: [`DEFAULT_RELATIVE_RMSE_M`] (`1e-6` m).
+    pub relative_rmse: f64,
+    /// Weighting of residuals. Default: [`RobustKernel::L2`].
+    pub robust_kernel: RobustKernel,
+}
+
+impl IcpConfig {
+    /// Open3D's defaults with the given correspondence distance [m].
+    pub fn new(max_correspondence_distance_m: f64) -> Self {
+        Self {
+            max_correspondence_distance_m,
+            max_iterations: DEFAULT_MAX_ITERATIONS,
+            relative_fitness: DEFAULT_RELATIVE_FITNESS,
+            relative_rmse: DEFAULT_RELATIVE_RMSE_M,
+            robust_kernel: RobustKernel::L2,
+        }
+    }
+
+    /// Sets [`Self::max_iterations`]. Default: `30`.
+    #[must_use]
+    pub fn max_iterations(mut self, max_iterations: usize) -> Self {
+        self.max_iterations = max_iterations;
+        self
+    }
+
+    /// Sets [`Self::relative_fitness`]. Default: `1e-6`.
+    #[must_use]
+    pub fn relative_fitness(mut self, relative_fitness: f64) -> Self {
+        self.relative_fitness = relative_fitness;
+        self
+    }
+
+    /// Sets [`Self::relative_rmse`] [m]. Default: `1e-6`.
+    #[must_use]
+    pub fn relative_rmse(mut self, relative_rmse_m: f64) -> Self {
+        self.relative_rmse = relative_rmse_m;
+        self
+    }
+
+    /// Sets [`Self::robust_kernel`]. Default: [`RobustKernel::L2`].
+    #[must_use]
+    pub fn robust_kernel(mut self, robust_kernel: RobustKernel) -> Self {
+        self.robust_kernel = robust_kernel;
+        self
+    }
+
+    fn validate(&self) -> Result<()> {
+        let d = self.max_correspondence_distance_m;
+        if !(d.is_finite() && d > 0.0) {
+            return Err(Error::InvalidInput(format!(
+                "max_correspondence_distance_m must be finite and > 0, got {d}"
+            )));
+        }
+        if !(self.relative_fitness >= 0.0 && self.relative_rmse >= 0.0) {
+            return Err(Error::InvalidInput(format!(
+                "convergence thresholds must be >= 0, got relative_fitness {} relative_rmse {}",
+                self.relative_fitness, self.relative_rmse
+            )));
+        }
+        self.robust_kernel.validate()
+    }
+}
+
+/// Outcome of [`registration_icp_point_to_plane`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IcpResult {
+    /// Estimated pose mapping source-frame points into the target frame.
+    pub target_from_source: Isometry3<f64>,
+    /// Inlier correspondences / source points at `target_from_source`, in [0, 1] (Open3D's
+    /// `fitness`).
+    pub fitness: f64,
+    /// Root mean square point-to-point distance over the inlier correspondences at
+    /// `target_from_source` [m]; 0 when there are none (Open3D's `inlier_rmse`).
+    pub inlier_rmse_m: f64,
+    /// Number of transformation updates applied.
+    pub iterations: usize,
+    /// Whether the fitness/RMSE changes fell below the thresholds before `max_iterations`.
+    pub converged: bool,
+}
+
+/// Fitness and inlier RMSE of a pose, as Open3D's `evaluate_registration`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RegistrationEvaluation {
+    /// Inlier correspondences / source points, in [0, 1].
+    pub fitness: f64,
+    /// RMSE of point-to-point distances over inliers [m]; 0 when there are none.
+    pub inlier_rmse_m: f64,
+    /// Number of source points whose nearest target point is closer than the threshold.
+    pub num_inliers: usize,
+}
+
+/// Target points with a kd-tree built once, plus (for ICP) their normals.
+pub struct IcpTarget {
+    points: Vec<Point3<f64>>,
+    normals: Option<Vec<Vector3<f64>>>,
+    tree: ImmutableKdTree<f64, 3>,
+}
+
+impl std::fmt::Debug for IcpTarget {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("IcpTarget")
+            .field("points", &self.points.len())
+            .field("has_normals", &self.normals.is_some())
+            .finish()
+    }
+}
+
+impl IcpTarget {
+    /// Builds the kd-tree over `points` and keeps unit `normals` (one per point) for
+    /// point-to-plane ICP. Fails on an empty cloud, a length mismatch or non-finite values.
+    pub fn new(points: &[Point3<f64>], normals: &[Vector3<f64>]) -> Result<Self> {
+        if normals.len() != points.len() {
+            return Err(Error::InvalidInput(format!(
+                "target has {} points but {} normals",
+                points.len(),
+                normals.len()
+            )));
+        }
+        if let Some(i) = normals
+            .iter()
+            .position(|n| !n.iter().all(|c| c.is_finite()))
+        {
+            return Err(Error::InvalidInput(format!(
+                "target normal {i} is not finite"
+            )));
+        }
+        let mut target = Self::points_only(points)?;
+        target.normals = Some(normals.to_vec());
+        Ok(target)
+    }
+
+    /// Builds the kd-tree over `points` without normals: enough for [`evaluate_registration`],
+    /// not for ICP. Fails on an empty cloud or non-finite coordinates.
+    pub fn points_only(points: &[Point3<f64>]) -> Result<Self> {
+        if points.is_empty() {
+            return Err(Error::InvalidInput("target cloud is empty".into()));
+        }
+        if points.len() > u32::MAX as usize {
+            return Err(Error::InvalidInput(format!(
+                "target cloud has {} points, more than u32::MAX",
+                points.len()
+            )));
+        }
+        if let Some(i) = points.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+            return Err(Error::InvalidInput(format!(
+                "target point {i} is not finite"
+            )));
+        }
+        let coords: Vec<[f64; 3]> = points.iter().map(|p| [p.x, p.y, p.z]).collect();
+        let tree = ImmutableKdTree::new_from_slice(&coords)
+            .map_err(|e| Error::InvalidInput(format!("building target kd-tree: {e:?}")))?;
+        Ok(Self {
+            points: points.to_vec(),
+            normals: None,
+            tree,
+        })
+    }
+
+    /// The target points.
+    pub fn points(&self) -> &[Point3<f64>] {
+        &self.points
+    }
+
+    /// The target normals, if built with [`IcpTarget::new`].
+    pub fn normals(&self) -> Option<&[Vector3<f64>]> {
+        self.normals.as_deref()
+    }
+
+    /// Index of and squared distance [m²] to the nearest target point (lowest index on ties is
+    /// not guaranteed: kiddo decides).
+    fn nearest(&self, p: &Point3<f64>) -> (usize, f64) {
+        let nn = self
+            .tree
+            .query(&[p.x, p.y, p.z])
+            .nearest_one::<SquaredEuclidean<f64>>()
+            .execute();
+        (nn.item as usize, nn.distance)
+    }
+}
+
+/// Sums over one pass of correspondence search at a fixed pose.
+#[derive(Clone, Copy)]
+struct PassSums {
+    /// `Σ w J Jᵀ` with `J = (p × n, n)`.
+    jtj: Matrix6<f64>,
+    /// `Σ w J r`.
+    jtr: Vector6<f64>,
+    /// `Σ |p − q|²` over inliers [m²].
+    squared_distance_sum: f64,
+    num_inliers: usize,
+}
+
+impl PassSums {
+    fn zero() -> Self {
+        Self {
+            jtj: Matrix6::zeros(),
+            jtr: Vector6::zeros(),
+            squared_distance_sum: 0.0,
+            num_inliers: 0,
+        }
+    }
+
+    fn add(&mut self, other: &Self) {
+        self.jtj += other.jtj;
+        self.jtr += other.jtr;
+        self.squared_distance_sum += other.squared_distance_sum;
+        self.num_inliers += other.num_inliers;
+    }
+
+    fn evaluation(&self, num_source: usize) -> RegistrationEvaluation {
+        let (fitness, inlier_rmse_m) = if self.num_inliers == 0 {
+            (0.0, 0.0)
+        } else {
+            (
+                self.num_inliers as f64 / num_source as f64,
+                (self.squared_distance_sum / self.num_inliers as f64).sqrt(),
+            )
+        };
+        RegistrationEvaluation {
+            fitness,
+            inlier_rmse_m,
+            num_inliers: self.num_inliers,
+        }
+    }
+}
+
+/// One parallel correspondence pass. With `kernel` set, also accumulates the normal equations
+/// (target normals must be present). Deterministic: fixed chunks, summed in chunk order.
+fn correspondence_pass(
+    source: &[Point3<f64>],
+    target: &IcpTarget,
+    target_from_source: &Isometry3<f64>,
+    max_distance_m: f64,
+    kernel: Option<RobustKernel>,
+) -> PassSums {
+    let max_squared = max_distance_m * max_distance_m;
+    let normals = target.normals.as_deref();
+    let partials: Vec<PassSums> = source
+        .par_chunks(CHUNK_POINTS)
+        .map(|chunk| {
+            let mut sums = PassSums::zero();
+            for s in chunk {
+                let p = target_from_source * s;
+                let (j, squared) = target.nearest(&p);
+                // NOTE: strict `<` like Open3D's nanoflann radius search.
+                if squared >= max_squared {
+                    continue;
+                }
+                sums.num_inliers += 1;
+                sums.squared_distance_sum += squared;
+                if let (Some(kernel), Some(normals)) = (kernel, normals) {
+                    let n = normals[j];
+                    let residual = (p - target.points[j]).dot(&n);
+                    let w = kernel.weight(residual);
+                    if w == 0.0 {
+                        continue;
+                    }
+                    let pxn = p.coords.cross(&n);
+                    let jac = Vector6::new(pxn.x, pxn.y, pxn.z, n.x, n.y, n.z);
+                    sums.jtj.ger(w, &jac, &jac, 1.0);
+                    sums.jtr.axpy(w * residual, &jac, 1.0);
+                }
+            }
+            sums
+        })
+        .collect();
+    let mut total = PassSums::zero();
+    for partial in &partials {
+        total.add(partial);
+    }
+    total
+}
+
+/// Solves `jtj · x = −jtr` for the 6-vector update `(ω, t)`. Cholesky first; if the system is
+/// not positive definite (degenerate geometry) falls back to an SVD least-squares solve that
+/// leaves unconstrained directions at zero. `None` if both fail or give non-finite values.
+fn solve_update(jtj: &Matrix6<f64>, jtr: &Vector6<f64>) -> Option<Vector6<f64>> {
+    let rhs = -jtr;
+    let finite = |x: &Vector6<f64>| x.iter().all(|v| v.is_finite());
+    if let Some(cholesky) = jtj.cholesky() {
+        let x = cholesky.solve(&rhs);
+        if finite(&x) {
+            return Some(x);
+        }
+    }
+    let svd = jtj.svd(true, true);
+    let largest = svd.singular_values.max();
+    if !(largest > 0.0) {
+        return None;
+    }
+    svd.solve(&rhs, largest * 1e-12).ok().filter(finite)
+}
+
+/// `(α, β, γ, tx, ty, tz)` → pose with rotation `Rz(γ)·Ry(β)·Rx(α)` and translation `t`
+/// (Open3D's `TransformVector6dToMatrix4d`).
+fn update_from_vector(x: &Vector6<f64>) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::new(x[3], x[4], x[5]),
+        UnitQuaternion::from_euler_angles(x[0], x[1], x[2]),
+    )
+}
+
+/// Fitness and inlier RMSE of `target_from_source`, exactly as Open3D's `evaluate_registration`:
+/// each source point moved into the target frame is paired with its nearest target point; pairs
+/// closer than `max_correspondence_distance_m` [m] (strictly) are inliers; fitness = inliers /
+/// source points, RMSE = sqrt(mean squared point-to-point distance over inliers) [m].
+pub fn evaluate_registration(
+    source: &[Point3<f64>],
+    target: &IcpTarget,
+    target_from_source: &Isometry3<f64>,
+    max_correspondence_distance_m: f64,
+) -> Result<RegistrationEvaluation> {
+    if source.is_empty() {
+        return Err(Error::InvalidInput("source cloud is empty".into()));
+    }
+    let d = max_correspondence_distance_m;
+    if !(d.is_finite() && d > 0.0) {
+        return Err(Error::InvalidInput(format!(
+            "max_correspondence_distance_m must be finite and > 0, got {d}"
+        )));
+    }
+    let sums = correspondence_pass(source, target, target_from_source, d, None);
+    Ok(sums.evaluation(source.len()))
+}
+
+/// Point-to-plane ICP from `init_target_from_source` (Open3D's `registration_icp` with
+/// `TransformationEstimationPointToPlane`): iterate correspondence search, one linearised
+/// Gauss-Newton step (Low 2004), and `target_from_source ← update · target_from_source`, until
+/// both the fitness and the inlier RMSE change by less than the thresholds or
+/// `config.max_iterations` updates were applied.
+///
+/// `target` must have normals ([`IcpTarget::new`]). Fitness and RMSE in the result are those
+/// of the returned pose.
+pub fn registration_icp_point_to_plane(
+    source: &[Point3<f64>],
+    target: &IcpTarget,
+    init_target_from_source: &Isometry3<f64>,
+    config: &IcpConfig,
+) -> Result<IcpResult> {
+    config.validate()?;
+    if source.is_empty() {
+        return Err(Error::InvalidInput("source cloud is empty".into()));
+    }
+    if target.normals.is_none() {
+        return Err(Error::InvalidInput(
+            "point-to-plane ICP needs target normals (use IcpTarget::new)".into(),
+        ));
+    }
+    let max_distance_m = config.max_correspondence_distance_m;
+    let kernel = Some(config.robust_kernel);
+    let mut target_from_source = *init_target_from_source;
+    let mut sums = correspondence_pass(source, target, &target_from_source, max_distance_m, kernel);
+    let mut evaluation = sums.evaluation(source.len());
+    let mut iterations = 0;
+    let mut converged = false;
+    while iterations < config.max_iterations {
+        // NOTE: Open3D keeps iterating with an identity update when there are no
+        // correspondences (or the solve fails) and then reports convergence; we stop and report
+        // `converged = false`.
+        if sums.num_inliers == 0 {
+            break;
+        }
+        let Some(x) = solve_update(&sums.jtj, &sums.jtr) else {
+            break;
+        };
+        target_from_source = update_from_vector(&x) * target_from_source;
+        target_from_source.rotation.renormalize();
+        iterations += 1;
+        sums = correspondence_pass(source, target, &target_from_source, max_distance_m, kernel);
+        let next = sums.evaluation(source.len());
+        let small_change = (next.fitness - evaluation.fitness).abs() < config.relative_fitness
+            && (next.inlier_rmse_m - evaluation.inlier_rmse_m).abs() < config.relative_rmse;
+        evaluation = next;
+        if small_change {
+            converged = true;
+            break;
+        }
+    }
+    Ok(IcpResult {
+        target_from_source,
+        fitness: evaluation.fitness,
+        inlier_rmse_m: evaluation.inlier_rmse_m,
+        iterations,
+        converged,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Unit;
+    use rand::{RngExt, SeedableRng};
+    use rand_pcg::Pcg64Mcg;
+
+    /// Box corner (floor + two walls) and a sphere, ~6k points at 4 cm spacing, with analytic
+    /// normals. Centred near the origin; all six degrees of freedom are constrained.
+    fn corner_and_sphere() -> (Vec<Point3<f64>>, Vec<Vector3<f64>>) {
+        let spacing = 0.04;
+        let offset = Vector3::new(-1.0, -1.0, -0.5);
+        let mut points = Vec::new();
+        let mut normals = Vec::new();
+        let steps = |len: f64| (0..(len / spacing) as usize).map(|i| (i as f64 + 0.5) * spacing);
+        for a in steps(2.0) {
+            for b in steps(2.0) {
+                points.push(Point3::new(a, b, 0.0) + offset);
+                normals.push(Vector3::z());
+            }
+            for b in steps(1.5) {
+                points.push(Point3::new(0.0, a, b) + offset);
+                normals.push(Vector3::x());
+                points.push(Point3::new(a, 0.0, b) + offset);
+                normals.push(Vector3::y());
+            }
+        }
+        // Fibonacci sphere.
+        let centre = Point3::new(1.2, 1.1, 0.5) + offset;
+        let radius = 0.35;
+        let n = 1000;
+        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+        for i in 0..n {
+            let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+            let r = (1.0 - z * z).sqrt();
+            let phi = golden * i as f64;
+            let dir = Vector3::new(r * phi.cos(), r * phi.sin(), z);
+            points.push(centre + radius * dir);
+            normals.push(dir);
+        }
+        (points, normals)
+    }
+
+    fn ground_truth() -> Isometry3<f64> {
+        let axis = Unit::new_normalize(Vector3::new(0.3, -0.5, 0.8));
+        Isometry3::from_parts(
+            Translation3::new(0.4, -0.2, 0.1),
+            UnitQuaternion::from_axis_angle(&axis, 25f64.to_radians()),
+        )
+    }
+
+    /// Rotation by `angle_deg` about a random axis and translation of `shift_m` in a random
+    /// direction.
+    fn perturbation(rng: &mut Pcg64Mcg, angle_deg: f64, shift_m: f64) -> Isometry3<f64> {
+        let mut random_unit = || {
+            Unit::new_normalize(Vector3::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+            ))
+        };
+        let axis = random_unit();
+        let dir = random_unit();
+        Isometry3::from_parts(
+            Translation3::from(dir.into_inner() * shift_m),
+            UnitQuaternion::from_axis_angle(&axis, angle_deg.to_radians()),
+        )
+    }
+
+    /// (rotation error [deg], translation error [m]) of `estimate` against `truth`.
+    fn pose_error(estimate: &Isometry3<f64>, truth: &Isometry3<f64>) -> (f64, f64) {
+        let delta = truth.inverse() * estimate;
+        (
+            delta.rotation.angle().to_degrees(),
+            delta.translation.vector.norm(),
+        )
+    }
+
+    fn gaussian(rng: &mut Pcg64Mcg) -> f64 {
+        // Box-Muller.
+        let u1: f64 = rng.random_range(f64::EPSILON..1.0);
+        let u2: f64 = rng.random();
+        (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+    }
+
+    #[test]
+    fn converges_exactly_forward_and_inverse() {
+        let (scene, scene_normals) = corner_and_sphere();
+        let target_from_source = ground_truth();
+        let source_from_target = target_from_source.inverse();
+        // Source = the scene seen from the source frame; at the truth every source point lies
+        // exactly on its twin target point.
+        let source: Vec<_> = scene.iter().map(|p| source_from_target * p).collect();
+        let source_normals: Vec<_> = scene_normals
+            .iter()
+            .map(|n| source_from_target.rotation * n)
+            .collect();
+        let forward_target = IcpTarget::new(&scene, &scene_normals).unwrap();
+        let inverse_target = IcpTarget::new(&source, &source_normals).unwrap();
+        let config = IcpConfig::new(0.5).max_iterations(100);
+        let mut rng = Pcg64Mcg::seed_from_u64(7);
+        for _ in 0..3 {
+            let delta = perturbation(&mut rng, 10.0, 0.2);
+            let init = target_from_source * delta;
+            let forward =
+                registration_icp_point_to_plane(&source, &forward_target, &init, &config).unwrap();
+            let (rot_deg, trans_m) = pose_error(&forward.target_from_source, &target_from_source);
+            assert!(forward.converged, "{forward:?}");
+            // Gauss-Newton on exact data converges quadratically: a handful of updates.
+            assert!(forward.iterations <= 10, "{forward:?}");
+            assert!(
+                rot_deg < 0.01 && trans_m < 1e-4,
+                "{rot_deg} deg {trans_m} m"
+            );
+            assert_eq!(forward.fitness, 1.0);
+            assert!(forward.inlier_rmse_m < 1e-4);
+
+            let inverse =
+                registration_icp_point_to_plane(&scene, &inverse_target, &init.inverse(), &config)
+                    .unwrap();
+            let (rot_deg, trans_m) = pose_error(&inverse.target_from_source, &source_from_target);
+            assert!(inverse.converged, "{inverse:?}");
+            assert!(inverse.iterations <= 10, "{inverse:?}");
+            assert!(
+                rot_deg < 0.01 && trans_m < 1e-4,
+                "{rot_deg} deg {trans_m} m"
+            );
+        }
+    }
+
+    #[test]
+    fn converges_near_truth_with_noise_and_outliers() {
+        let (scene, scene_normals) = corner_and_sphere();
+        let target_from_source = ground_truth();
+        let source_from_target = target_from_source.inverse();
+        let mut rng = Pcg64Mcg::seed_from_u64(11);
+        let noise_m = 0.003;
+        let mut source: Vec<_> = scene
+            .iter()
+            .map(|p| {
+                let noisy =
+                    p + Vector3::new(gaussian(&mut rng), gaussian(&mut rng), gaussian(&mut rng))
+                        * noise_m;
+                source_from_target * noisy
+            })
+            .collect();
+        let target = IcpTarget::new(&scene, &scene_normals).unwrap();
+        let init = target_from_source * perturbation(&mut rng, 10.0, 0.2);
+        let config = IcpConfig::new(0.5).max_iterations(100);
+        let result = registration_icp_point_to_plane(&source, &target, &init, &config).unwrap();
+        let (rot_deg, trans_m) = pose_error(&result.target_from_source, &target_from_source);
+        assert!(result.converged, "{result:?}");
+        assert!(
+            rot_deg < 0.1 && trans_m < 0.003,
+            "{rot_deg} deg {trans_m} m"
+        );
+        // Nearest-neighbour distance of a noisy point is at most its offset: RMSE ≲ √3 σ.
+        assert!(
+            result.inlier_rmse_m < 3f64.sqrt() * noise_m * 1.1,
+            "{result:?}"
+        );
+
+        // 15 % gross outliers in a 1 m shell around the scene: Tukey keeps the estimate close.
+        let outliers = source.len() * 15 / 100;
+        for _ in 0..outliers {
+            let p = Point3::new(
+                rng.random_range(-1.5..1.5),
+                rng.random_range(-1.5..1.5),
+                rng.random_range(-1.0..1.5),
+            );
+            source.push(source_from_target * p);
+        }
+        let robust = config.robust_kernel(RobustKernel::Tukey { scale_m: 0.05 });
+        let result = registration_icp_point_to_plane(&source, &target, &init, &robust).unwrap();
+        let (rot_deg, trans_m) = pose_error(&result.target_from_source, &target_from_source);
+        assert!(
+            rot_deg < 0.2 && trans_m < 0.005,
+            "{rot_deg} deg {trans_m} m"
+        );
+    }
+
+    #[test]
+    fn bit_identical_on_one_and_two_threads() {
+        let (scene, scene_normals) = corner_and_sphere();
+        let target = IcpTarget::new(&scene, &scene_normals).unwrap();
+        let mut rng = Pcg64Mcg::seed_from_u64(3);
+        let source: Vec<_> = scene
+            .iter()
+            .map(|p| ground_truth().inverse() * p + Vector3::repeat(0.002 * gaussian(&mut rng)))
+            .collect();
+        let init = ground_truth() * perturbation(&mut rng, 5.0, 0.1);
+        let config = IcpConfig::new(0.4);
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| registration_icp_point_to_plane(&source, &target, &init, &config))
+                .unwrap()
+        };
+        assert!(source.len() > 4 * CHUNK_POINTS);
+        assert_eq!(run(1), run(2));
+    }
+
+    #[test]
+    fn evaluation_matches_hand_computation() {
+        let target = IcpTarget::points_only(&[
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(1.0, 0.0, 0.0),
+            Point3::new(0.0, 1.0, 0.0),
+        ])
+        .unwrap();
+        let source = [
+            Point3::new(0.1, 0.0, 0.0),  // → target 0 at 0.1
+            Point3::new(1.0, 0.2, 0.0),  // → target 1 at 0.2
+            Point3::new(0.0, 1.0, 0.05), // → target 2 at 0.05
+            Point3::new(5.0, 5.0, 5.0),  // no correspondence within 0.3
+        ];
+        let identity = Isometry3::identity();
+        let e = evaluate_registration(&source, &target, &identity, 0.3).unwrap();
+        assert_eq!(e.num_inliers, 3);
+        assert_eq!(e.fitness, 0.75);
+        let expected_rmse = ((0.01 + 0.04 + 0.0025) / 3.0f64).sqrt();
+        assert!((e.inlier_rmse_m - expected_rmse).abs() < 1e-12);
+
+        // Shifting the source by −0.1 m in x: (0,0,0)→0 at 0, (0.9,0.2,0)→1 at √0.05,
+        // (−0.1,1,0.05)→2 at √0.0125; threshold 0.2 drops the second.
+        let shift = Isometry3::translation(-0.1, 0.0, 0.0);
+        let e = evaluate_registration(&source, &target, &shift, 0.2).unwrap();
+        assert_eq!(e.num_inliers, 2);
+        assert_eq!(e.fitness, 0.5);
+        assert!((e.inlier_rmse_m - (0.0125f64 / 2.0).sqrt()).abs() < 1e-12);
+
+        // Nothing within reach: Open3D reports fitness 0 and RMSE 0.
+        let far = Isometry3::translation(100.0, 0.0, 0.0);
+        let e = evaluate_registration(&source, &target, &far, 0.3).unwrap();
+        assert_eq!((e.fitness, e.inlier_rmse_m, e.num_inliers), (0.0, 0.0, 0));
+    }
+
+    #[test]
+    fn degenerate_plane_stays_finite_and_fixes_constrained_dofs() {
+        // A single plane z = 0 constrains only z, roll and pitch: Cholesky fails, SVD solves.
+        let mut points = Vec::new();
+        for i in 0..40 {
+            for j in 0..40 {
+                points.push(Point3::new(i as f64 * 0.05, j as f64 * 0.05, 0.0));
+            }
+        }
+        let normals = vec![Vector3::z(); points.len()];
+        let target = IcpTarget::new(&points, &normals).unwrap();
+        let init = Isometry3::from_parts(
+            Translation3::new(0.0, 0.0, 0.05),
+            UnitQuaternion::from_euler_angles(2f64.to_radians(), -1f64.to_radians(), 0.0),
+        );
+        let result =
+            registration_icp_point_to_plane(&points, &target, &init, &IcpConfig::new(0.2)).unwrap();
+        let moved: Vec<_> = points
+            .iter()
+            .map(|p| result.target_from_source * p)
+            .collect();
+        assert!(moved.iter().all(|p| p.z.abs() < 1e-6), "{result:?}");
+    }
+
+    #[test]
+    fn rejects_bad_input() {
+        let p = [Point3::origin()];
+        assert!(IcpTarget::new(&p, &[]).is_err());
+        assert!(IcpTarget::points_only(&[]).is_err());
+        let target = IcpTarget::new(&p, &[Vector3::z()]).unwrap();
+        let id = Isometry3::identity();
+        assert!(registration_icp_point_to_plane(&p, &target, &id, &IcpConfig::new(0.0)).is_err());
+        assert!(registration_icp_point_to_plane(&[], &target, &id, &IcpConfig::new(1.0)).is_err());
+        let points_only = IcpTarget::points_only(&p).unwrap();
+        assert!(
+            registration_icp_point_to_plane(&p, &points_only, &id, &IcpConfig::new(1.0)).is_err()
+        );
+        let tukey = IcpConfig::new(1.0).robust_kernel(RobustKernel::Tukey { scale_m: -1.0 });
+        assert!(registration_icp_point_to_plane(&p, &target, &id, &tukey).is_err());
+    }
+
+    #[test]
+    fn kernel_weights() {
+        assert_eq!(RobustKernel::L2.weight(3.0), 1.0);
+        let huber = RobustKernel::Huber { scale_m: 0.5 };
+        assert_eq!(huber.weight(-0.25), 1.0);
+        assert_eq!(huber.weight(2.0), 0.25);
+        let tukey = RobustKernel::Tukey { scale_m: 2.0 };
+        assert_eq!(tukey.weight(1.0), 0.5625); // (1 − 1/4)²
+        assert_eq!(tukey.weight(-2.5), 0.0);
+    }
+}
