@@ -17,3 +17,4 @@ pub mod refine;
 pub mod simulate;
 
 pub use error::{Error, Result};
+pub mod pipeline;

@@ -1,0 +1,570 @@
+//! Registration of a pair of point clouds: preprocess → FPFH → correspondences → rank → MI-RANSAC →
+//! point-to-plane ICP. Pure: clouds in, poses and statistics out; no file I/O.
+//!
+//! Each cloud is prepared once ([`prepare_frame`]) so that a stream of consecutive frames computes
+//! every frame's features a single time, whether it serves as source or as target.
+
+use std::time::Instant;
+
+use nalgebra::{Isometry3, Point3, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::correspondence::matching::{MatchConfig, match_features_with};
+use crate::correspondence::ranking::{
+    CountOrder, Ranking, rank_by_distance, rank_by_neighbour_count, rank_by_ratio,
+};
+use crate::features::fpfh::{Fpfh, compute_fpfh_with_tree};
+use crate::geometry::kdtree::KdTree;
+use crate::geometry::normals::estimate_normals_with_tree;
+use crate::geometry::voxel::voxel_downsample;
+use crate::ransac::consensus::{Consensus, ConsensusConfig, Scoring, Termination};
+use crate::ransac::levy::{DEFAULT_SCALE, DEFAULT_WINDOW};
+use crate::ransac::{Levy, Prosac, RigidEstimator, TruncatedLevy, Uniform, run_consensus};
+use crate::refine::icp::{
+    IcpConfig, IcpTarget, evaluate_registration, registration_icp_point_to_plane,
+};
+use crate::{Error, Result};
+
+/// Which sampler draws RANSAC hypotheses.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum SamplerConfig {
+    /// Plain RANSAC.
+    Uniform,
+    /// MI-RANSAC's truncated Lévy law over the ranks (Zhang & Chen, Sec. III).
+    Levy {
+        /// Location μ (< 0). Paper's best for registration: −50.
+        mu: f64,
+        /// Scale c. Default 1.
+        c: f64,
+        /// Truncation window m. Default 100.
+        window: f64,
+        /// Allow repeated indices within a sample, as the authors' code. Default false.
+        with_replacement: bool,
+    },
+    /// PROSAC (Chum & Matas 2005) with `T_N = growth_max_samples`.
+    Prosac {
+        /// `T_N`. Default 200 000.
+        growth_max_samples: u64,
+    },
+}
+
+impl Default for SamplerConfig {
+    fn default() -> Self {
+        SamplerConfig::Levy {
+            mu: -50.0,
+            c: DEFAULT_SCALE,
+            window: DEFAULT_WINDOW,
+            with_replacement: false,
+        }
+    }
+}
+
+/// How correspondences are ranked before sampling.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum RankingConfig {
+    /// The paper's metric: target descriptors within `radius` of the source descriptor.
+    NeighbourCount {
+        /// Descriptor radius τ_d [FPFH units]. Authors: 12.
+        radius: f32,
+        /// Sort direction. Authors: most first.
+        order: CountOrder,
+    },
+    /// Ascending descriptor distance.
+    Distance,
+    /// Ascending Lowe ratio d1/d2.
+    #[default]
+    Ratio,
+}
+
+/// Every knob of pairwise registration. Fields set to `None` derive from `voxel_size_m` the way
+/// Open3D users expect; [`PairConfig::resolved`] fills them in.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PairConfig {
+    /// Voxel size of the feature cloud [m]. Default 0.05.
+    pub voxel_size_m: f64,
+    /// Normal search radius [m]. Default 2 · voxel.
+    pub normal_radius_m: Option<f64>,
+    /// At most this many neighbours per normal. Default 30.
+    pub normal_max_nn: usize,
+    /// FPFH search radius [m]. Default 5 · voxel.
+    pub feature_radius_m: Option<f64>,
+    /// At most this many neighbours per FPFH. Default 100.
+    pub feature_max_nn: usize,
+    /// Keep only mutual nearest neighbours in feature space. Default false (as Open3D's default).
+    pub mutual_filter: bool,
+    /// Default: [`RankingConfig::Ratio`].
+    pub ranking: RankingConfig,
+    /// Default: Lévy μ = −50, c = 1, window 100.
+    pub sampler: SamplerConfig,
+    /// RANSAC inlier threshold [m]. Default 1.5 · voxel.
+    pub inlier_threshold_m: Option<f64>,
+    /// Edge-length pre-rejection similarity (0 disables). Default 0.9.
+    pub edge_similarity: f64,
+    /// Cap on hypotheses. Default 100 000.
+    pub max_hypotheses: u64,
+    /// Adaptive-termination confidence. Default 0.999.
+    pub confidence: f64,
+    /// Local-optimisation refits. Default 10.
+    pub lo_iterations: u32,
+    /// Default: inlier count.
+    pub scoring: Scoring,
+    /// Run point-to-plane ICP after RANSAC. Default true.
+    pub icp: bool,
+    /// Voxel size of the (denser) ICP clouds [m]; 0 uses the full clouds. Default voxel / 2.
+    pub icp_voxel_size_m: Option<f64>,
+    /// ICP max correspondence distance [m]. Default 1 · voxel.
+    pub icp_max_distance_m: Option<f64>,
+    /// ICP iterations. Default 30.
+    pub icp_max_iterations: usize,
+    /// Orient normals towards this point (the sensor origin in the cloud's frame) when known.
+    /// Default: none (Open3D's unoriented normals).
+    pub sensor_origin: Option<[f64; 3]>,
+    /// Seed of all randomness. Default 0.
+    pub seed: u64,
+}
+
+impl Default for PairConfig {
+    fn default() -> Self {
+        Self {
+            voxel_size_m: 0.05,
+            normal_radius_m: None,
+            normal_max_nn: 30,
+            feature_radius_m: None,
+            feature_max_nn: 100,
+            mutual_filter: false,
+            ranking: RankingConfig::default(),
+            sampler: SamplerConfig::default(),
+            inlier_threshold_m: None,
+            edge_similarity: crate::ransac::estimator::DEFAULT_EDGE_SIMILARITY,
+            max_hypotheses: crate::ransac::consensus::DEFAULT_MAX_HYPOTHESES,
+            confidence: crate::ransac::consensus::DEFAULT_CONFIDENCE,
+            lo_iterations: crate::ransac::consensus::DEFAULT_LO_ITERATIONS,
+            scoring: Scoring::InlierCount,
+            icp: true,
+            icp_voxel_size_m: None,
+            icp_max_distance_m: None,
+            icp_max_iterations: crate::refine::icp::DEFAULT_MAX_ITERATIONS,
+            sensor_origin: None,
+            seed: 0,
+        }
+    }
+}
+
+impl PairConfig {
+    /// A copy with every derived field filled in, after validation.
+    pub fn resolved(&self) -> Result<Self> {
+        let v = self.voxel_size_m;
+        if !(v.is_finite() && v > 0.0) {
+            return Err(Error::InvalidInput(format!(
+                "voxel_size_m must be finite and > 0, got {v}"
+            )));
+        }
+        if !(self.confidence > 0.0 && self.confidence < 1.0) {
+            return Err(Error::InvalidInput(format!(
+                "confidence must be in (0, 1), got {}",
+                self.confidence
+            )));
+        }
+        if !(0.0..=1.0).contains(&self.edge_similarity) {
+            return Err(Error::InvalidInput(format!(
+                "edge_similarity must be in [0, 1], got {}",
+                self.edge_similarity
+            )));
+        }
+        let mut r = self.clone();
+        r.normal_radius_m.get_or_insert(2.0 * v);
+        r.feature_radius_m.get_or_insert(5.0 * v);
+        r.inlier_threshold_m.get_or_insert(1.5 * v);
+        r.icp_voxel_size_m.get_or_insert(0.5 * v);
+        r.icp_max_distance_m.get_or_insert(v);
+        for (name, x) in [
+            ("normal_radius_m", r.normal_radius_m),
+            ("feature_radius_m", r.feature_radius_m),
+            ("inlier_threshold_m", r.inlier_threshold_m),
+            ("icp_max_distance_m", r.icp_max_distance_m),
+        ] {
+            let x = x.unwrap_or(f64::NAN);
+            if !(x.is_finite() && x > 0.0) {
+                return Err(Error::InvalidInput(format!(
+                    "{name} must be finite and > 0, got {x}"
+                )));
+            }
+        }
+        Ok(r)
+    }
+}
+
+/// Wall-clock seconds per stage.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct FrameTimings {
+    /// Voxel downsampling (feature and ICP clouds).
+    pub downsample: f64,
+    /// kd-tree + normals.
+    pub normals: f64,
+    /// FPFH.
+    pub features: f64,
+}
+
+/// A cloud prepared once for registration as source or target.
+#[derive(Debug)]
+pub struct PreparedFrame {
+    /// Points of the input cloud (finite ones).
+    pub num_points: usize,
+    /// Voxel-downsampled feature cloud.
+    pub points: Vec<Point3<f64>>,
+    /// FPFH per feature-cloud point.
+    pub features: Vec<Fpfh>,
+    /// The ICP cloud with normals and its kd-tree (as target); its points serve as ICP source.
+    pub icp: Option<IcpTarget>,
+    /// Time spent.
+    pub timings: FrameTimings,
+}
+
+/// Downsamples, estimates normals and FPFH, and builds the ICP cloud. `config` must be
+/// [`resolved`](PairConfig::resolved).
+pub fn prepare_frame(points: &[Point3<f64>], config: &PairConfig) -> Result<PreparedFrame> {
+    let c = config.resolved()?;
+    let origin = c.sensor_origin.map(Point3::from);
+    let mut timings = FrameTimings::default();
+    let t = Instant::now();
+    let down = voxel_downsample(points, c.voxel_size_m)?;
+    timings.downsample = t.elapsed().as_secs_f64();
+    if down.len() < 3 {
+        return Ok(PreparedFrame {
+            num_points: points.len(),
+            points: down,
+            features: Vec::new(),
+            icp: None,
+            timings,
+        });
+    }
+    let t = Instant::now();
+    let tree = KdTree::new(&down)?;
+    let normals = estimate_normals_with_tree(
+        &down,
+        &tree,
+        c.normal_radius_m.unwrap(),
+        c.normal_max_nn,
+        origin,
+    )?;
+    timings.normals = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let features = compute_fpfh_with_tree(
+        &down,
+        &normals,
+        &tree,
+        c.feature_radius_m.unwrap(),
+        c.feature_max_nn,
+    )?;
+    timings.features = t.elapsed().as_secs_f64();
+
+    let icp = if c.icp {
+        let t = Instant::now();
+        let icp_voxel = c.icp_voxel_size_m.unwrap();
+        let icp = if icp_voxel > 0.0 && icp_voxel != c.voxel_size_m {
+            let dense = voxel_downsample(points, icp_voxel)?;
+            timings.downsample += t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            let dense_tree = KdTree::new(&dense)?;
+            let radius = c.normal_radius_m.unwrap() * icp_voxel / c.voxel_size_m;
+            let n =
+                estimate_normals_with_tree(&dense, &dense_tree, radius, c.normal_max_nn, origin)?;
+            timings.normals += t.elapsed().as_secs_f64();
+            IcpTarget::new(&dense, &n)?
+        } else if icp_voxel == 0.0 {
+            let full: Vec<Point3<f64>> = points
+                .iter()
+                .copied()
+                .filter(|p| p.coords.iter().all(|x| x.is_finite()))
+                .collect();
+            let full_tree = KdTree::new(&full)?;
+            let n = estimate_normals_with_tree(
+                &full,
+                &full_tree,
+                c.normal_radius_m.unwrap(),
+                c.normal_max_nn,
+                origin,
+            )?;
+            timings.normals += t.elapsed().as_secs_f64();
+            IcpTarget::new(&full, &n)?
+        } else {
+            IcpTarget::new(&down, &normals)?
+        };
+        Some(icp)
+    } else {
+        None
+    };
+    Ok(PreparedFrame {
+        num_points: points.len(),
+        points: down,
+        features,
+        icp,
+        timings,
+    })
+}
+
+/// Wall-clock seconds per stage of one registration.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct PairTimings {
+    /// Downsampling of both clouds.
+    pub downsample: f64,
+    /// Normals of both clouds.
+    pub normals: f64,
+    /// FPFH of both clouds.
+    pub features: f64,
+    /// Nearest neighbours in feature space.
+    pub matching: f64,
+    /// Ranking.
+    pub ranking: f64,
+    /// MI-RANSAC.
+    pub ransac: f64,
+    /// ICP.
+    pub icp: f64,
+    /// Everything above.
+    pub total: f64,
+}
+
+/// Why a registration produced no trustworthy pose.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FailureReason {
+    /// A cloud has fewer than 3 points after downsampling.
+    TooFewPoints,
+    /// Fewer than 3 feature correspondences.
+    TooFewCorrespondences,
+    /// RANSAC found no model with at least 3 inliers.
+    NoConsensus,
+}
+
+/// The outcome of [`register_prepared`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct PairResult {
+    /// Final estimate (identity on failure).
+    pub target_from_source: Isometry3<f64>,
+    /// RANSAC's estimate before ICP (identity on failure).
+    pub ransac_target_from_source: Isometry3<f64>,
+    /// `None` on success.
+    pub failure: Option<FailureReason>,
+    /// Points in the source / target input clouds.
+    pub num_points: [usize; 2],
+    /// Points after downsampling (source, target).
+    pub num_points_downsampled: [usize; 2],
+    /// Putative correspondences.
+    pub num_correspondences: usize,
+    /// RANSAC inliers among them.
+    pub num_inliers: usize,
+    /// Hypotheses drawn.
+    pub hypotheses: u64,
+    /// Hypotheses removed by edge-length pre-rejection.
+    pub prerejected: u64,
+    /// Hypotheses scored.
+    pub verified: u64,
+    /// Hypothesis index at which the final best model was first found.
+    pub best_found_at: Option<u64>,
+    /// RANSAC stopped by its adaptive rule.
+    pub converged: bool,
+    /// Fraction of source points (ICP cloud) within the ICP distance of the target after alignment.
+    pub fitness: f64,
+    /// RMSE of those inlier distances [m].
+    pub inlier_rmse_m: f64,
+    /// ICP iterations run (0 without ICP).
+    pub icp_iterations: usize,
+    /// Per-stage seconds.
+    pub timings_s: PairTimings,
+}
+
+fn make_ranking(
+    matches: &crate::correspondence::matching::Matches,
+    num_target: usize,
+    r: RankingConfig,
+) -> Ranking {
+    match r {
+        RankingConfig::NeighbourCount { order, .. } => {
+            rank_by_neighbour_count(&matches.count_within, num_target, order)
+        }
+        RankingConfig::Distance => rank_by_distance(&matches.distance),
+        RankingConfig::Ratio => rank_by_ratio(&matches.distance, &matches.second_distance),
+    }
+}
+
+/// Runs the configured sampler over `estimator`'s correspondences.
+pub fn run_sampler(
+    sampler: SamplerConfig,
+    estimator: &RigidEstimator<'_>,
+    consensus: &ConsensusConfig,
+) -> Result<Consensus<Isometry3<f64>>> {
+    let n = crate::ransac::Estimator::num_items(estimator);
+    Ok(match sampler {
+        SamplerConfig::Uniform => run_consensus(&Uniform::new(n), estimator, consensus),
+        SamplerConfig::Levy {
+            mu,
+            c,
+            window,
+            with_replacement,
+        } => {
+            let s = Levy::new(TruncatedLevy::new(mu, c, window)?, n)?
+                .with_replacement(with_replacement);
+            run_consensus(&s, estimator, consensus)
+        }
+        SamplerConfig::Prosac { growth_max_samples } => run_consensus(
+            &Prosac::new(n, 3, growth_max_samples)?,
+            estimator,
+            consensus,
+        ),
+    })
+}
+
+/// Registers prepared `source` to prepared `target`: the pose maps source points into the target
+/// frame. Never fails on data: a failed registration is a [`PairResult`] with `failure` set.
+pub fn register_prepared(
+    source: &PreparedFrame,
+    target: &PreparedFrame,
+    config: &PairConfig,
+) -> Result<PairResult> {
+    let c = config.resolved()?;
+    let start = Instant::now();
+    let mut out = PairResult {
+        target_from_source: Isometry3::identity(),
+        ransac_target_from_source: Isometry3::identity(),
+        failure: None,
+        num_points: [source.num_points, target.num_points],
+        num_points_downsampled: [source.points.len(), target.points.len()],
+        num_correspondences: 0,
+        num_inliers: 0,
+        hypotheses: 0,
+        prerejected: 0,
+        verified: 0,
+        best_found_at: None,
+        converged: false,
+        fitness: 0.0,
+        inlier_rmse_m: 0.0,
+        icp_iterations: 0,
+        timings_s: PairTimings {
+            downsample: source.timings.downsample + target.timings.downsample,
+            normals: source.timings.normals + target.timings.normals,
+            features: source.timings.features + target.timings.features,
+            ..Default::default()
+        },
+    };
+    let finish = |mut out: PairResult| {
+        let t = &mut out.timings_s;
+        t.total = t.downsample + t.normals + t.features + start.elapsed().as_secs_f64();
+        out
+    };
+    if source.points.len() < 3 || target.points.len() < 3 {
+        out.failure = Some(FailureReason::TooFewPoints);
+        return Ok(finish(out));
+    }
+
+    let t = Instant::now();
+    let count_radius = match c.ranking {
+        RankingConfig::NeighbourCount { radius, .. } => Some(radius),
+        _ => None,
+    };
+    let matches = match_features_with(
+        &source.features,
+        &target.features,
+        &MatchConfig {
+            mutual: c.mutual_filter,
+            count_radius,
+            ..Default::default()
+        },
+    );
+    out.timings_s.matching = t.elapsed().as_secs_f64();
+    out.num_correspondences = matches.len();
+    if matches.len() < 3 {
+        out.failure = Some(FailureReason::TooFewCorrespondences);
+        return Ok(finish(out));
+    }
+
+    let t = Instant::now();
+    let ranking = make_ranking(&matches, target.points.len(), c.ranking);
+    let src: Vec<Point3<f64>> = ranking
+        .order
+        .iter()
+        .map(|&k| source.points[matches.source_index[k as usize] as usize])
+        .collect();
+    let tgt: Vec<Point3<f64>> = ranking
+        .order
+        .iter()
+        .map(|&k| target.points[matches.target_index[k as usize] as usize])
+        .collect();
+    out.timings_s.ranking = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    let estimator = RigidEstimator::new(&src, &tgt).edge_similarity(c.edge_similarity);
+    let consensus = ConsensusConfig {
+        inlier_threshold: c.inlier_threshold_m.unwrap(),
+        scoring: c.scoring,
+        confidence: c.confidence,
+        max_hypotheses: c.max_hypotheses,
+        lo_iterations: c.lo_iterations,
+        termination: Termination::Adaptive,
+        seed: c.seed,
+    };
+    let result = run_sampler(c.sampler, &estimator, &consensus)?;
+    out.timings_s.ransac = t.elapsed().as_secs_f64();
+    out.hypotheses = result.hypotheses;
+    out.prerejected = result.prerejected;
+    out.verified = result.verified;
+    out.best_found_at = result.best_found_at;
+    out.converged = result.converged;
+    out.num_inliers = result.num_inliers;
+    let Some(model) = result.model.filter(|_| result.num_inliers >= 3) else {
+        out.failure = Some(FailureReason::NoConsensus);
+        return Ok(finish(out));
+    };
+    out.ransac_target_from_source = model;
+    out.target_from_source = model;
+
+    let t = Instant::now();
+    if let (Some(src_icp), Some(tgt_icp)) = (&source.icp, &target.icp) {
+        let icp_config =
+            IcpConfig::new(c.icp_max_distance_m.unwrap()).max_iterations(c.icp_max_iterations);
+        let r = registration_icp_point_to_plane(src_icp.points(), tgt_icp, &model, &icp_config)?;
+        out.target_from_source = r.target_from_source;
+        out.fitness = r.fitness;
+        out.inlier_rmse_m = r.inlier_rmse_m;
+        out.icp_iterations = r.iterations;
+    } else {
+        let target_cloud = IcpTarget::points_only(&target.points)?;
+        let e = evaluate_registration(
+            &source.points,
+            &target_cloud,
+            &model,
+            c.inlier_threshold_m.unwrap(),
+        )?;
+        out.fitness = e.fitness;
+        out.inlier_rmse_m = e.inlier_rmse_m;
+    }
+    out.timings_s.icp = t.elapsed().as_secs_f64();
+    Ok(finish(out))
+}
+
+/// [`prepare_frame`] both clouds (in parallel) and [`register_prepared`] them. The per-stage
+/// timings of the two frames add up; `timings_s.total` is the wall-clock time of the whole call.
+pub fn register_pair(
+    source: &[Point3<f64>],
+    target: &[Point3<f64>],
+    config: &PairConfig,
+) -> Result<PairResult> {
+    let start = Instant::now();
+    let (s, t) = rayon::join(
+        || prepare_frame(source, config),
+        || prepare_frame(target, config),
+    );
+    let mut result = register_prepared(&s?, &t?, config)?;
+    result.timings_s.total = start.elapsed().as_secs_f64();
+    Ok(result)
+}
+
+/// Rotation error [deg] and translation error [m] of `estimate` against `truth`: the angle of
+/// `R_truthᵀ·R_est` and `‖t_est − t_truth‖`.
+pub fn pose_error(truth: &Isometry3<f64>, estimate: &Isometry3<f64>) -> (f64, f64) {
+    let r = truth.rotation.inverse() * estimate.rotation;
+    let dt: Vector3<f64> = estimate.translation.vector - truth.translation.vector;
+    (r.angle().to_degrees(), dt.norm())
+}
