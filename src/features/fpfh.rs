@@ -94,6 +94,11 @@ pub fn compute_fpfh_with_tree(
             }
         });
 
+    let spfh_block_sums: Vec<f64> = spfh
+        .chunks_exact(BINS_PER_FEATURE)
+        .map(|block| block.iter().sum())
+        .collect();
+
     Ok((0..points.len())
         .into_par_iter()
         .map(|i| {
@@ -108,11 +113,16 @@ pub fn compute_fpfh_with_tree(
                 if dist_sq == 0.0 {
                     continue;
                 }
-                let neighbour = &spfh[j as usize * FPFH_BINS..(j as usize + 1) * FPFH_BINS];
-                for (b, (a, s)) in acc.iter_mut().zip(neighbour).enumerate() {
-                    let w = s / dist_sq;
-                    *a += w;
-                    block_sum[b / BINS_PER_FEATURE] += w;
+                // NOTE: Open3D divides each bin by the squared distance; multiplying by the
+                // reciprocal and summing the block totals once differ from it by rounding only.
+                let inv = 1.0 / dist_sq;
+                let j = j as usize;
+                let neighbour = &spfh[j * FPFH_BINS..(j + 1) * FPFH_BINS];
+                for (a, s) in acc.iter_mut().zip(neighbour) {
+                    *a += s * inv;
+                }
+                for (b, sum) in block_sum.iter_mut().enumerate() {
+                    *sum += spfh_block_sums[3 * j + b] * inv;
                 }
             }
             let own = &spfh[i * FPFH_BINS..(i + 1) * FPFH_BINS];
@@ -184,19 +194,20 @@ fn pair_features(
 
 /// Bin of an angle in [−π, π] among 11 equal bins (clamped).
 fn angle_bin(theta: f64) -> usize {
-    let b = (BINS_PER_FEATURE as f64 * (theta + std::f64::consts::PI)
-        / (2.0 * std::f64::consts::PI))
-        .floor();
-    clamp_bin(b)
+    clamp_bin(
+        BINS_PER_FEATURE as f64 * (theta + std::f64::consts::PI) / (2.0 * std::f64::consts::PI),
+    )
 }
 
 /// Bin of a cosine-like value in [−1, 1] among 11 equal bins (clamped).
 fn unit_bin(x: f64) -> usize {
-    clamp_bin((BINS_PER_FEATURE as f64 * (x + 1.0) * 0.5).floor())
+    clamp_bin(BINS_PER_FEATURE as f64 * (x + 1.0) * 0.5)
 }
 
+/// Clamps a bin position to [0, 10]. Truncation equals Open3D's `floor` here: they differ only
+/// on negative inputs, which both clamp to 0 (and truncation avoids a libm call).
 fn clamp_bin(b: f64) -> usize {
-    b.clamp(0.0, (BINS_PER_FEATURE - 1) as f64) as usize
+    (b as i64).clamp(0, BINS_PER_FEATURE as i64 - 1) as usize
 }
 
 #[cfg(test)]

@@ -192,6 +192,13 @@ impl KdTree {
 
 /// Sorts by squared distance, ties by index, so the order never depends on tree internals.
 fn sort_neighbours(nn: &mut [Neighbour]) {
+    // kiddo already sorts by distance; only exact ties can be out of index order.
+    let ordered = |a: &Neighbour, b: &Neighbour| {
+        a.distance_sq < b.distance_sq || (a.distance_sq == b.distance_sq && a.index <= b.index)
+    };
+    if nn.windows(2).all(|w| ordered(&w[0], &w[1])) {
+        return;
+    }
     nn.sort_unstable_by(|a, b| {
         a.distance_sq
             .total_cmp(&b.distance_sq)
