@@ -266,9 +266,10 @@ mod tests {
         let turned: Vec<Vector3<f64>> = normals.iter().map(|n| motion * n).collect();
         let a = compute_fpfh(&points, &normals, 0.3, 100).unwrap();
         let b = compute_fpfh(&moved, &turned, 0.3, 100).unwrap();
-        // A rigid motion perturbs coordinates by rounding only; a pair feature can then flip
-        // bins at an exact boundary, so compare by relative L2 distance per descriptor.
-        let mut rel: Vec<f64> = a
+        // A rigid motion perturbs coordinates by rounding only, far below the f32 output's
+        // resolution. A pair feature landing on an exact bin boundary could still flip bins
+        // (~1e-2 relative); with this seed none does (measured: all differences exactly 0).
+        let worst = a
             .iter()
             .zip(&b)
             .map(|(x, y)| {
@@ -281,18 +282,8 @@ mod tests {
                 let norm: f64 = x.iter().map(|p| f64::from(*p).powi(2)).sum::<f64>().sqrt();
                 diff / norm
             })
-            .collect();
-        rel.sort_by(f64::total_cmp);
-        assert!(
-            rel[rel.len() / 2] < 1e-4,
-            "median relative diff {}",
-            rel[rel.len() / 2]
-        );
-        assert!(
-            rel[rel.len() * 99 / 100] < 1e-2,
-            "p99 relative diff {}",
-            rel[rel.len() * 99 / 100]
-        );
+            .fold(0.0, f64::max);
+        assert!(worst < 1e-4, "worst relative difference {worst}");
     }
 
     #[test]
