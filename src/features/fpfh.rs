@@ -7,7 +7,8 @@
 //!   (Sec. II of the paper) are binned into 3 blocks of 11 bins, each hit adding
 //!   `100 / (|N(p)| − 1)`, so every block sums to 100.
 //! - FPFH(p) = SPFH(p) + Σ_q SPFH(q) / ‖p − q‖², where each 11-bin block of the weighted sum is
-//!   rescaled to sum to 100. Each block of the result therefore sums to 200 (600 in all).
+//!   rescaled to sum to 100. Each block of the result therefore sums to 200 (600 in all; 100 per
+//!   block when no neighbour at non-zero distance contributes).
 //!
 //! NOTE: the paper (Eq. 3) weights by 1/(k·ω_k) with ω_k the distance; Open3D (and we) weight by
 //! the inverse *squared* distance and normalise each block instead of dividing by k.
@@ -28,7 +29,8 @@ const BINS_PER_FEATURE: usize = 11;
 /// Mass of one 11-bin block of an SPFH (and of each half of an FPFH block), as Open3D.
 const BLOCK_MASS: f64 = 100.0;
 
-/// One FPFH descriptor: blocks [θ | α | φ] of 11 bins, each block summing to 200 (see module docs).
+/// One FPFH descriptor: blocks [θ | α | φ] of 11 bins, each block normally summing to 200 (see
+/// the module docs).
 pub type Fpfh = [f32; FPFH_BINS];
 
 /// Computes the FPFH descriptor of every point, exactly as Open3D's `compute_fpfh_feature` with

@@ -17,7 +17,7 @@ use crate::{Error, Result};
 pub struct Neighbour {
     /// Index of the neighbour in the slice the tree was built from.
     pub index: usize,
-    /// Squared Euclidean distance to the query point [m²].
+    /// Squared Euclidean distance to the query point (m²).
     pub distance_sq: f64,
 }
 
@@ -40,7 +40,7 @@ impl Neighbourhoods {
         self.len() == 0
     }
 
-    /// Neighbour indices and squared distances [m²] of query `i`, nearest first.
+    /// Neighbour indices and squared distances (m²) of query `i`, nearest first.
     pub fn get(&self, i: usize) -> (&[u32], &[f64]) {
         let range = self.offsets[i]..self.offsets[i + 1];
         (&self.indices[range.clone()], &self.distances_sq[range])
