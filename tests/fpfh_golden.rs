@@ -1,6 +1,8 @@
 //! mireg's normals and FPFH against Open3D 0.20's on a committed synthetic cloud
 //! (`fixtures/golden/fpfh_open3d_small.npy`, made by `tools/make_fpfh_golden.py`).
 
+mod common;
+
 use mireg::features::{FPFH_BINS, compute_fpfh};
 use mireg::geometry::estimate_normals;
 use nalgebra::{Point3, Vector3};
@@ -23,32 +25,9 @@ struct Golden {
 }
 
 fn read_golden() -> Golden {
-    let bytes = std::fs::read(GOLDEN).expect("golden file is committed");
-    assert!(bytes.starts_with(b"\x93NUMPY\x01\x00"), "npy format 1.0");
-    let header_len = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
-    let header = std::str::from_utf8(&bytes[10..10 + header_len]).unwrap();
-    assert!(
-        header.contains("'descr': '<f8'") && header.contains("'fortran_order': False"),
-        "{header}"
-    );
-    let shape = header
-        .split("'shape': (")
-        .nth(1)
-        .unwrap()
-        .split(')')
-        .next()
-        .unwrap();
-    let dims: Vec<usize> = shape
-        .split(',')
-        .filter_map(|s| s.trim().parse().ok())
-        .collect();
-    assert_eq!(dims[1], 6 + FPFH_BINS);
-    let values: Vec<f64> = bytes[10 + header_len..]
-        .chunks_exact(8)
-        .map(|c| f64::from_le_bytes(c.try_into().unwrap()))
-        .collect();
-    assert_eq!(values.len(), dims[0] * dims[1]);
-    let rows = values.chunks_exact(dims[1]);
+    let (_, cols, values) = common::read_npy_f64(GOLDEN);
+    assert_eq!(cols, 6 + FPFH_BINS);
+    let rows = values.chunks_exact(cols);
     Golden {
         points: rows
             .clone()

@@ -1,5 +1,9 @@
 #!/usr/bin/env python3
-"""Generate fixtures/golden/fpfh_open3d_small.npy: a synthetic cloud with Open3D normals and FPFH.
+"""Generate the Open3D goldens in fixtures/golden/ from seeded synthetic clouds (no licensed data).
+
+fpfh_open3d_small.npy: a synthetic cloud with Open3D normals and FPFH.
+voxel_open3d_small.npy: VOXEL_INPUT_POINTS random points followed by Open3D's voxel_down_sample
+  (VOXEL_M) centroids; float64 rows of xyz, the first row holding (n_input, n_output, VOXEL_M).
 
 Usage: tools/.venv/bin/python tools/make_fpfh_golden.py   (Open3D version pinned in requirements.txt)
 
@@ -17,7 +21,10 @@ import open3d as o3d
 SEED = 20261123
 NORMAL_RADIUS_M, NORMAL_MAX_NN = 0.35, 30
 FPFH_RADIUS_M, FPFH_MAX_NN = 0.7, 100
-OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "fixtures", "golden", "fpfh_open3d_small.npy")
+VOXEL_INPUT_POINTS, VOXEL_M = 2000, 0.1
+GOLDEN_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "fixtures", "golden")
+OUT = os.path.join(GOLDEN_DIR, "fpfh_open3d_small.npy")
+VOXEL_OUT = os.path.join(GOLDEN_DIR, "voxel_open3d_small.npy")
 
 
 def main():
@@ -36,6 +43,14 @@ def main():
     table = np.hstack([pts, np.asarray(pcd.normals), np.asarray(fpfh.data).T]).astype("<f8")
     np.save(OUT, table)
     print(f"wrote {OUT}: {table.shape}, open3d {o3d.__version__}")
+
+    # Voxel grid: a 1.0 x 0.7 x 0.3 m box offset from the origin, so the grid anchoring
+    # (min bound - voxel/2) matters; Open3D's output order is arbitrary, the test sorts.
+    box = rng.uniform([0.13, -0.41, 1.07], [1.13, 0.29, 1.37], size=(VOXEL_INPUT_POINTS, 3))
+    down = np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(box)).voxel_down_sample(VOXEL_M).points)
+    table = np.vstack([[len(box), len(down), VOXEL_M], box, down]).astype("<f8")
+    np.save(VOXEL_OUT, table)
+    print(f"wrote {VOXEL_OUT}: {len(box)} -> {len(down)} points")
 
 
 if __name__ == "__main__":

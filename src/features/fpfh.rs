@@ -7,7 +7,8 @@
 //!   (Sec. II of the paper) are binned into 3 blocks of 11 bins, each hit adding
 //!   `100 / (|N(p)| − 1)`, so every block sums to 100.
 //! - FPFH(p) = SPFH(p) + Σ_q SPFH(q) / ‖p − q‖², where each 11-bin block of the weighted sum is
-//!   rescaled to sum to 100. Each block of the result therefore sums to 200 (600 in all).
+//!   rescaled to sum to 100. Each block of the result therefore sums to 200 (600 in all; 100 per
+//!   block when no neighbour at non-zero distance contributes).
 //!
 //! NOTE: the paper (Eq. 3) weights by 1/(k·ω_k) with ω_k the distance; Open3D (and we) weight by
 //! the inverse *squared* distance and normalise each block instead of dividing by k.
@@ -28,7 +29,8 @@ const BINS_PER_FEATURE: usize = 11;
 /// Mass of one 11-bin block of an SPFH (and of each half of an FPFH block), as Open3D.
 const BLOCK_MASS: f64 = 100.0;
 
-/// One FPFH descriptor: blocks [θ | α | φ] of 11 bins, each block summing to 200 (see module docs).
+/// One FPFH descriptor: blocks [θ | α | φ] of 11 bins, each block normally summing to 200 (see
+/// the module docs).
 pub type Fpfh = [f32; FPFH_BINS];
 
 /// Computes the FPFH descriptor of every point, exactly as Open3D's `compute_fpfh_feature` with
@@ -94,6 +96,11 @@ pub fn compute_fpfh_with_tree(
             }
         });
 
+    let spfh_block_sums: Vec<f64> = spfh
+        .chunks_exact(BINS_PER_FEATURE)
+        .map(|block| block.iter().sum())
+        .collect();
+
     Ok((0..points.len())
         .into_par_iter()
         .map(|i| {
@@ -108,11 +115,16 @@ pub fn compute_fpfh_with_tree(
                 if dist_sq == 0.0 {
                     continue;
                 }
-                let neighbour = &spfh[j as usize * FPFH_BINS..(j as usize + 1) * FPFH_BINS];
-                for (b, (a, s)) in acc.iter_mut().zip(neighbour).enumerate() {
-                    let w = s / dist_sq;
-                    *a += w;
-                    block_sum[b / BINS_PER_FEATURE] += w;
+                // NOTE: Open3D divides each bin by the squared distance; multiplying by the
+                // reciprocal and summing the block totals once differ from it by rounding only.
+                let inv = 1.0 / dist_sq;
+                let j = j as usize;
+                let neighbour = &spfh[j * FPFH_BINS..(j + 1) * FPFH_BINS];
+                for (a, s) in acc.iter_mut().zip(neighbour) {
+                    *a += s * inv;
+                }
+                for (b, sum) in block_sum.iter_mut().enumerate() {
+                    *sum += spfh_block_sums[3 * j + b] * inv;
                 }
             }
             let own = &spfh[i * FPFH_BINS..(i + 1) * FPFH_BINS];
@@ -184,19 +196,20 @@ fn pair_features(
 
 /// Bin of an angle in [−π, π] among 11 equal bins (clamped).
 fn angle_bin(theta: f64) -> usize {
-    let b = (BINS_PER_FEATURE as f64 * (theta + std::f64::consts::PI)
-        / (2.0 * std::f64::consts::PI))
-        .floor();
-    clamp_bin(b)
+    clamp_bin(
+        BINS_PER_FEATURE as f64 * (theta + std::f64::consts::PI) / (2.0 * std::f64::consts::PI),
+    )
 }
 
 /// Bin of a cosine-like value in [−1, 1] among 11 equal bins (clamped).
 fn unit_bin(x: f64) -> usize {
-    clamp_bin((BINS_PER_FEATURE as f64 * (x + 1.0) * 0.5).floor())
+    clamp_bin(BINS_PER_FEATURE as f64 * (x + 1.0) * 0.5)
 }
 
+/// Clamps a bin position to [0, 10]. Truncation equals Open3D's `floor` here: they differ only
+/// on negative inputs, which both clamp to 0 (and truncation avoids a libm call).
 fn clamp_bin(b: f64) -> usize {
-    b.clamp(0.0, (BINS_PER_FEATURE - 1) as f64) as usize
+    (b as i64).clamp(0, BINS_PER_FEATURE as i64 - 1) as usize
 }
 
 #[cfg(test)]
@@ -255,9 +268,10 @@ mod tests {
         let turned: Vec<Vector3<f64>> = normals.iter().map(|n| motion * n).collect();
         let a = compute_fpfh(&points, &normals, 0.3, 100).unwrap();
         let b = compute_fpfh(&moved, &turned, 0.3, 100).unwrap();
-        // A rigid motion perturbs coordinates by rounding only; a pair feature can then flip
-        // bins at an exact boundary, so compare by relative L2 distance per descriptor.
-        let mut rel: Vec<f64> = a
+        // A rigid motion perturbs coordinates by rounding only, far below the f32 output's
+        // resolution. A pair feature landing on an exact bin boundary could still flip bins
+        // (~1e-2 relative); with this seed none does (measured: all differences exactly 0).
+        let worst = a
             .iter()
             .zip(&b)
             .map(|(x, y)| {
@@ -270,18 +284,8 @@ mod tests {
                 let norm: f64 = x.iter().map(|p| f64::from(*p).powi(2)).sum::<f64>().sqrt();
                 diff / norm
             })
-            .collect();
-        rel.sort_by(f64::total_cmp);
-        assert!(
-            rel[rel.len() / 2] < 1e-4,
-            "median relative diff {}",
-            rel[rel.len() / 2]
-        );
-        assert!(
-            rel[rel.len() * 99 / 100] < 1e-2,
-            "p99 relative diff {}",
-            rel[rel.len() * 99 / 100]
-        );
+            .fold(0.0, f64::max);
+        assert!(worst < 1e-4, "worst relative difference {worst}");
     }
 
     #[test]

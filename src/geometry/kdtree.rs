@@ -17,7 +17,7 @@ use crate::{Error, Result};
 pub struct Neighbour {
     /// Index of the neighbour in the slice the tree was built from.
     pub index: usize,
-    /// Squared Euclidean distance to the query point [m²].
+    /// Squared Euclidean distance to the query point (m²).
     pub distance_sq: f64,
 }
 
@@ -40,7 +40,7 @@ impl Neighbourhoods {
         self.len() == 0
     }
 
-    /// Neighbour indices and squared distances [m²] of query `i`, nearest first.
+    /// Neighbour indices and squared distances (m²) of query `i`, nearest first.
     pub fn get(&self, i: usize) -> (&[u32], &[f64]) {
         let range = self.offsets[i]..self.offsets[i + 1];
         (&self.indices[range.clone()], &self.distances_sq[range])
@@ -192,6 +192,13 @@ impl KdTree {
 
 /// Sorts by squared distance, ties by index, so the order never depends on tree internals.
 fn sort_neighbours(nn: &mut [Neighbour]) {
+    // kiddo already sorts by distance; only exact ties can be out of index order.
+    let ordered = |a: &Neighbour, b: &Neighbour| {
+        a.distance_sq < b.distance_sq || (a.distance_sq == b.distance_sq && a.index <= b.index)
+    };
+    if nn.windows(2).all(|w| ordered(&w[0], &w[1])) {
+        return;
+    }
     nn.sort_unstable_by(|a, b| {
         a.distance_sq
             .total_cmp(&b.distance_sq)

@@ -16,7 +16,7 @@ pub const MIN_NEIGHBOURS: usize = 3;
 
 /// Estimates one unit normal per point.
 ///
-/// For each point, the neighbourhood is every point strictly within `radius_m` [m], at most the
+/// For each point, the neighbourhood is every point strictly within `radius_m` (metres), at most the
 /// `max_nn` nearest (the point itself included), exactly Open3D's `KDTreeSearchParamHybrid`; the
 /// normal is the eigenvector of the smallest eigenvalue of the neighbourhood covariance. Open3D's
 /// defaults in registration pipelines: `radius_m = 2 * voxel`, `max_nn = 30`.
@@ -79,7 +79,7 @@ pub fn estimate_normals_with_tree(
         .collect())
 }
 
-/// Validates a hybrid search's radius [m] and neighbour cap.
+/// Validates a hybrid search's radius (m) and neighbour cap.
 pub(crate) fn check_search_params(radius_m: f64, max_nn: usize) -> Result<()> {
     if !(radius_m.is_finite() && radius_m > 0.0) {
         return Err(Error::InvalidInput(format!(

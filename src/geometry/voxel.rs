@@ -1,7 +1,10 @@
 //! Voxel-grid downsampling: one centroid per occupied voxel, as Open3D's
 //! `PointCloud::voxel_down_sample`.
 
-use nalgebra::Point3;
+use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
+
+use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
 use crate::{Error, Result};
@@ -28,6 +31,13 @@ pub fn voxel_downsample(points: &[Point3<f64>], voxel_size_m: f64) -> Result<Vec
             "voxel_size_m must be finite and > 0, got {voxel_size_m}"
         )));
     }
+    if points.len() > u32::MAX as usize {
+        return Err(Error::InvalidInput(format!(
+            "at most {} points, got {}",
+            u32::MAX,
+            points.len()
+        )));
+    }
     let is_finite = |p: &Point3<f64>| p.coords.iter().all(|c| c.is_finite());
     let Some((min, max)) = points.iter().filter(|p| is_finite(p)).fold(
         None,
@@ -49,39 +59,115 @@ pub fn voxel_downsample(points: &[Point3<f64>], voxel_size_m: f64) -> Result<Vec
         )));
     }
 
-    // (voxel key, input index): the index makes keys unique, so an unstable sort is deterministic
-    // and keeps input order inside each voxel.
-    let mut keyed: Vec<([u32; 3], u32)> = points
+    // Voxel index per axis, non-negative and below i32::MAX by the bounds check above. The
+    // largest index per axis is the max point's (the arithmetic is monotone).
+    let index = move |p: &Point3<f64>| {
+        let rel = (p.coords - origin) / voxel_size_m;
+        [
+            // rel >= 0 on every axis, where truncation equals Open3D's floor (and needs no
+            // libm call).
+            rel.x as u64,
+            rel.y as u64,
+            rel.z as u64,
+        ]
+    };
+    let last = index(&max);
+    let (ny, nz) = (last[1] + 1, last[2] + 1);
+    let packed_fits = (last[0] + 1)
+        .checked_mul(ny)
+        .and_then(|v| v.checked_mul(nz))
+        .is_some();
+    Ok(if packed_fits {
+        // Row-major packing preserves the (x, y, z) lexicographic order in one u64.
+        centroids_hashed(points, |p| {
+            let [x, y, z] = index(p);
+            (x * ny + y) * nz + z
+        })
+    } else {
+        centroids(points, index)
+    })
+}
+
+/// One pass over the finite points accumulating per-voxel sums in input order (as Open3D), then
+/// the occupied voxels sorted by key: O(n) hashing plus a sort of the (few) voxels.
+fn centroids_hashed<F>(points: &[Point3<f64>], key: F) -> Vec<Point3<f64>>
+where
+    F: Fn(&Point3<f64>) -> u64,
+{
+    let mut slot_of: HashMap<u64, u32, BuildHasherDefault<KeyHasher>> = HashMap::default();
+    let mut voxels: Vec<(u64, Vector3<f64>, u32)> = Vec::new();
+    for p in points
+        .iter()
+        .filter(|p| p.coords.iter().all(|c| c.is_finite()))
+    {
+        let k = key(p);
+        let slot = *slot_of.entry(k).or_insert_with(|| {
+            voxels.push((k, Vector3::zeros(), 0));
+            (voxels.len() - 1) as u32
+        });
+        let v = &mut voxels[slot as usize];
+        v.1 += p.coords;
+        v.2 += 1;
+    }
+    voxels.sort_unstable_by_key(|v| v.0);
+    voxels
+        .into_iter()
+        .map(|(_, sum, n)| Point3::from(sum / f64::from(n)))
+        .collect()
+}
+
+/// Multiplicative (Fibonacci) hashing of one u64 voxel key: keys are dense small integers, so a
+/// cryptographic hasher would only cost time.
+#[derive(Default)]
+struct KeyHasher(u64);
+
+impl Hasher for KeyHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+
+    fn write(&mut self, bytes: &[u8]) {
+        for b in bytes {
+            self.write_u64(u64::from(*b));
+        }
+    }
+
+    fn write_u64(&mut self, k: u64) {
+        self.0 = (self.0 ^ k)
+            .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            .rotate_left(29);
+    }
+}
+
+/// Sorts finite points by (voxel key, input index) and averages each run of equal keys. The index
+/// makes entries unique, so the unstable sort is deterministic and keeps input order in a voxel.
+fn centroids<K, F>(points: &[Point3<f64>], key: F) -> Vec<Point3<f64>>
+where
+    K: Ord + Copy + Send,
+    F: Fn(&Point3<f64>) -> K + Sync,
+{
+    let mut keyed: Vec<(K, u32)> = points
         .par_iter()
         .enumerate()
-        .filter(|(_, p)| is_finite(p))
-        .map(|(i, p)| {
-            let rel = (p.coords - origin) / voxel_size_m;
-            // Non-negative and below i32::MAX by the bounds check above.
-            let key = [
-                rel.x.floor() as u32,
-                rel.y.floor() as u32,
-                rel.z.floor() as u32,
-            ];
-            (key, i as u32)
-        })
+        .filter(|(_, p)| p.coords.iter().all(|c| c.is_finite()))
+        .map(|(i, p)| (key(p), i as u32))
         .collect();
     keyed.par_sort_unstable();
 
     let mut out = Vec::new();
     let mut start = 0;
     while start < keyed.len() {
-        let key = keyed[start].0;
-        let mut sum = nalgebra::Vector3::zeros();
+        let k = keyed[start].0;
+        let mut sum = Vector3::zeros();
         let mut end = start;
-        while end < keyed.len() && keyed[end].0 == key {
+        while end < keyed.len() && keyed[end].0 == k {
             sum += points[keyed[end].1 as usize].coords;
             end += 1;
         }
         out.push(Point3::from(sum / (end - start) as f64));
         start = end;
     }
-    Ok(out)
+    out
 }
 
 #[cfg(test)]
@@ -191,6 +277,28 @@ mod tests {
         assert_eq!(one, run(5));
         // ~9,000 to 10,571 voxels for ~2.2 points each: most but not all are occupied.
         assert!((7_500..=31 * 31 * 11).contains(&one.len()), "{}", one.len());
+    }
+
+    #[test]
+    fn huge_grids_use_the_unpacked_key_and_agree() {
+        // 1e9 voxels per axis: the packed u64 key would overflow, the [u32; 3] key is used.
+        let points = [
+            Point3::new(1e6, 1e6, 1e6),
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(2e-4, 0.0, 0.0),
+            Point3::new(1e6, 0.0, 2e-4),
+            Point3::new(1e6, 0.0, 0.0),
+        ];
+        let out = voxel_downsample(&points, 1e-3).unwrap();
+        let expected = [
+            Point3::new(1e-4, 0.0, 0.0),
+            Point3::new(1e6, 0.0, 1e-4),
+            Point3::new(1e6, 1e6, 1e6),
+        ];
+        assert_eq!(out.len(), 3);
+        for (o, e) in out.iter().zip(&expected) {
+            assert!((o - e).norm() < 1e-9, "{o} vs {e}");
+        }
     }
 
     #[test]
