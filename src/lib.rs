@@ -18,3 +18,4 @@ pub mod simulate;
 
 pub use error::{Error, Result};
 pub mod pipeline;
+pub mod odometry;

@@ -337,6 +337,23 @@ pub enum FailureReason {
     TooFewCorrespondences,
     /// RANSAC found no model with at least 3 inliers.
     NoConsensus,
+    /// Fewer RANSAC inliers than the caller's minimum (odometry: [`crate::odometry::OdometryConfig`]).
+    TooFewInliers,
+    /// Fitness after ICP below the caller's minimum.
+    LowFitness,
+}
+
+impl FailureReason {
+    /// The snake_case name used in JSON output.
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            FailureReason::TooFewPoints => "too_few_points",
+            FailureReason::TooFewCorrespondences => "too_few_correspondences",
+            FailureReason::NoConsensus => "no_consensus",
+            FailureReason::TooFewInliers => "too_few_inliers",
+            FailureReason::LowFitness => "low_fitness",
+        }
+    }
 }
 
 /// The outcome of [`register_prepared`].
