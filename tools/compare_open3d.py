@@ -24,12 +24,15 @@ RANSACConvergenceCriteria(100000, 0.999)). ``o3d.utility.random.seed`` is set pe
 "Open3D global" time = downsampling + normals + FPFH + RANSAC for both clouds.
 "Open3D global+ICP" adds a point-to-plane ICP (``registration_icp``) on the downsampled clouds
 (target normals from the features stage), max correspondence distance ``--icp-factor``·v (default
-1.0·v: 0.4·v, the Open3D tutorial value, often fails to pull in RANSAC results that are a few degrees
-off on these data), at most 50 iterations; its time is added to the global time.
+0.4·v, the Open3D tutorial value; 1.0·v gave the same recall and a slightly worse RE on 3dmatch),
+at most 50 iterations; its time is added to the global time.
 
-mireg: ``mireg pair SRC.npy TGT.npy --voxel v --seed S --json [variant args]`` in a subprocess. We
-record its own ``timings_s.total`` (compute only, excludes file reading) and the subprocess wall time
-(process start, file reading, everything).
+mireg: ``mireg pair SRC.npy TGT.npy --voxel v --seed S --json [variant args]`` in a subprocess, by
+default twice per trial: as is ("mireg", which ends with its own ICP) and with ``--no-icp``
+("mireg --no-icp"). Each mireg row is compared with the matching Open3D row: ``--no-icp`` variants
+with "Open3D global", the others with "Open3D global+ICP". We record mireg's own
+``timings_s.total`` (compute only, excludes file reading) and the subprocess wall time (process
+start, file reading, everything); both time ratios are printed.
 
 Metrics
 -------
@@ -43,7 +46,8 @@ Recall = fraction of trials with RE < thr_RE and TE < thr_TE: 15°/0.30 m (3DMat
 3dmatch and icl; 5°/0.60 m for kitti; 15°/0.03 m for the bunny (a 15 cm object: 0.30 m would accept
 anything; 0.03 m is what 15° amounts to at the bunny's ~11 cm distance from its frame's origin).
 Medians of RE/TE are given over the successful trials and over all trials (a crashed mireg run counts
-as RE = TE = inf). Time ratio = median Open3D time / median mireg ``timings_s.total``.
+as RE = TE = inf). Time ratios = median time of the matching Open3D method / median mireg
+``timings_s.total`` and / median mireg wall time (> 1: mireg is faster).
 
 Pairs
 -----
@@ -119,9 +123,22 @@ def to_pcd(pts: np.ndarray) -> o3d.geometry.PointCloud:
     return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(pts, dtype=np.float64)))
 
 
+def nn_distances(src: np.ndarray, tgt: np.ndarray) -> np.ndarray:
+    """Distance from each source point to its nearest target point."""
+    return np.asarray(to_pcd(src).compute_point_cloud_distance(to_pcd(tgt)))
+
+
 def median_nn_distance(src: np.ndarray, tgt: np.ndarray) -> float:
-    """Median distance from each source point to its nearest target point."""
-    return float(np.median(np.asarray(to_pcd(src).compute_point_cloud_distance(to_pcd(tgt)))))
+    return float(np.median(nn_distances(src, tgt)))
+
+
+def alignment_check(src: np.ndarray, tgt: np.ndarray, radius: float) -> dict:
+    """How well src lies on tgt: median NN distance over all points, and (because partial overlap
+    inflates that median) the fraction of points with a neighbour within `radius` and their median."""
+    d = nn_distances(src, tgt)
+    near = d[d < radius]
+    return {"median_nn_m": float(np.median(d)), "overlap_fraction": float(len(near) / len(d)),
+            "median_nn_in_overlap_m": float(np.median(near)) if len(near) else math.nan}
 
 
 # --------------------------------------------------------------------------------------------------
@@ -210,7 +227,7 @@ def make_bunny(angle: int):
         for v in wrong.values():
             v[:3, :3] = v[:3, :3].T
         gt_wrong = np.linalg.inv(wrong["bun000.ply"]) @ wrong[src_name]
-        checks = {"median_nn_with_R(q)x+t_m": median_nn_distance(transform(gt_wrong, src), tgt)}
+        checks = {"with R(q)·x + t instead": alignment_check(transform(gt_wrong, src), tgt, 0.005)}
         return Pair(f"bunny{angle}", src, tgt, gt, 0.005, 15.0, 0.03, "bun.conf, world = R(q)ᵀ·x + t", checks)
     return build
 
@@ -355,14 +372,12 @@ def fmt(x: float, digits: int = 3) -> str:
     return f"{x:.{digits}f}"
 
 
-def summarise(rows: list[dict], pairs: list[Pair], methods: list[str]) -> str:
-    """Markdown table: one line per (pair, method)."""
+def summarise(rows: list[dict], pairs: list[Pair], methods: list[str], baselines: dict[str, str]) -> str:
+    """Markdown table: one line per (pair, method); mireg rows carry time ratios vs their baseline."""
     head = ("| pair | method | trials | recall | med RE succ (°) | med TE succ (m) | med RE all (°) "
-            "| med TE all (m) | med time (s) | med wall (s) | O3D global / method |")
+            "| med TE all (m) | med time (s) | med wall (s) | O3D / mireg time | O3D / mireg wall |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for pair in pairs:
-        o3d_rows = [r for r in rows if r["pair"] == pair.name and r["method"] == "open3d global"]
-        o3d_time = median(r["time_s"] for r in o3d_rows)
         for method in methods:
             rs = [r for r in rows if r["pair"] == pair.name and r["method"] == method]
             if not rs:
@@ -371,20 +386,25 @@ def summarise(rows: list[dict], pairs: list[Pair], methods: list[str]) -> str:
             errors = sum(1 for r in rs if r.get("error"))
             t = median(r["time_s"] for r in rs if not r.get("error"))
             wall = median(r.get("wall_s") for r in rs if r.get("wall_s") is not None)
-            ratio = o3d_time / t if t and not math.isnan(t) else math.nan
+            ratios = "| | "
+            if method in baselines:
+                base = baselines[method]
+                o3d_time = median(r["time_s"] for r in rows if r["pair"] == pair.name and r["method"] == base)
+                short = base.replace("open3d ", "")
+                ratios = f"| {fmt(o3d_time / t, 2)}× (vs {short}) | {fmt(o3d_time / wall, 2)}× "
             label = method + (f" ({errors} errors)" if errors else "")
             lines.append(
                 f"| {pair.name} | {label} | {len(rs)} | {len(ok)}/{len(rs)} = {len(ok) / len(rs):.2f} "
                 f"| {fmt(median(r['re_deg'] for r in ok), 2)} | {fmt(median(r['te_m'] for r in ok))} "
                 f"| {fmt(median(r['re_deg'] for r in rs), 2)} | {fmt(median(r['te_m'] for r in rs))} "
-                f"| {fmt(t)} | {fmt(wall)} | {fmt(ratio, 2)}× |")
+                f"| {fmt(t)} | {fmt(wall)} {ratios}|")
     return "\n".join(lines)
 
 
 def details(rows: list[dict], pairs: list[Pair], methods: list[str]) -> str:
     """Second table: per-stage times and search statistics (medians)."""
-    head = ("| pair | method | features (s) | RANSAC/ICP (s) | hypotheses | best_found_at | correspondences "
-            "| inliers | fitness |")
+    head = ("| pair | method | features (s) | RANSAC (s) | ICP (s) | hypotheses | best_found_at | prerejected "
+            "| correspondences | inliers | fitness |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for pair in pairs:
         for method in methods:
@@ -394,9 +414,9 @@ def details(rows: list[dict], pairs: list[Pair], methods: list[str]) -> str:
 
             def m(key):
                 return median(r.get(key) for r in rs)
-            stage = m("ransac_s") if method == "open3d global" else m("icp_s")
-            lines.append(f"| {pair.name} | {method} | {fmt(m('features_s'))} | {fmt(stage)} "
-                         f"| {fmt(m('hypotheses'), 0)} | {fmt(m('best_found_at'), 0)} "
+            lines.append(f"| {pair.name} | {method} | {fmt(m('features_s'))} | {fmt(m('ransac_s'))} "
+                         f"| {fmt(m('icp_s'))} | {fmt(m('hypotheses'), 0)} | {fmt(m('best_found_at'), 0)} "
+                         f"| {fmt(m('prerejected'), 0)} "
                          f"| {fmt(m('num_correspondences'), 0)} | {fmt(m('num_inliers'), 0)} "
                          f"| {fmt(m('fitness'))} |")
     return "\n".join(lines)
@@ -413,13 +433,14 @@ def machine_header() -> str:
         cores = f"{per_socket * sockets} cores, {info.get('CPU(s)', '?').strip()} CPUs"
     except (OSError, ValueError):
         pass
-    return f"machine: {model}, {cores}; Open3D {o3d.__version__}; numpy {np.__version__}; Python {platform.python_version()}"
+    load = ", load average %.2f" % os.getloadavg()[0] if hasattr(os, "getloadavg") else ""
+    return f"machine: {model}, {cores}{load}; Open3D {o3d.__version__}; numpy {np.__version__}; Python {platform.python_version()}"
 
 
 def parse_variants(specs: list[str] | None) -> list[tuple[str, list[str]]]:
-    """`--mireg-variant LABEL=ARGS` -> [(\"mireg LABEL\", [args...])]; default one plain variant."""
+    """`--mireg-variant LABEL=ARGS` -> [("mireg LABEL", [args...])]; default: as is and --no-icp."""
     if not specs:
-        return [("mireg", [])]
+        return [("mireg", []), ("mireg --no-icp", ["--no-icp"])]
     out = []
     for spec in specs:
         label, _, argstr = spec.partition("=")
@@ -438,11 +459,11 @@ def main() -> int:
     ap.add_argument("--mireg", default=os.path.join("target", "release", "mireg"), help="mireg binary")
     ap.add_argument("--mireg-variant", action="append", metavar="LABEL=ARGS",
                     help="extra `mireg pair` arguments under a label, repeatable, e.g. "
-                         "uniform=\"--sampler uniform\" (default: one run with no extra arguments)")
+                         "uniform=\"--sampler uniform\" (default: `levy=` and `--no-icp=--no-icp`)")
     ap.add_argument("--skip-mireg", action="store_true", help="run the Open3D side only")
     ap.add_argument("--timeout", type=float, default=300.0, help="timeout per mireg run [s]")
-    ap.add_argument("--icp-factor", type=float, default=1.0,
-                    help="ICP max correspondence distance in voxels for 'open3d global+icp' (default 1.0)")
+    ap.add_argument("--icp-factor", type=float, default=0.4,
+                    help="ICP max correspondence distance in voxels for 'open3d global+icp' (default 0.4)")
     ap.add_argument("--json-out", help="write all per-trial rows (and pair info) to this JSON file")
     args = ap.parse_args()
 
@@ -450,6 +471,7 @@ def main() -> int:
     if variants and not os.path.isfile(args.mireg):
         ap.error(f"mireg binary not found at {args.mireg} (build it or pass --mireg PATH / --skip-mireg)")
     methods = ["open3d global", "open3d global+icp"] + [label for label, _ in variants]
+    baselines = {label: "open3d global" if "--no-icp" in extra else "open3d global+icp" for label, extra in variants}
 
     print(f"# mireg pair vs Open3D RANSAC\n\n{machine_header()}")
     print(f"poses per pair: {args.poses}, seed {args.seed}, random translation ≤ {args.max_translation} m; "
@@ -466,14 +488,19 @@ def main() -> int:
                 print(f"SKIP {name}: {e}", flush=True)
                 continue
             pairs.append(pair)
-            gt_nn = median_nn_distance(transform(pair.gt, pair.source), pair.target)
-            raw_nn = median_nn_distance(pair.source, pair.target)
-            pair.checks.update({"median_nn_after_gt_m": gt_nn, "median_nn_untransformed_m": raw_nn})
             print(f"{name}: {len(pair.source)} -> {len(pair.target)} points, voxel {pair.voxel} m, "
                   f"recall RE < {pair.re_thr_deg}° and TE < {pair.te_thr_m} m; GT: {pair.gt_note}")
-            extra = "".join(f", {k} = {fmt(v, 5) if isinstance(v, float) else v}" for k, v in pair.checks.items())
-            print(f"  GT check: median NN distance source->target after GT {gt_nn * 1000:.2f} mm "
-                  f"(untransformed {raw_nn * 1000:.1f} mm){extra}", flush=True)
+            pair.checks["after GT"] = alignment_check(transform(pair.gt, pair.source), pair.target, pair.voxel)
+            pair.checks["untransformed"] = alignment_check(pair.source, pair.target, pair.voxel)
+            print(f"  GT check (overlap = NN distance < voxel {pair.voxel} m):")
+            for label, value in pair.checks.items():
+                if isinstance(value, dict):
+                    print(f"    {label:>24}: median NN {value['median_nn_m'] * 1000:.2f} mm, overlap "
+                          f"{value['overlap_fraction']:.2f}, median NN in overlap "
+                          f"{value['median_nn_in_overlap_m'] * 1000:.2f} mm")
+                else:
+                    print(f"    {label:>24}: {fmt(value, 4) if isinstance(value, float) else value}")
+            sys.stdout.flush()
             tgt_path = os.path.join(tmp, f"{name}_target.npy")
             np.save(tgt_path, pair.target)
             for trial in range(args.poses):
@@ -501,8 +528,13 @@ def main() -> int:
                     else:
                         j = res["json"]
                         row.update({k: j.get(k) for k in ("num_correspondences", "num_inliers", "hypotheses",
-                                                          "best_found_at", "converged", "fitness", "inlier_rmse_m")})
-                        row.update(time_s=res["time_s"], timings_s=j.get("timings_s"), T=res["T"].tolist(),
+                                                          "best_found_at", "prerejected", "converged", "fitness",
+                                                          "inlier_rmse_m")})
+                        stages = j.get("timings_s") or {}
+                        row.update(time_s=res["time_s"], timings_s=stages, T=res["T"].tolist(),
+                                   features_s=sum(stages.get(k, 0.0) for k in ("downsample", "normals", "features")),
+                                   ransac_s=sum(stages.get(k, 0.0) for k in ("matching", "ranking", "ransac")),
+                                   icp_s=stages.get("icp"),
                                    mireg_json=j, **evaluate(pair, res["T"], P))
                         line.append(f"{label} RE {row['re_deg']:.2f}° TE {row['te_m']:.3f} m "
                                     f"{row['time_s']:.2f} s (wall {row['wall_s']:.2f} s)")
@@ -511,7 +543,7 @@ def main() -> int:
                 os.remove(src_path)
 
     print("\n## Results\n")
-    print(summarise(rows, pairs, methods))
+    print(summarise(rows, pairs, methods, baselines))
     print("\n## Details (medians)\n")
     print(details(rows, pairs, methods))
     print("\nRE = angle(R_gtᵀ R_est); TE = ‖t_est − t_gt‖ in the original source frame (estimate composed "
