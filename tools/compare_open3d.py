@@ -561,8 +561,16 @@ def main() -> int:
     print("\n## Details (medians)\n")
     print(details(rows, pairs, methods))
     print("\nRE = angle(R_gtᵀ R_est); TE = ‖t_est − t_gt‖ in the original source frame (estimate composed "
-          "with the random pose). 'med time' is compute only (Open3D in-process perf_counter; mireg "
-          "timings_s.total); 'med wall' is mireg's subprocess wall time. Ratio > 1 means mireg is faster.")
+          "with the random pose). 'med time' is compute only (Open3D: in-process perf_counter, downsampling "
+          "to RANSAC/ICP; mireg: its timings_s.total); 'med wall' is mireg's subprocess wall time (process "
+          "start and file reading included). Ratios: median time of the Open3D row named in brackets / "
+          "mireg's median time or wall time; > 1 means mireg is faster.")
+    over = [r for r in rows if r.get("time_s") is not None and r.get("wall_s") is not None
+            and r["time_s"] > r["wall_s"]]
+    if over:
+        print(f"WARNING: in {len(over)} mireg runs timings_s.total exceeds the process wall time "
+              f"(e.g. {over[0]['time_s']:.3f} s > {over[0]['wall_s']:.3f} s): mireg's 'total' is not a "
+              "wall-clock time (stages that run concurrently are summed?); the wall ratio is the safer one.")
     for pair in pairs:
         if pair.name == "kitti":
             print(f"kitti: {pair.gt_note}")
