@@ -448,6 +448,19 @@ def machine_header() -> str:
     return f"machine: {model}, {cores}{load}; Open3D {o3d.__version__}; numpy {np.__version__}; Python {platform.python_version()}"
 
 
+def binary_identity(path: str) -> str:
+    """`mireg --version` and a short SHA-256 of the binary, so results can be tied to a build."""
+    import hashlib
+    try:
+        version = subprocess.run([path, "--version"], capture_output=True, text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.TimeoutExpired):
+        version = "?"
+    with open(path, "rb") as f:
+        digest = hashlib.sha256(f.read()).hexdigest()[:12]
+    built = time.strftime("%Y-%m-%d %H:%M", time.localtime(os.path.getmtime(path)))
+    return f"{os.path.abspath(path)} ({version or '?'}, sha256 {digest}, built {built})"
+
+
 def parse_variants(specs: list[str] | None) -> list[tuple[str, list[str]]]:
     """`--mireg-variant LABEL=ARGS` -> [("mireg LABEL", [args...])]; default: as is and --no-icp."""
     if not specs:
@@ -486,7 +499,8 @@ def main() -> int:
     methods = ["open3d global", "open3d global+icp"] + [label for label, _ in variants]
     baselines = {label: "open3d global" if "--no-icp" in extra else "open3d global+icp" for label, extra in variants}
 
-    print(f"# mireg pair vs Open3D RANSAC\n\n{machine_header()}")
+    mireg_id = binary_identity(args.mireg) if variants else "not run (--skip-mireg)"
+    print(f"# mireg pair vs Open3D RANSAC\n\n{machine_header()}\nmireg: {mireg_id}")
     print(f"poses per pair: {args.poses}, seed {args.seed}, random translation ≤ {args.max_translation} m; "
           f"Open3D ICP: distance {args.icp_factor}·voxel on clouds at {args.icp_voxel_factor}·voxel\n")
 
@@ -576,7 +590,7 @@ def main() -> int:
             print(f"kitti: {pair.gt_note}")
 
     if args.json_out:
-        out = {"machine": machine_header(), "args": vars(args),
+        out = {"machine": machine_header(), "mireg": mireg_id, "args": vars(args),
                "pairs": [{"name": p.name, "voxel": p.voxel, "gt": p.gt.tolist(), "gt_note": p.gt_note,
                           "re_thr_deg": p.re_thr_deg, "te_thr_m": p.te_thr_m, "checks": p.checks,
                           "source_points": len(p.source), "target_points": len(p.target)} for p in pairs],
