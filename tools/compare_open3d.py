@@ -383,6 +383,10 @@ def fmt(x: float, digits: int = 3) -> str:
     return f"{x:.{digits}f}"
 
 
+def times(ratio: float) -> str:
+    return "–" if math.isnan(ratio) else f"{ratio:.2f}×"
+
+
 def summarise(rows: list[dict], pairs: list[Pair], methods: list[str], baselines: dict[str, str]) -> str:
     """Markdown table: one line per (pair, method); mireg rows carry time ratios vs their baseline."""
     head = ("| pair | method | trials | recall | med RE succ (°) | med TE succ (m) | med RE all (°) "
@@ -396,13 +400,13 @@ def summarise(rows: list[dict], pairs: list[Pair], methods: list[str], baselines
             ok = [r for r in rs if r["success"]]
             errors = sum(1 for r in rs if r.get("error"))
             t = median(r["time_s"] for r in rs if not r.get("error"))
-            wall = median(r.get("wall_s") for r in rs if r.get("wall_s") is not None)
+            wall = median(r.get("wall_s") for r in rs if r.get("wall_s") is not None and not r.get("error"))
             ratios = "| | "
             if method in baselines:
                 base = baselines[method]
                 o3d_time = median(r["time_s"] for r in rows if r["pair"] == pair.name and r["method"] == base)
                 short = base.replace("open3d ", "")
-                ratios = f"| {fmt(o3d_time / t, 2)}× (vs {short}) | {fmt(o3d_time / wall, 2)}× "
+                ratios = f"| {times(o3d_time / t)} (vs {short}) | {times(o3d_time / wall)} "
             label = method + (f" ({errors} errors)" if errors else "")
             lines.append(
                 f"| {pair.name} | {label} | {len(rs)} | {len(ok)}/{len(rs)} = {len(ok) / len(rs):.2f} "
@@ -452,7 +456,8 @@ def binary_identity(path: str) -> str:
     """`mireg --version` and a short SHA-256 of the binary, so results can be tied to a build."""
     import hashlib
     try:
-        version = subprocess.run([path, "--version"], capture_output=True, text=True, timeout=10).stdout.strip()
+        out = subprocess.run([path, "--version"], capture_output=True, text=True, timeout=10).stdout.strip()
+        version = out.splitlines()[0] if out else "?"
     except (OSError, subprocess.TimeoutExpired):
         version = "?"
     with open(path, "rb") as f:
@@ -570,6 +575,9 @@ def main() -> int:
                 print("; ".join(line), flush=True)
                 os.remove(src_path)
 
+    if not pairs:
+        print("no pair could be run (all skipped)", file=sys.stderr)
+        return 1
     print("\n## Results\n")
     print(summarise(rows, pairs, methods, baselines))
     print("\n## Details (medians)\n")
