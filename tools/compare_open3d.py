@@ -57,14 +57,23 @@ as RE = TE = inf). Time ratios = median time of the matching Open3D method / med
 Pairs
 -----
 3dmatch  redkitchen fragments 0 <- 6 (src.npy -> ref.npy, gt.npy maps src -> ref), voxel 0.05 m
-bunny45  bun045 -> bun000, GT from bun.conf (world = R(q)ᵀ·x + t), voxel 0.005 m
-bunny90  bun090 -> bun000, same, voxel 0.005 m
+bunny45  bun045 -> bun000, GT from bun.conf (world = R(q)ᵀ·x + t), voxel 0.005 m (the bunny is
+         ~15 cm: ~1300 points after downsampling, FPFH radius 2.5 cm ≈ 1/6 of the object)
+bunny90  bun090 -> bun000, same, voxel 0.005 m (~56 % overlap: the hard pair)
 icl      ICL-NUIM livingroom1 rgbd5 frame 4 -> frame 0 (fixture PLYs, GT T0⁻¹·T4), voxel 0.05 m
+         (depth 1–2.7 m, ~3600 points after downsampling; the frames are only ~10 cm apart, so it is
+         the random initial pose that makes this pair a global-registration problem)
 kitti    KITTI 000001.bin -> 000000.bin, voxel 0.5 m. No ground truth: the reference is a dense
          point-to-plane ICP (Open3D, full clouds, normals radius 1.0 m, distances 1.0 m then 0.2 m)
          started from the better (by ICP fitness) of the identity and an Open3D global estimate.
-For every pair with ground truth the script prints the median nearest-neighbour distance of the
-source after GT to the target, as a check that the GT really aligns the clouds.
+For every pair the script prints, as a check that the GT really aligns the clouds, the median
+nearest-neighbour distance of the source after GT to the target, the overlap fraction (neighbour
+closer than one voxel) and the median inside the overlap (partial overlap inflates the plain median),
+also for the untransformed source and, for the bunny, the rejected R(q)·x + t reading of bun.conf.
+
+Output: the Markdown tables on stdout; with ``--json-out FILE`` every per-trial row (pose P, seeds,
+estimate, RE/TE, times, mireg's full JSON) plus the per-pair GT and checks. Default paths are
+resolved from the repository containing this script, so it can be run from any directory.
 """
 from __future__ import annotations
 
@@ -84,6 +93,7 @@ import numpy as np
 import open3d as o3d
 
 REG = o3d.pipelines.registration
+REPO = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 ALL_PAIRS = ["3dmatch", "bunny45", "bunny90", "icl", "kitti"]
 
 
@@ -483,9 +493,12 @@ def main() -> int:
     ap.add_argument("--poses", type=int, default=10, help="random initial poses per pair (default 10)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the pose RNG and of the per-trial seeds")
     ap.add_argument("--max-translation", type=float, default=1.0, help="radius of the random translation [m]")
-    ap.add_argument("--data", default=os.path.join("..", "shared", "data"), help="shared data directory")
-    ap.add_argument("--fixtures", default="fixtures", help="fixtures directory (ICL-NUIM pair)")
-    ap.add_argument("--mireg", default=os.path.join("target", "release", "mireg"), help="mireg binary")
+    ap.add_argument("--data", default=os.path.relpath(os.path.join(REPO, "..", "shared", "data")),
+                    help="shared data directory (default: ../shared/data next to the repository)")
+    ap.add_argument("--fixtures", default=os.path.relpath(os.path.join(REPO, "fixtures")),
+                    help="fixtures directory with icl_nuim/ (default: the repository's fixtures)")
+    ap.add_argument("--mireg", default=os.path.relpath(os.path.join(REPO, "target", "release", "mireg")),
+                    help="mireg binary (default: the repository's target/release/mireg)")
     ap.add_argument("--mireg-variant", action="append", metavar="LABEL=ARGS",
                     help="extra `mireg pair` arguments under a label, repeatable, e.g. "
                          "uniform=\"--sampler uniform\" (default: `levy=` and `--no-icp=--no-icp`)")
