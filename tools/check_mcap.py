@@ -323,7 +323,7 @@ def main(argv):
                 f"{len(reference.attachments)} attachments of {args.compare_input} are present unchanged"
             )
     if problems:
-        print(f"FAILED: {len(problems)} problem(s)")
+        print(f"FAILED: {sum(1 for p in problems if not p.startswith(' '))} problem(s)")
         for p in problems:
             print(f"  {p}")
         return 1
