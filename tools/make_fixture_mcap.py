@@ -344,7 +344,11 @@ def build(args):
                 print(f"frame {k:3d}: {len(points)} points, t = {t_ns} ns", file=sys.stderr)
         writer.add_metadata("fixture", fixture_metadata(args, frames))
         writer.finish()
-    verify(tmp, expected)
+    try:
+        verify(tmp, expected)
+    except BaseException:
+        os.remove(tmp)  # never leave a half-checked file behind
+        raise
     os.replace(tmp, args.out)
     npts = [len(data) // 12 for _t, data, _p in expected]
     last = expected[-1][2]
