@@ -19,3 +19,5 @@ pub mod simulate;
 pub use error::{Error, Result};
 pub mod pipeline;
 pub mod odometry;
+pub mod evaluate;
+pub mod register;

@@ -5,4 +5,5 @@
 //! they can be tested without files; the `read_*` functions add the file system on top.
 
 pub mod cloud_file;
+pub mod mcap_log;
 pub mod pose_file;

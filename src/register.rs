@@ -1,0 +1,483 @@
+//! `mireg register`: MCAP log in, MCAP log out. The one module that joins file I/O to the pure
+//! algorithms ([`crate::odometry`]).
+//!
+//! Three stages overlap, connected by bounded queues: the calling thread streams records (copying
+//! each into the output), a *prepare* thread decodes, downsamples and computes features for frame
+//! `k + 1` while a *register* thread registers frame `k`. Memory is bounded by one chunk plus the
+//! queue capacity, whatever the log length.
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, sync_channel};
+use std::time::Instant;
+
+use mcap::records::Record;
+use nalgebra::Isometry3;
+use serde_json::json;
+
+use crate::evaluate::{ate_rmse, relative_pose_errors};
+use crate::io::mcap_log::{ChannelInfo, OutputLog, for_each_record, list_channels};
+use crate::io::ros2;
+use crate::odometry::{FrameEstimate, Odometry, OdometryConfig};
+use crate::pipeline::{PreparedFrame, prepare_frame};
+use crate::{Error, Result};
+
+/// Frames in flight between stages (each queue). Bounds memory.
+pub const QUEUE_CAPACITY: usize = 2;
+/// Cloud messages held to restore log-time order when a file is not time-ordered.
+pub const REORDER_WINDOW: usize = 16;
+/// Topic of the reference poses used for the summary, when the log has one.
+pub const DEFAULT_REFERENCE_TOPIC: &str = "/ground_truth/pose";
+
+/// Everything `mireg register` needs.
+#[derive(Debug, Clone)]
+pub struct RegisterOptions {
+    /// Input MCAP (never modified).
+    pub input: PathBuf,
+    /// Output MCAP.
+    pub output: PathBuf,
+    /// Point cloud topic; `None` auto-detects the single one.
+    pub topic: Option<String>,
+    /// Registration settings.
+    pub config: OdometryConfig,
+    /// Replace an existing output.
+    pub force: bool,
+    /// Name of the world frame in `/tf` and `/mireg/pose` (the first cloud's sensor frame).
+    pub world_frame: String,
+    /// The command line, recorded in the output's metadata.
+    pub command_line: String,
+    /// Show a progress bar on stderr (only drawn when stderr is a terminal).
+    pub progress: bool,
+}
+
+/// Default output path: `NAME.mireg.mcap` next to `NAME.mcap`.
+pub fn default_output(input: &Path) -> PathBuf {
+    let stem = input.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "out".into());
+    input.with_file_name(format!("{stem}.mireg.mcap"))
+}
+
+/// Errors against the log's reference pose topic.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ReferenceErrors {
+    /// Topic the reference came from.
+    pub topic: String,
+    /// Frames with a reference pose at the same stamp.
+    pub frames: usize,
+    /// ATE RMSE after rigid alignment [m].
+    pub ate_rmse_m: f64,
+    /// Mean RPE translation per frame [m].
+    pub rpe_trans_mean_m: f64,
+    /// Mean RPE rotation per frame [deg].
+    pub rpe_rot_mean_deg: f64,
+}
+
+/// What a run did.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct RegisterSummary {
+    /// Output file.
+    pub output: PathBuf,
+    /// Cloud topic registered.
+    pub topic: String,
+    /// Topic our transforms went to.
+    pub tf_topic: String,
+    /// Frames processed.
+    pub frames: usize,
+    /// Frames whose global registration failed (flagged; pose from the fallback).
+    pub failed_frames: usize,
+    /// Mean RANSAC inliers over registered frames.
+    pub mean_inliers: f64,
+    /// Input messages copied.
+    pub messages_copied: u64,
+    /// Wall-clock seconds for the whole run.
+    pub elapsed_s: f64,
+    /// Frames per second (wall clock).
+    pub frames_per_s: f64,
+    /// Errors against the reference pose topic, when the log has one.
+    pub reference: Option<ReferenceErrors>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum CloudKind {
+    Ros2,
+}
+
+fn cloud_kind(c: &ChannelInfo) -> Option<CloudKind> {
+    (c.schema_name == ros2::POINT_CLOUD2_SCHEMA_NAME && c.message_encoding == "cdr").then_some(CloudKind::Ros2)
+}
+
+/// Picks the point cloud channel: the one named `requested`, or the only cloud topic.
+fn choose_topic(path: &Path, channels: &[ChannelInfo], requested: Option<&str>) -> Result<(String, CloudKind)> {
+    let clouds: Vec<&ChannelInfo> = channels.iter().filter(|c| cloud_kind(c).is_some()).collect();
+    if let Some(topic) = requested {
+        let c = channels.iter().find(|c| c.topic == topic).ok_or_else(|| Error::InvalidInput(format!(
+            "{}: no topic {topic:?} (topics: {})",
+            path.display(),
+            channels.iter().map(|c| c.topic.as_str()).collect::<Vec<_>>().join(", ")
+        )))?;
+        let kind = cloud_kind(c).ok_or_else(|| Error::InvalidInput(format!(
+            "{}: topic {topic:?} carries {} ({}), not a point cloud (sensor_msgs/msg/PointCloud2, cdr)",
+            path.display(),
+            c.schema_name,
+            c.message_encoding
+        )))?;
+        return Ok((topic.to_string(), kind));
+    }
+    match clouds.as_slice() {
+        [] => Err(Error::InvalidInput(format!(
+            "{}: no point cloud topic (sensor_msgs/msg/PointCloud2, cdr); topics: {}",
+            path.display(),
+            channels.iter().map(|c| format!("{} [{}]", c.topic, c.schema_name)).collect::<Vec<_>>().join(", ")
+        ))),
+        [one] => Ok((one.topic.clone(), cloud_kind(one).expect("filtered"))),
+        many => Err(Error::InvalidInput(format!(
+            "{}: several point cloud topics, choose one with --topic: {}",
+            path.display(),
+            many.iter().map(|c| c.topic.as_str()).collect::<Vec<_>>().join(", ")
+        ))),
+    }
+}
+
+struct CloudMsg {
+    log_time: u64,
+    publish_time: u64,
+    data: Vec<u8>,
+}
+
+struct PreparedMsg {
+    log_time: u64,
+    publish_time: u64,
+    header: ros2::Header,
+    decode_s: f64,
+    frame: PreparedFrame,
+}
+
+struct FrameOut {
+    log_time: u64,
+    publish_time: u64,
+    header: ros2::Header,
+    decode_s: f64,
+    prep: crate::pipeline::FrameTimings,
+    register_s: f64,
+    est: FrameEstimate,
+}
+
+fn decode_error(path: &Path, topic: &str, log_time: u64, e: ros2::DecodeError) -> Error {
+    Error::Format {
+        path: path.to_path_buf(),
+        detail: format!("message on {topic} at log time {log_time} ns: field {}: {}", e.field, e.detail),
+    }
+}
+
+/// JSON Schema of the `/mireg/stats` messages.
+pub fn stats_json_schema() -> serde_json::Value {
+    let num = json!({"type": "number"});
+    let int = json!({"type": "integer"});
+    json!({
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": "mireg.FrameStats",
+        "description": "Per-frame registration statistics written by mireg register",
+        "type": "object",
+        "properties": {
+            "frame": int, "stamp_ns": int, "success": {"type": "boolean"},
+            "failure_reason": {"type": ["string", "null"]}, "fallback": {"type": ["string", "null"]},
+            "num_points": int, "num_points_downsampled": int, "num_correspondences": int,
+            "num_inliers": int, "inlier_ratio": num, "hypotheses": int,
+            "best_found_at": {"type": ["integer", "null"]}, "fitness": num, "inlier_rmse_m": num,
+            "icp_iterations": int,
+            "timings_s": {"type": "object", "additionalProperties": num}
+        },
+        "required": ["frame", "stamp_ns", "success", "failure_reason", "num_points", "num_points_downsampled",
+                     "num_correspondences", "num_inliers", "inlier_ratio", "hypotheses", "best_found_at",
+                     "fitness", "inlier_rmse_m", "icp_iterations", "timings_s"]
+    })
+}
+
+fn frame_stats(out: &FrameOut) -> serde_json::Value {
+    let e = &out.est;
+    let p = e.pair.as_ref();
+    let t = p.map(|p| p.timings_s).unwrap_or_default();
+    let num_corr = p.map_or(0, |p| p.num_correspondences);
+    let num_inl = p.map_or(0, |p| p.num_inliers);
+    json!({
+        "frame": e.index,
+        "stamp_ns": out.header.stamp.to_ns(),
+        "success": e.success,
+        "failure_reason": e.failure.map(|f| f.as_str()),
+        "fallback": e.fallback.map(|f| match f {
+            crate::odometry::Fallback::ConstantVelocityIcp => "constant_velocity_icp",
+            crate::odometry::Fallback::ConstantVelocity => "constant_velocity",
+        }),
+        "num_points": e.num_points,
+        "num_points_downsampled": e.num_points_downsampled,
+        "num_correspondences": num_corr,
+        "num_inliers": num_inl,
+        "inlier_ratio": if num_corr > 0 { num_inl as f64 / num_corr as f64 } else { 0.0 },
+        "hypotheses": p.map_or(0, |p| p.hypotheses),
+        "best_found_at": p.and_then(|p| p.best_found_at),
+        "fitness": p.map_or(0.0, |p| p.fitness),
+        "inlier_rmse_m": p.map_or(0.0, |p| p.inlier_rmse_m),
+        "icp_iterations": p.map_or(0, |p| p.icp_iterations) + e.fallback_icp_iterations,
+        "timings_s": {
+            "decode": out.decode_s,
+            "downsample": out.prep.downsample,
+            "normals": out.prep.normals,
+            "features": out.prep.features,
+            "matching": t.matching,
+            "ranking": t.ranking,
+            "ransac": t.ransac,
+            "icp": t.icp,
+            "register": out.register_s,
+        }
+    })
+}
+
+struct Outputs {
+    tf: u16,
+    pose: u16,
+    stats: u16,
+}
+
+fn write_frame(log: &mut OutputLog, ch: &Outputs, world_frame: &str, out: &FrameOut) -> Result<()> {
+    let header = ros2::Header { stamp: out.header.stamp, frame_id: world_frame.to_string() };
+    let pose = ros2::encode_pose_stamped(&header, &out.est.world_from_frame);
+    let tf = ros2::encode_tf_message(&[ros2::TransformStamped {
+        header: header.clone(),
+        child_frame_id: out.header.frame_id.clone(),
+        transform: out.est.world_from_frame,
+    }]);
+    let stats = serde_json::to_vec(&frame_stats(out)).expect("JSON of plain values");
+    log.write(ch.tf, out.log_time, out.publish_time, &tf)?;
+    log.write(ch.pose, out.log_time, out.publish_time, &pose)?;
+    log.write(ch.stats, out.log_time, out.publish_time, &stats)
+}
+
+/// Runs the whole job. On any error the output path is left untouched.
+pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
+    let start = Instant::now();
+    let input = &opts.input;
+    if !input.is_file() {
+        return Err(Error::Io {
+            path: input.clone(),
+            source: std::io::Error::new(std::io::ErrorKind::NotFound, "input MCAP not found"),
+        });
+    }
+    if let (Ok(a), Ok(b)) = (input.canonicalize(), opts.output.canonicalize()) {
+        if a == b {
+            return Err(Error::InvalidInput(format!(
+                "output {} is the input; mireg never writes over its input",
+                opts.output.display()
+            )));
+        }
+    }
+    let mut odometry = Odometry::new(opts.config.clone())?;
+    let channels = list_channels(input)?;
+    let (topic, _kind) = choose_topic(input, &channels, opts.topic.as_deref())?;
+    let tf_topic = if channels.iter().any(|c| c.topic == "/tf") { "/mireg/tf" } else { "/tf" }.to_string();
+    let reference_topic = channels
+        .iter()
+        .find(|c| c.topic == DEFAULT_REFERENCE_TOPIC && c.schema_name == ros2::POSE_STAMPED_SCHEMA_NAME)
+        .map(|c| c.topic.clone());
+    let total_frames = channels.iter().filter(|c| c.topic == topic).filter_map(|c| c.message_count).sum::<u64>();
+
+    let mut log = OutputLog::create(&opts.output, opts.force, "ros2")?;
+    let ch = Outputs {
+        tf: log.add_channel(&tf_topic, ros2::TF_MESSAGE_SCHEMA_NAME, ros2::SCHEMA_ENCODING, ros2::TF_MESSAGE_SCHEMA.as_bytes(), ros2::MESSAGE_ENCODING)?,
+        pose: log.add_channel("/mireg/pose", ros2::POSE_STAMPED_SCHEMA_NAME, ros2::SCHEMA_ENCODING, ros2::POSE_STAMPED_SCHEMA.as_bytes(), ros2::MESSAGE_ENCODING)?,
+        stats: log.add_channel(
+            "/mireg/stats",
+            "mireg.FrameStats",
+            "jsonschema",
+            serde_json::to_string(&stats_json_schema()).expect("schema JSON").as_bytes(),
+            "json",
+        )?,
+    };
+
+    let progress = if opts.progress && std::io::IsTerminal::is_terminal(&std::io::stderr()) {
+        let bar = indicatif::ProgressBar::new(total_frames);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames  {per_sec}  ETA {eta}")
+                .expect("valid template"),
+        );
+        Some(bar)
+    } else {
+        None
+    };
+
+    let mut estimates: Vec<(u64, Isometry3<f64>, bool, usize)> = Vec::new(); // (stamp, pose, success, inliers)
+    let mut reference: HashMap<u64, Isometry3<f64>> = HashMap::new();
+    let mut copied = 0u64;
+    let config = &opts.config;
+
+    std::thread::scope(|scope| -> Result<()> {
+        let (cloud_tx, cloud_rx): (SyncSender<CloudMsg>, Receiver<CloudMsg>) = sync_channel(QUEUE_CAPACITY);
+        let (prep_tx, prep_rx) = sync_channel::<Result<PreparedMsg>>(QUEUE_CAPACITY);
+        let (out_tx, out_rx) = sync_channel::<Result<FrameOut>>(QUEUE_CAPACITY);
+        let topic_ref = topic.as_str();
+
+        scope.spawn(move || {
+            for msg in cloud_rx {
+                let t = Instant::now();
+                let r = ros2::decode_point_cloud2(&msg.data)
+                    .map_err(|e| decode_error(input, topic_ref, msg.log_time, e))
+                    .and_then(|cloud| {
+                        let decode_s = t.elapsed().as_secs_f64();
+                        let frame = prepare_frame(&cloud.points, &config.pair)?;
+                        Ok(PreparedMsg { log_time: msg.log_time, publish_time: msg.publish_time, header: cloud.header, decode_s, frame })
+                    });
+                let failed = r.is_err();
+                if prep_tx.send(r).is_err() || failed {
+                    break;
+                }
+            }
+        });
+        let odometry = &mut odometry;
+        scope.spawn(move || {
+            for msg in prep_rx {
+                let r = msg.and_then(|m| {
+                    let prep = m.frame.timings;
+                    let t = Instant::now();
+                    let est = odometry.push(m.frame)?;
+                    Ok(FrameOut {
+                        log_time: m.log_time,
+                        publish_time: m.publish_time,
+                        header: m.header,
+                        decode_s: m.decode_s,
+                        prep,
+                        register_s: t.elapsed().as_secs_f64(),
+                        est,
+                    })
+                });
+                let failed = r.is_err();
+                if out_tx.send(r).is_err() || failed {
+                    break;
+                }
+            }
+        });
+
+        let mut handle_out = |log: &mut OutputLog, r: Result<FrameOut>| -> Result<()> {
+            let out = r?;
+            write_frame(log, &ch, &opts.world_frame, &out)?;
+            estimates.push((
+                out.header.stamp.to_ns(),
+                out.est.world_from_frame,
+                out.est.success,
+                out.est.pair.as_ref().map_or(0, |p| p.num_inliers),
+            ));
+            if let Some(bar) = &progress {
+                bar.inc(1);
+            }
+            Ok(())
+        };
+
+        // Clouds are handed on in log-time order (a small reorder window tolerates files whose
+        // chunks are not time-ordered).
+        let mut pending: BTreeMap<(u64, u64), CloudMsg> = BTreeMap::new();
+        let mut order = 0u64;
+        let mut cloud_channels: Vec<u16> = Vec::new();
+        let mut reference_channels: Vec<u16> = Vec::new();
+        let mut cloud_tx = Some(cloud_tx);
+        let read = for_each_record(input, |record| {
+            log.copy(&record)?;
+            match &record {
+                Record::Channel(c) if c.topic == topic => cloud_channels.push(c.id),
+                Record::Channel(c) if Some(&c.topic) == reference_topic.as_ref() => reference_channels.push(c.id),
+                Record::Message { header, data } => {
+                    copied += 1;
+                    if cloud_channels.contains(&header.channel_id) {
+                        pending.insert(
+                            (header.log_time, order),
+                            CloudMsg { log_time: header.log_time, publish_time: header.publish_time, data: data.to_vec() },
+                        );
+                        order += 1;
+                        if pending.len() > REORDER_WINDOW {
+                            let (_, msg) = pending.pop_first().expect("non-empty");
+                            if cloud_tx.as_ref().expect("open").send(msg).is_err() {
+                                return Err(Error::InvalidInput("registration stopped early".into()));
+                            }
+                        }
+                    } else if reference_channels.contains(&header.channel_id) {
+                        if let Ok((h, pose)) = ros2::decode_pose_stamped(data) {
+                            reference.insert(h.stamp.to_ns(), pose);
+                        }
+                    }
+                }
+                _ => {}
+            }
+            loop {
+                match out_rx.try_recv() {
+                    Ok(r) => handle_out(&mut log, r)?,
+                    Err(TryRecvError::Empty) | Err(TryRecvError::Disconnected) => break,
+                }
+            }
+            Ok(())
+        });
+        if read.is_ok() {
+            for (_, msg) in std::mem::take(&mut pending) {
+                if cloud_tx.as_ref().expect("open").send(msg).is_err() {
+                    break;
+                }
+            }
+        }
+        drop(cloud_tx.take());
+        let mut result = read;
+        for r in out_rx.iter() {
+            if result.is_ok() {
+                result = handle_out(&mut log, r);
+            }
+        }
+        result
+    })?;
+    if let Some(bar) = &progress {
+        bar.finish_and_clear();
+    }
+
+    let mut meta = BTreeMap::new();
+    meta.insert("version".to_string(), env!("CARGO_PKG_VERSION").to_string());
+    meta.insert("config".to_string(), serde_json::to_string(&opts.config).expect("config JSON"));
+    meta.insert("seed".to_string(), opts.config.pair.seed.to_string());
+    meta.insert("command_line".to_string(), opts.command_line.clone());
+    meta.insert("input".to_string(), input.display().to_string());
+    meta.insert("topic".to_string(), topic.clone());
+    log.write_metadata("mireg", meta)?;
+    log.finish()?;
+
+    let frames = estimates.len();
+    let failed_frames = estimates.iter().filter(|e| !e.2).count();
+    let registered: Vec<usize> = estimates.iter().skip(1).filter(|e| e.2).map(|e| e.3).collect();
+    let mean_inliers = if registered.is_empty() { 0.0 } else { registered.iter().sum::<usize>() as f64 / registered.len() as f64 };
+    let reference = reference_topic.and_then(|t| reference_errors(&t, &estimates, &reference));
+    let elapsed_s = start.elapsed().as_secs_f64();
+    Ok(RegisterSummary {
+        output: opts.output.clone(),
+        topic,
+        tf_topic,
+        frames,
+        failed_frames,
+        mean_inliers,
+        messages_copied: copied,
+        elapsed_s,
+        frames_per_s: frames as f64 / elapsed_s.max(1e-9),
+        reference,
+    })
+}
+
+fn reference_errors(
+    topic: &str,
+    estimates: &[(u64, Isometry3<f64>, bool, usize)],
+    reference: &HashMap<u64, Isometry3<f64>>,
+) -> Option<ReferenceErrors> {
+    let (est, gt): (Vec<_>, Vec<_>) =
+        estimates.iter().filter_map(|(stamp, pose, _, _)| reference.get(stamp).map(|g| (*pose, *g))).unzip();
+    if est.len() < 2 {
+        return None;
+    }
+    let rpe = relative_pose_errors(&est, &gt);
+    let n = rpe.len() as f64;
+    Some(ReferenceErrors {
+        topic: topic.to_string(),
+        frames: est.len(),
+        ate_rmse_m: ate_rmse(&est, &gt),
+        rpe_trans_mean_m: rpe.iter().map(|r| r.0).sum::<f64>() / n,
+        rpe_rot_mean_deg: rpe.iter().map(|r| r.1).sum::<f64>() / n,
+    })
+}
