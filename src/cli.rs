@@ -12,6 +12,8 @@ use nalgebra::Isometry3;
 
 use crate::correspondence::ranking::{CountOrder, PAPER_DESCRIPTOR_RADIUS};
 use crate::io::{cloud_file, pose_file};
+use crate::odometry::OdometryConfig;
+use crate::register::{RegisterOptions, RegisterSummary, default_output, register_log};
 use crate::pipeline::{
     PairConfig, PairResult, RankingConfig, SamplerConfig, pose_error, register_pair,
 };
@@ -33,6 +35,8 @@ pub enum Command {
     Simulate(SimulateArgs),
     /// Register one point cloud (SRC) to another (TGT): prints target_from_source.
     Pair(PairArgs),
+    /// Register consecutive point clouds of an MCAP log; write poses and statistics to a new MCAP.
+    Register(RegisterArgs),
 }
 
 /// Sampler choice on the command line.
@@ -72,6 +76,110 @@ pub enum GtFormat {
     Bunny,
 }
 
+/// Registration flags shared by `pair` and `register`. Unset flags keep the value from
+/// `--config` (TOML of [`PairConfig`]) or the documented default.
+#[derive(Debug, Args, Default)]
+pub struct RegistrationFlags {
+    /// TOML file with any fields of the pairwise configuration (see docs/CONFIG.md).
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Voxel size [m]; normal, feature, inlier and ICP radii derive from it [default: 0.05].
+    #[arg(long)]
+    pub voxel: Option<f64>,
+    /// Hypothesis sampler [default: levy].
+    #[arg(long, value_enum)]
+    pub sampler: Option<SamplerArg>,
+    /// Lévy location μ (< 0) [default: -50].
+    #[arg(long, allow_hyphen_values = true)]
+    pub mu: Option<f64>,
+    /// Lévy scale c [default: 1].
+    #[arg(long)]
+    pub levy_c: Option<f64>,
+    /// Lévy draws with replacement (the authors' behaviour).
+    #[arg(long)]
+    pub with_replacement: bool,
+    /// Correspondence ranking [default: ratio].
+    #[arg(long, value_enum)]
+    pub ranking: Option<RankingArg>,
+    /// Descriptor radius τ_d for the count rankings [FPFH units, default: 12].
+    #[arg(long)]
+    pub descriptor_radius: Option<f32>,
+    /// Keep only mutual nearest neighbours in feature space.
+    #[arg(long)]
+    pub mutual: bool,
+    /// Cap on RANSAC hypotheses [default: 100000].
+    #[arg(long)]
+    pub max_hypotheses: Option<u64>,
+    /// Skip ICP refinement.
+    #[arg(long)]
+    pub no_icp: bool,
+    /// Seed of all randomness [default: 0].
+    #[arg(long)]
+    pub seed: Option<u64>,
+}
+
+impl RegistrationFlags {
+    /// The configuration: defaults, then `--config`, then explicit flags.
+    pub fn config(&self) -> Result<PairConfig> {
+        let mut c = match &self.config {
+            Some(path) => {
+                let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+                toml::from_str::<PairConfig>(&text).with_context(|| format!("{}: invalid configuration", path.display()))?
+            }
+            None => PairConfig::default(),
+        };
+        if let Some(v) = self.voxel {
+            c.voxel_size_m = v;
+        }
+        if self.mutual {
+            c.mutual_filter = true;
+        }
+        if let Some(r) = self.ranking {
+            let radius = self.descriptor_radius.unwrap_or(match c.ranking {
+                RankingConfig::NeighbourCount { radius, .. } => radius,
+                _ => PAPER_DESCRIPTOR_RADIUS as f32,
+            });
+            c.ranking = match r {
+                RankingArg::Ratio => RankingConfig::Ratio,
+                RankingArg::Distance => RankingConfig::Distance,
+                RankingArg::CountMost => RankingConfig::NeighbourCount { radius, order: CountOrder::MostFirst },
+                RankingArg::CountFewest => RankingConfig::NeighbourCount { radius, order: CountOrder::FewestFirst },
+            };
+        } else if let (Some(d), RankingConfig::NeighbourCount { radius, .. }) = (self.descriptor_radius, &mut c.ranking) {
+            *radius = d;
+        }
+        let (mut mu, mut levy_c, mut window, mut repl) = match c.sampler {
+            SamplerConfig::Levy { mu, c, window, with_replacement } => (mu, c, window, with_replacement),
+            _ => (-50.0, 1.0, crate::ransac::levy::DEFAULT_WINDOW, false),
+        };
+        mu = self.mu.unwrap_or(mu);
+        levy_c = self.levy_c.unwrap_or(levy_c);
+        repl |= self.with_replacement;
+        window = window.max(f64::MIN_POSITIVE);
+        let levy = SamplerConfig::Levy { mu, c: levy_c, window, with_replacement: repl };
+        c.sampler = match self.sampler {
+            Some(SamplerArg::Uniform) => SamplerConfig::Uniform,
+            Some(SamplerArg::Prosac) => SamplerConfig::Prosac {
+                growth_max_samples: crate::ransac::prosac::DEFAULT_GROWTH_MAX_SAMPLES,
+            },
+            Some(SamplerArg::Levy) => levy,
+            None if matches!(c.sampler, SamplerConfig::Levy { .. }) => levy,
+            None => c.sampler,
+        };
+        if let Some(m) = self.max_hypotheses {
+            c.max_hypotheses = m;
+        }
+        if self.no_icp {
+            c.icp = false;
+        }
+        if let Some(seed) = self.seed {
+            c.seed = seed;
+        }
+        c.resolved().context("invalid configuration")?;
+        Ok(c)
+    }
+}
+
 /// Arguments of `mireg pair`.
 #[derive(Debug, Args)]
 pub struct PairArgs {
@@ -79,39 +187,9 @@ pub struct PairArgs {
     pub source: PathBuf,
     /// Target cloud; the result maps source points into its frame.
     pub target: PathBuf,
-    /// Voxel size [m]; normal, feature, inlier and ICP radii derive from it.
-    #[arg(long, default_value_t = 0.05)]
-    pub voxel: f64,
-    /// Hypothesis sampler.
-    #[arg(long, value_enum, default_value_t = SamplerArg::Levy)]
-    pub sampler: SamplerArg,
-    /// Lévy location μ (< 0).
-    #[arg(long, default_value_t = -50.0, allow_hyphen_values = true)]
-    pub mu: f64,
-    /// Lévy scale c.
-    #[arg(long, default_value_t = 1.0)]
-    pub levy_c: f64,
-    /// Lévy draws with replacement (the authors' behaviour).
-    #[arg(long)]
-    pub with_replacement: bool,
-    /// Correspondence ranking.
-    #[arg(long, value_enum, default_value_t = RankingArg::Ratio)]
-    pub ranking: RankingArg,
-    /// Descriptor radius τ_d for the count rankings [FPFH units].
-    #[arg(long, default_value_t = PAPER_DESCRIPTOR_RADIUS as f32)]
-    pub descriptor_radius: f32,
-    /// Keep only mutual nearest neighbours in feature space.
-    #[arg(long)]
-    pub mutual: bool,
-    /// Cap on RANSAC hypotheses.
-    #[arg(long, default_value_t = crate::ransac::consensus::DEFAULT_MAX_HYPOTHESES)]
-    pub max_hypotheses: u64,
-    /// Skip ICP refinement.
-    #[arg(long)]
-    pub no_icp: bool,
-    /// Seed of all randomness.
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
+    /// Registration settings.
+    #[command(flatten)]
+    pub flags: RegistrationFlags,
     /// Ground truth to compare against (adds rotation/translation errors).
     #[arg(long)]
     pub gt: Option<PathBuf>,
@@ -122,6 +200,40 @@ pub struct PairArgs {
     #[arg(long, value_parser = parse_pair, value_name = "TARGET,SOURCE")]
     pub gt_pair: Option<(usize, usize)>,
     /// Print one JSON object instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Arguments of `mireg register`.
+#[derive(Debug, Args)]
+pub struct RegisterArgs {
+    /// Input MCAP log (never modified).
+    pub input: PathBuf,
+    /// Output MCAP [default: INPUT's name with .mireg.mcap, next to it].
+    #[arg(short, long)]
+    pub output: Option<PathBuf>,
+    /// Point cloud topic [default: the only sensor_msgs/msg/PointCloud2 topic].
+    #[arg(long)]
+    pub topic: Option<String>,
+    /// Registration settings.
+    #[command(flatten)]
+    pub flags: RegistrationFlags,
+    /// A registration with fewer RANSAC inliers is flagged as failed.
+    #[arg(long, default_value_t = OdometryConfig::default().min_inliers)]
+    pub min_inliers: usize,
+    /// A registration with lower ICP fitness is flagged as failed.
+    #[arg(long, default_value_t = OdometryConfig::default().min_fitness)]
+    pub min_fitness: f64,
+    /// Name of the world frame (the first cloud's sensor frame) in /tf and /mireg/pose.
+    #[arg(long, default_value = "world")]
+    pub world_frame: String,
+    /// Replace an existing output file.
+    #[arg(long)]
+    pub force: bool,
+    /// No progress bar, no summary.
+    #[arg(short, long)]
+    pub quiet: bool,
+    /// Print the summary as JSON on stdout.
     #[arg(long)]
     pub json: bool,
 }
@@ -151,17 +263,13 @@ pub struct SimulateArgs {
     pub seed: u64,
 }
 
-/// Runs the parsed command line; returns the process exit code.
+/// Runs the parsed command line.
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Some(Command::Simulate(args)) => run_simulate(&args),
         Some(Command::Pair(args)) => run_pair(&args),
-        None => run_simulate(&SimulateArgs {
-            quick: true,
-            csv: false,
-            runs: None,
-            seed: 0,
-        }),
+        Some(Command::Register(args)) => run_register(&args),
+        None => run_default(),
     }
 }
 
@@ -216,44 +324,6 @@ fn write_table(out: &mut impl Write, rows: &[SimulationRow]) -> std::io::Result<
     Ok(())
 }
 
-impl PairArgs {
-    /// The pipeline configuration these flags describe.
-    pub fn config(&self) -> PairConfig {
-        PairConfig {
-            voxel_size_m: self.voxel,
-            mutual_filter: self.mutual,
-            ranking: match self.ranking {
-                RankingArg::Ratio => RankingConfig::Ratio,
-                RankingArg::Distance => RankingConfig::Distance,
-                RankingArg::CountMost => RankingConfig::NeighbourCount {
-                    radius: self.descriptor_radius,
-                    order: CountOrder::MostFirst,
-                },
-                RankingArg::CountFewest => RankingConfig::NeighbourCount {
-                    radius: self.descriptor_radius,
-                    order: CountOrder::FewestFirst,
-                },
-            },
-            sampler: match self.sampler {
-                SamplerArg::Uniform => SamplerConfig::Uniform,
-                SamplerArg::Prosac => SamplerConfig::Prosac {
-                    growth_max_samples: crate::ransac::prosac::DEFAULT_GROWTH_MAX_SAMPLES,
-                },
-                SamplerArg::Levy => SamplerConfig::Levy {
-                    mu: self.mu,
-                    c: self.levy_c,
-                    window: crate::ransac::levy::DEFAULT_WINDOW,
-                    with_replacement: self.with_replacement,
-                },
-            },
-            max_hypotheses: self.max_hypotheses,
-            icp: !self.no_icp,
-            seed: self.seed,
-            ..PairConfig::default()
-        }
-    }
-}
-
 fn load_gt(args: &PairArgs, path: &Path) -> Result<Isometry3<f64>> {
     let need_pair = || {
         args.gt_pair.with_context(|| {
@@ -300,8 +370,7 @@ fn load_gt(args: &PairArgs, path: &Path) -> Result<Isometry3<f64>> {
 }
 
 fn run_pair(args: &PairArgs) -> Result<()> {
-    let config = args.config();
-    config.resolved()?;
+    let config = args.flags.config()?;
     let gt = args.gt.as_deref().map(|p| load_gt(args, p)).transpose()?;
     let (source, target) = rayon::join(
         || cloud_file::read_points(&args.source),
@@ -408,4 +477,80 @@ fn write_pair_text(
         )?;
     }
     Ok(())
+}
+
+fn command_line() -> String {
+    std::env::args().collect::<Vec<_>>().join(" ")
+}
+
+fn run_register(args: &RegisterArgs) -> Result<()> {
+    let config = OdometryConfig {
+        pair: args.flags.config()?,
+        min_inliers: args.min_inliers,
+        min_fitness: args.min_fitness,
+    };
+    let opts = RegisterOptions {
+        input: args.input.clone(),
+        output: args.output.clone().unwrap_or_else(|| default_output(&args.input)),
+        topic: args.topic.clone(),
+        config,
+        force: args.force,
+        world_frame: args.world_frame.clone(),
+        command_line: command_line(),
+        progress: !args.quiet,
+    };
+    let summary = register_log(&opts)?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    } else if !args.quiet {
+        print_summary(&summary);
+    }
+    Ok(())
+}
+
+/// The embedded default fixture: ICL-NUIM livingroom1 as a ROS 2 MCAP (CC BY 3.0).
+pub const DEFAULT_FIXTURE: &str = "fixtures/icl_livingroom1.mcap";
+
+/// `mireg` with no arguments: registers the embedded fixture into a temporary directory and
+/// prints a summary.
+fn run_default() -> Result<()> {
+    let local = PathBuf::from(DEFAULT_FIXTURE);
+    let input = if local.is_file() { local } else { Path::new(env!("CARGO_MANIFEST_DIR")).join(DEFAULT_FIXTURE) };
+    let dir = tempfile::tempdir().context("creating a temporary directory")?;
+    let output = dir.path().join("icl_livingroom1.mireg.mcap");
+    eprintln!("mireg: no arguments: registering the embedded fixture {} (see `mireg --help`)", input.display());
+    let opts = RegisterOptions {
+        input,
+        output,
+        topic: None,
+        config: OdometryConfig::default(),
+        force: false,
+        world_frame: "world".into(),
+        command_line: command_line(),
+        progress: true,
+    };
+    let summary = register_log(&opts)?;
+    print_summary(&summary);
+    println!("(output was written to a temporary directory and removed; run `mireg register {DEFAULT_FIXTURE}` to keep it)");
+    Ok(())
+}
+
+fn print_summary(s: &RegisterSummary) {
+    println!("registered {} frames of {} -> {}", s.frames, s.topic, s.output.display());
+    println!(
+        "failed frames {} ({:.1} %), mean inliers {:.1}, {:.2} frames/s ({:.2} s), {} input messages copied, poses on {} and /mireg/pose",
+        s.failed_frames,
+        100.0 * s.failed_frames as f64 / s.frames.max(1) as f64,
+        s.mean_inliers,
+        s.frames_per_s,
+        s.elapsed_s,
+        s.messages_copied,
+        s.tf_topic
+    );
+    if let Some(r) = &s.reference {
+        println!(
+            "vs {} ({} frames): ATE RMSE {:.4} m, RPE mean {:.4} m / {:.3} deg per frame",
+            r.topic, r.frames, r.ate_rmse_m, r.rpe_trans_mean_m, r.rpe_rot_mean_deg
+        );
+    }
 }

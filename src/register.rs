@@ -303,15 +303,17 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         None
     };
 
-    let mut estimates: Vec<(u64, Isometry3<f64>, bool, usize)> = Vec::new(); // (stamp, pose, success, inliers)
-    let mut reference: HashMap<u64, Isometry3<f64>> = HashMap::new();
+    let mut estimates: Vec<(i64, Isometry3<f64>, bool, usize)> = Vec::new(); // (stamp, pose, success, inliers)
+    let mut reference: HashMap<i64, Isometry3<f64>> = HashMap::new();
     let mut copied = 0u64;
     let config = &opts.config;
 
     std::thread::scope(|scope| -> Result<()> {
         let (cloud_tx, cloud_rx): (SyncSender<CloudMsg>, Receiver<CloudMsg>) = sync_channel(QUEUE_CAPACITY);
         let (prep_tx, prep_rx) = sync_channel::<Result<PreparedMsg>>(QUEUE_CAPACITY);
-        let (out_tx, out_rx) = sync_channel::<Result<FrameOut>>(QUEUE_CAPACITY);
+        // Unbounded: results are small (no point data), and the reading thread, which drains them,
+        // may itself be blocked handing on a cloud; a bound here could close a cycle and deadlock.
+        let (out_tx, out_rx) = std::sync::mpsc::channel::<Result<FrameOut>>();
         let topic_ref = topic.as_str();
 
         scope.spawn(move || {
@@ -463,8 +465,8 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
 
 fn reference_errors(
     topic: &str,
-    estimates: &[(u64, Isometry3<f64>, bool, usize)],
-    reference: &HashMap<u64, Isometry3<f64>>,
+    estimates: &[(i64, Isometry3<f64>, bool, usize)],
+    reference: &HashMap<i64, Isometry3<f64>>,
 ) -> Option<ReferenceErrors> {
     let (est, gt): (Vec<_>, Vec<_>) =
         estimates.iter().filter_map(|(stamp, pose, _, _)| reference.get(stamp).map(|g| (*pose, *g))).unzip();

@@ -5,5 +5,7 @@
 //! they can be tested without files; the `read_*` functions add the file system on top.
 
 pub mod cloud_file;
+pub mod foxglove_msgs;
 pub mod mcap_log;
 pub mod pose_file;
+pub mod ros2;
