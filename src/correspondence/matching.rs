@@ -161,9 +161,10 @@ impl Scan {
         count: 0,
     };
 
-    /// Offers target `j` at squared distance `d`; strict `<` keeps the lowest index on ties.
+    /// Offers target `j` at squared distance `d` for nearest/second nearest; strict `<` keeps
+    /// the lowest index on ties (candidates must be offered in increasing index order).
     #[inline(always)]
-    fn offer(&mut self, j: u32, d: f32, radius_sq: f32) {
+    fn offer(&mut self, j: u32, d: f32) {
         if d < self.second_sq {
             if d < self.best_sq {
                 self.second_sq = self.best_sq;
@@ -173,7 +174,24 @@ impl Scan {
                 self.second_sq = d;
             }
         }
-        self.count += (d <= radius_sq) as u32;
+    }
+
+    /// Offers `LANES` consecutive targets starting at index `base`: counts those within
+    /// `radius_sq` and, only if one of them beats the current second nearest, updates the pair.
+    #[inline(always)]
+    fn offer_lanes(&mut self, base: u32, d: &[f32; LANES], radius_sq: f32) {
+        let mut count = 0;
+        let mut min = d[0];
+        for l in 0..LANES {
+            count += (d[l] <= radius_sq) as u32;
+            min = min.min(d[l]);
+        }
+        self.count += count;
+        if min < self.second_sq {
+            for l in 0..LANES {
+                self.offer(base + l as u32, d[l]);
+            }
+        }
     }
 }
 
@@ -263,9 +281,7 @@ fn scan_generic(queries: &[Fpfh], blocks: &[Block], radius_sq: f32, out: &mut [S
                 let base = ((first_block + b) * LANES) as u32;
                 let d = tile_distances(&tile, block);
                 for k in 0..TILE {
-                    for l in 0..LANES {
-                        local[k].offer(base + l as u32, d[k][l], radius_sq);
-                    }
+                    local[k].offer_lanes(base, &d[k], radius_sq);
                 }
             }
             states.copy_from_slice(&local[..states.len()]);
