@@ -5,11 +5,13 @@
 //! - [`MatchMethod::BruteForce`] (default, faster by measurement — see `examples/match_bench.rs`):
 //!   descriptors are copied into 40-float rows (33 + zero padding) and scanned linearly, a tile of
 //!   query rows at a time so each target row is loaded once per tile, in parallel over queries;
-//!   AVX2 is used when the CPU has it. Ties are broken by the **lowest target index**.
+//!   AVX2 + FMA are used when the CPU has them. Ties are broken by the **lowest target index**.
 //! - [`MatchMethod::KdTree`]: kiddo `ImmutableKdTree<f32, 33>`; in 33-D the tree prunes little.
 //!
-//! Squared distances are summed in a fixed lane order, so brute-force results do not depend on
-//! the instruction set or on the number of threads.
+//! Each squared distance is accumulated over dimensions 0..33 in order with fused multiply-adds
+//! (`f32::mul_add`), so brute-force results do not depend on the vector width or the number of
+//! threads. (On x86-64 CPUs without FMA — pre-2013 — `mul_add` falls back to a slow but exact
+//! software routine.)
 
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
@@ -220,8 +222,9 @@ fn collect(scans: Vec<Scan>, config: &MatchConfig, keep: impl Fn(u32, u32) -> bo
 /// dimension of `LANES` descriptors: distances to `LANES` descriptors come out of the lanes with
 /// no horizontal sums.
 const LANES: usize = 8;
-/// Query descriptors scanned together (each loaded block serves all of them).
-const TILE: usize = 4;
+/// Query descriptors scanned together (each loaded block serves all of them). 8 accumulators fill
+/// half of the 16 AVX registers; measured faster than 4 and 12 (`examples/match_bench.rs`).
+const TILE: usize = 8;
 /// Query descriptors per parallel work unit.
 const WORK_QUERIES: usize = 64;
 /// Database blocks per cache chunk (256 × 1056 B ≈ 270 kB, fits L2): every query of a work unit
@@ -247,9 +250,9 @@ fn to_blocks(descriptors: &[Fpfh]) -> Vec<Block> {
         .collect()
 }
 
-/// Squared distances from `TILE` queries to the `LANES` descriptors of `block`, each summed
-/// over dimensions 0..33 in order (the same as a sequential scalar loop, whatever the vector
-/// width).
+/// Squared distances from `TILE` queries to the `LANES` descriptors of `block`, each accumulated
+/// over dimensions 0..33 in order with `mul_add` (the same as a sequential scalar loop, whatever
+/// the vector width).
 #[inline(always)]
 fn tile_distances(queries: &[Fpfh; TILE], block: &Block) -> [[f32; LANES]; TILE] {
     let mut acc = [[0.0f32; LANES]; TILE];
@@ -258,7 +261,7 @@ fn tile_distances(queries: &[Fpfh; TILE], block: &Block) -> [[f32; LANES]; TILE]
             let q = queries[k][dim];
             for l in 0..LANES {
                 let x = q - t[l];
-                acc[k][l] += x * x;
+                acc[k][l] = x.mul_add(x, acc[k][l]);
             }
         }
     }
@@ -290,16 +293,16 @@ fn scan_generic(queries: &[Fpfh], blocks: &[Block], radius_sq: f32, out: &mut [S
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn scan_avx2(queries: &[Fpfh], blocks: &[Block], radius_sq: f32, out: &mut [Scan]) {
+#[target_feature(enable = "avx2,fma")]
+fn scan_avx2_fma(queries: &[Fpfh], blocks: &[Block], radius_sq: f32, out: &mut [Scan]) {
     scan_generic(queries, blocks, radius_sq, out)
 }
 
 fn scan(queries: &[Fpfh], blocks: &[Block], radius_sq: f32, out: &mut [Scan]) {
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2 (checked above).
-        unsafe { scan_avx2(queries, blocks, radius_sq, out) };
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU supports AVX2 and FMA (checked above).
+        unsafe { scan_avx2_fma(queries, blocks, radius_sq, out) };
         return;
     }
     scan_generic(queries, blocks, radius_sq, out)
