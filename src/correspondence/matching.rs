@@ -184,14 +184,14 @@ impl Scan {
     fn offer_lanes(&mut self, base: u32, d: &[f32; LANES], radius_sq: f32) {
         let mut count = 0;
         let mut min = d[0];
-        for l in 0..LANES {
-            count += (d[l] <= radius_sq) as u32;
-            min = min.min(d[l]);
+        for &x in d {
+            count += (x <= radius_sq) as u32;
+            min = min.min(x);
         }
         self.count += count;
         if min < self.second_sq {
-            for l in 0..LANES {
-                self.offer(base + l as u32, d[l]);
+            for (l, &x) in d.iter().enumerate() {
+                self.offer(base + l as u32, x);
             }
         }
     }

@@ -150,7 +150,8 @@ impl IcpConfig {
                 "max_correspondence_distance_m must be finite and > 0, got {d}"
             )));
         }
-        if !(self.relative_fitness >= 0.0 && self.relative_rmse >= 0.0) {
+        let non_negative = |x: f64| x >= 0.0;
+        if !non_negative(self.relative_fitness) || !non_negative(self.relative_rmse) {
             return Err(Error::InvalidInput(format!(
                 "convergence thresholds must be >= 0, got relative_fitness {} relative_rmse {}",
                 self.relative_fitness, self.relative_rmse
@@ -384,7 +385,7 @@ fn solve_update(jtj: &Matrix6<f64>, jtr: &Vector6<f64>) -> Option<Vector6<f64>> 
     }
     let svd = jtj.svd(true, true);
     let largest = svd.singular_values.max();
-    if !(largest > 0.0) {
+    if largest.is_nan() || largest <= 0.0 {
         return None;
     }
     svd.solve(&rhs, largest * 1e-12).ok().filter(finite)
