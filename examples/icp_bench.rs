@@ -6,7 +6,7 @@
 
 use std::time::Instant;
 
-use mireg::refine::{IcpConfig, IcpTarget, registration_icp_point_to_plane};
+use mireg::refine::{IcpConfig, IcpTarget, evaluate_registration, registration_icp_point_to_plane};
 use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -83,19 +83,29 @@ fn main() {
     let config = IcpConfig::new(0.2).max_iterations(50);
     let mut best = f64::INFINITY;
     let mut result = None;
-    for _ in 0..3 {
+    for _ in 0..10 {
         let start = Instant::now();
         result =
             Some(registration_icp_point_to_plane(&source, &target, &init, &config).expect("icp"));
         best = best.min(start.elapsed().as_secs_f64() * 1e3);
     }
     let result = result.expect("ran");
+    let mut eval_ms = f64::INFINITY;
+    for _ in 0..10 {
+        let start = Instant::now();
+        let e = evaluate_registration(&source, &target, &init, 0.2).expect("evaluate");
+        eval_ms = eval_ms.min(start.elapsed().as_secs_f64() * 1e3);
+        assert!(e.fitness > 0.5);
+    }
     let delta = truth.inverse() * result.target_from_source;
     println!(
         "threads {} | target {} pts (kd-tree build {build_ms:.1} ms) | source {} pts",
         rayon::current_num_threads(),
         points.len(),
         source.len()
+    );
+    println!(
+        "evaluate_registration at the initial pose (nearest-neighbour pass only) {eval_ms:.2} ms"
     );
     println!(
         "ICP {:.1} ms, {} iterations ({:.2} ms/iteration), converged {}, fitness {:.4}, rmse {:.2} mm, error {:.4} deg / {:.3} mm",

@@ -268,23 +268,25 @@ impl IcpTarget {
 
     /// Index of and squared distance [m²] to the nearest target point (lowest index on ties is
     /// not guaranteed: kiddo decides).
-    fn nearest(&self, p: &Point3<f64>) -> (usize, f64) {
+    fn nearest(&self, p: &Point3<f64>, max_squared: f64) -> Option<(usize, f64)> {
+        let one = std::num::NonZeroUsize::MIN;
         let nn = self
             .tree
             .query(&[p.x, p.y, p.z])
-            .nearest_one::<SquaredEuclidean<f64>>()
+            .nearest_n::<SquaredEuclidean<f64>>(one)
+            .within::<SquaredEuclidean<f64>>(max_squared)
             .execute();
-        (nn.item as usize, nn.distance)
+        nn.first().map(|n| (n.item as usize, n.distance))
     }
 }
 
 /// Sums over one pass of correspondence search at a fixed pose.
 #[derive(Clone, Copy)]
 struct PassSums {
-    /// `Σ w J Jᵀ` with `J = (p × n, n)`.
-    jtj: Matrix6<f64>,
+    /// Upper triangle (row-major) of `Σ w J Jᵀ` with `J = (p × n, n)`.
+    jtj_upper: [f64; 21],
     /// `Σ w J r`.
-    jtr: Vector6<f64>,
+    jtr: [f64; 6],
     /// `Σ |p − q|²` over inliers [m²].
     squared_distance_sum: f64,
     num_inliers: usize,
@@ -293,18 +295,36 @@ struct PassSums {
 impl PassSums {
     fn zero() -> Self {
         Self {
-            jtj: Matrix6::zeros(),
-            jtr: Vector6::zeros(),
+            jtj_upper: [0.0; 21],
+            jtr: [0.0; 6],
             squared_distance_sum: 0.0,
             num_inliers: 0,
         }
     }
 
     fn add(&mut self, other: &Self) {
-        self.jtj += other.jtj;
-        self.jtr += other.jtr;
+        for (a, b) in self.jtj_upper.iter_mut().zip(&other.jtj_upper) {
+            *a += b;
+        }
+        for (a, b) in self.jtr.iter_mut().zip(&other.jtr) {
+            *a += b;
+        }
         self.squared_distance_sum += other.squared_distance_sum;
         self.num_inliers += other.num_inliers;
+    }
+
+    /// The normal equations `(Σ w J Jᵀ, Σ w J r)`.
+    fn normal_equations(&self) -> (Matrix6<f64>, Vector6<f64>) {
+        let mut jtj = Matrix6::zeros();
+        let mut u = 0;
+        for a in 0..6 {
+            for b in a..6 {
+                jtj[(a, b)] = self.jtj_upper[u];
+                jtj[(b, a)] = self.jtj_upper[u];
+                u += 1;
+            }
+        }
+        (jtj, Vector6::from(self.jtr))
     }
 
     fn evaluation(&self, num_source: usize) -> RegistrationEvaluation {
@@ -341,7 +361,9 @@ fn correspondence_pass(
             let mut sums = PassSums::zero();
             for s in chunk {
                 let p = target_from_source * s;
-                let (j, squared) = target.nearest(&p);
+                let Some((j, squared)) = target.nearest(&p, max_squared) else {
+                    continue;
+                };
                 // NOTE: strict `<` like Open3D's nanoflann radius search.
                 if squared >= max_squared {
                     continue;
@@ -356,9 +378,17 @@ fn correspondence_pass(
                         continue;
                     }
                     let pxn = p.coords.cross(&n);
-                    let jac = Vector6::new(pxn.x, pxn.y, pxn.z, n.x, n.y, n.z);
-                    sums.jtj.ger(w, &jac, &jac, 1.0);
-                    sums.jtr.axpy(w * residual, &jac, 1.0);
+                    let jac = [pxn.x, pxn.y, pxn.z, n.x, n.y, n.z];
+                    // Upper triangle only; mirrored once per pass.
+                    let mut u = 0;
+                    for a in 0..6 {
+                        let wa = w * jac[a];
+                        for b in a..6 {
+                            sums.jtj_upper[u] += wa * jac[b];
+                            u += 1;
+                        }
+                        sums.jtr[a] += wa * residual;
+                    }
                 }
             }
             sums
@@ -460,7 +490,8 @@ pub fn registration_icp_point_to_plane(
         if sums.num_inliers == 0 {
             break;
         }
-        let Some(x) = solve_update(&sums.jtj, &sums.jtr) else {
+        let (jtj, jtr) = sums.normal_equations();
+        let Some(x) = solve_update(&jtj, &jtr) else {
             break;
         };
         target_from_source = update_from_vector(&x) * target_from_source;
