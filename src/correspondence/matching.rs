@@ -99,41 +99,34 @@ pub fn match_features_with(source: &[Fpfh], target: &[Fpfh], config: &MatchConfi
         return Matches::default();
     }
     let count_radius_sq = config.count_radius.map(|r| r * r);
-    let scans = match config.method {
-        MatchMethod::BruteForce => {
-            let scans = scan_all(source, &to_blocks(target), count_radius_sq);
-            if config.mutual {
-                // Reverse search only for targets that some source picked.
-                let mut picked: Vec<u32> = scans.iter().map(|s| s.best_index).collect();
-                picked.sort_unstable();
-                picked.dedup();
-                let picked_descriptors: Vec<Fpfh> =
-                    picked.iter().map(|&j| target[j as usize]).collect();
-                let reverse = scan_all(&picked_descriptors, &to_blocks(source), None);
-                return collect(scans, config, |i, j| {
-                    let k = picked.binary_search(&j).expect("picked target");
-                    reverse[k].best_index == i
-                });
-            }
-            scans
-        }
-        MatchMethod::KdTree => {
-            let tree = build_tree(target);
-            let scans = kd_scan_all(&tree, source, count_radius_sq);
-            if config.mutual {
-                let source_tree = build_tree(source);
-                return collect(scans, config, |i, j| {
-                    let nn = source_tree
-                        .query(&target[j as usize])
-                        .nearest_one::<SquaredEuclidean<f32>>()
-                        .execute();
-                    nn.item == i
-                });
-            }
-            scans
-        }
-    };
-    collect(scans, config, |_, _| true)
+    let scans = search(config.method, source, target, count_radius_sq);
+    if !config.mutual {
+        return collect(scans, config, |_, _| true);
+    }
+    // Reverse search only for the targets that some source picked.
+    let mut picked: Vec<u32> = scans.iter().map(|s| s.best_index).collect();
+    picked.sort_unstable();
+    picked.dedup();
+    let picked_descriptors: Vec<Fpfh> = picked.iter().map(|&j| target[j as usize]).collect();
+    let reverse = search(config.method, &picked_descriptors, source, None);
+    collect(scans, config, |i, j| {
+        let k = picked.binary_search(&j).expect("picked target");
+        reverse[k].best_index == i
+    })
+}
+
+/// Nearest, second nearest and (if `radius_sq` is set) neighbour count of every query in
+/// `database` (both non-empty).
+fn search(
+    method: MatchMethod,
+    queries: &[Fpfh],
+    database: &[Fpfh],
+    radius_sq: Option<f32>,
+) -> Vec<Scan> {
+    match method {
+        MatchMethod::BruteForce => scan_all(queries, &to_blocks(database), radius_sq),
+        MatchMethod::KdTree => kd_scan_all(&build_tree(database), queries, radius_sq),
+    }
 }
 
 /// Number of target descriptors within Euclidean distance `radius` (inclusive) of each source
