@@ -383,8 +383,8 @@ fn correspondence_pass(
                     let mut u = 0;
                     for a in 0..6 {
                         let wa = w * jac[a];
-                        for b in a..6 {
-                            sums.jtj_upper[u] += wa * jac[b];
+                        for jb in &jac[a..] {
+                            sums.jtj_upper[u] += wa * jb;
                             u += 1;
                         }
                         sums.jtr[a] += wa * residual;
