@@ -266,8 +266,9 @@ impl IcpTarget {
         self.normals.as_deref()
     }
 
-    /// Index of and squared distance [m²] to the nearest target point (lowest index on ties is
-    /// not guaranteed: kiddo decides).
+    /// Index of and squared distance [m²] to the nearest target point if it is within
+    /// `max_squared` [m²] (inclusive; the caller applies Open3D's strict bound). Which of several
+    /// equidistant points is returned is kiddo's choice.
     fn nearest(&self, p: &Point3<f64>, max_squared: f64) -> Option<(usize, f64)> {
         let one = std::num::NonZeroUsize::MIN;
         let nn = self
