@@ -42,7 +42,7 @@ pub enum MatchMethod {
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct MatchConfig {
     /// Keep only pairs where the source descriptor is also its target's nearest source
-    /// descriptor. Default: `false`.
+    /// descriptor (with brute force, ties again go to the lowest source index). Default: `false`.
     pub mutual: bool,
     /// If set, also count target descriptors within this Euclidean distance (inclusive) of each
     /// source descriptor, in the same pass (FPFH units; the paper uses 12). Default: `None`.
@@ -522,6 +522,26 @@ mod tests {
                 assert!(a.count_within[i].abs_diff(b.count_within[i]) <= 1);
             }
         }
+    }
+
+    #[test]
+    fn same_result_on_one_and_two_threads() {
+        let mut rng = Pcg64Mcg::seed_from_u64(5);
+        let mut source = fpfh_like(&mut rng, 1500, 25);
+        let target = source.split_off(500);
+        let config = MatchConfig {
+            mutual: true,
+            count_radius: Some(12.0),
+            method: MatchMethod::BruteForce,
+        };
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| match_features_with(&source, &target, &config))
+        };
+        assert_eq!(run(1), run(2));
     }
 
     #[test]
