@@ -138,7 +138,22 @@ fn main() {
     );
     let e = evaluate_registration(&src, &target, &r.target_from_source, 0.1).unwrap();
     println!(
-        "evaluate_registration at that pose: fitness {:.6} rmse {:.6}",
+        "evaluate_registration at that pose: fitness {:.9} rmse {:.9}",
         e.fitness, e.inlier_rmse_m
     );
+
+    let open3d_pose = dir.join("open3d_icp_target_from_source.npy");
+    if open3d_pose.exists() {
+        let m = Matrix4::from_row_slice(&read_npy(&open3d_pose).0);
+        let rotation = Rotation3::from_matrix_unchecked(m.fixed_view::<3, 3>(0, 0).into_owned());
+        let pose = Isometry3::from_parts(
+            Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]),
+            UnitQuaternion::from_rotation_matrix(&rotation),
+        );
+        let e = evaluate_registration(&src, &target, &pose, 0.1).unwrap();
+        println!(
+            "evaluate_registration at Open3D's ICP pose: fitness {:.9} rmse {:.9}",
+            e.fitness, e.inlier_rmse_m
+        );
+    }
 }

@@ -808,3 +808,37 @@ mod tests {
         assert_eq!(tukey.weight(-2.5), 0.0);
     }
 }
+
+#[cfg(test)]
+mod nearest_tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+    use rand_pcg::Pcg64Mcg;
+
+    #[test]
+    fn nearest_equals_brute_force() {
+        let mut rng = Pcg64Mcg::seed_from_u64(9);
+        let mut random_point = |scale: f64| {
+            Point3::new(
+                rng.random_range(-scale..scale),
+                rng.random_range(-scale..scale),
+                rng.random_range(-scale..scale),
+            )
+        };
+        let points: Vec<_> = (0..5000).map(|_| random_point(1.0)).collect();
+        let queries: Vec<_> = (0..2000).map(|_| random_point(1.2)).collect();
+        let target = IcpTarget::points_only(&points).unwrap();
+        let max_squared = 0.1f64 * 0.1;
+        let mut wrong = 0;
+        for q in &queries {
+            let truth = points
+                .iter()
+                .map(|p| (p - q).norm_squared())
+                .fold(f64::INFINITY, f64::min);
+            let got = target.nearest(q, max_squared).map(|(_, d)| d);
+            let expected = (truth <= max_squared).then_some(truth);
+            wrong += (got != expected) as usize;
+        }
+        assert_eq!(wrong, 0);
+    }
+}
