@@ -11,8 +11,8 @@ use mireg::correspondence::matching::{
 use rand::{RngExt, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
-/// FPFH-like descriptors: each 11-bin block non-negative and summing to 100 (Open3D scale,
-/// 300 per descriptor), drawn around `clusters` peaky centres shared by source and target, with
+/// FPFH-like descriptors: each 11-bin block non-negative and summing to 200 (Open3D 0.20 scale,
+/// 600 per descriptor), drawn around `clusters` peaky centres shared by source and target, with
 /// a spread of noise levels so nearest-neighbour distances range from a few units to tens.
 fn fpfh_like(rng: &mut Pcg64Mcg, centres: &[[[f32; 11]; 3]], n: usize) -> Vec<Fpfh> {
     (0..n)
@@ -25,7 +25,7 @@ fn fpfh_like(rng: &mut Pcg64Mcg, centres: &[[[f32; 11]; 3]], n: usize) -> Vec<Fp
                     std::array::from_fn(|k| block[k] + noise_level * rng.random::<f32>().powi(3));
                 let sum: f32 = raw.iter().sum();
                 for k in 0..11 {
-                    d[b * 11 + k] = 100.0 * raw[k] / sum;
+                    d[b * 11 + k] = 200.0 * raw[k] / sum;
                 }
             }
             d

@@ -150,7 +150,8 @@ impl IcpConfig {
                 "max_correspondence_distance_m must be finite and > 0, got {d}"
             )));
         }
-        if !(self.relative_fitness >= 0.0 && self.relative_rmse >= 0.0) {
+        let non_negative = |x: f64| x >= 0.0;
+        if !non_negative(self.relative_fitness) || !non_negative(self.relative_rmse) {
             return Err(Error::InvalidInput(format!(
                 "convergence thresholds must be >= 0, got relative_fitness {} relative_rmse {}",
                 self.relative_fitness, self.relative_rmse
@@ -265,25 +266,28 @@ impl IcpTarget {
         self.normals.as_deref()
     }
 
-    /// Index of and squared distance [m²] to the nearest target point (lowest index on ties is
-    /// not guaranteed: kiddo decides).
-    fn nearest(&self, p: &Point3<f64>) -> (usize, f64) {
+    /// Index of and squared distance [m²] to the nearest target point if it is within
+    /// `max_squared` [m²] (inclusive; the caller applies Open3D's strict bound). Which of several
+    /// equidistant points is returned is kiddo's choice.
+    fn nearest(&self, p: &Point3<f64>, max_squared: f64) -> Option<(usize, f64)> {
+        let one = std::num::NonZeroUsize::MIN;
         let nn = self
             .tree
             .query(&[p.x, p.y, p.z])
-            .nearest_one::<SquaredEuclidean<f64>>()
+            .nearest_n::<SquaredEuclidean<f64>>(one)
+            .within::<SquaredEuclidean<f64>>(max_squared)
             .execute();
-        (nn.item as usize, nn.distance)
+        nn.first().map(|n| (n.item as usize, n.distance))
     }
 }
 
 /// Sums over one pass of correspondence search at a fixed pose.
 #[derive(Clone, Copy)]
 struct PassSums {
-    /// `Σ w J Jᵀ` with `J = (p × n, n)`.
-    jtj: Matrix6<f64>,
+    /// Upper triangle (row-major) of `Σ w J Jᵀ` with `J = (p × n, n)`.
+    jtj_upper: [f64; 21],
     /// `Σ w J r`.
-    jtr: Vector6<f64>,
+    jtr: [f64; 6],
     /// `Σ |p − q|²` over inliers [m²].
     squared_distance_sum: f64,
     num_inliers: usize,
@@ -292,18 +296,36 @@ struct PassSums {
 impl PassSums {
     fn zero() -> Self {
         Self {
-            jtj: Matrix6::zeros(),
-            jtr: Vector6::zeros(),
+            jtj_upper: [0.0; 21],
+            jtr: [0.0; 6],
             squared_distance_sum: 0.0,
             num_inliers: 0,
         }
     }
 
     fn add(&mut self, other: &Self) {
-        self.jtj += other.jtj;
-        self.jtr += other.jtr;
+        for (a, b) in self.jtj_upper.iter_mut().zip(&other.jtj_upper) {
+            *a += b;
+        }
+        for (a, b) in self.jtr.iter_mut().zip(&other.jtr) {
+            *a += b;
+        }
         self.squared_distance_sum += other.squared_distance_sum;
         self.num_inliers += other.num_inliers;
+    }
+
+    /// The normal equations `(Σ w J Jᵀ, Σ w J r)`.
+    fn normal_equations(&self) -> (Matrix6<f64>, Vector6<f64>) {
+        let mut jtj = Matrix6::zeros();
+        let mut u = 0;
+        for a in 0..6 {
+            for b in a..6 {
+                jtj[(a, b)] = self.jtj_upper[u];
+                jtj[(b, a)] = self.jtj_upper[u];
+                u += 1;
+            }
+        }
+        (jtj, Vector6::from(self.jtr))
     }
 
     fn evaluation(&self, num_source: usize) -> RegistrationEvaluation {
@@ -340,7 +362,9 @@ fn correspondence_pass(
             let mut sums = PassSums::zero();
             for s in chunk {
                 let p = target_from_source * s;
-                let (j, squared) = target.nearest(&p);
+                let Some((j, squared)) = target.nearest(&p, max_squared) else {
+                    continue;
+                };
                 // NOTE: strict `<` like Open3D's nanoflann radius search.
                 if squared >= max_squared {
                     continue;
@@ -355,9 +379,17 @@ fn correspondence_pass(
                         continue;
                     }
                     let pxn = p.coords.cross(&n);
-                    let jac = Vector6::new(pxn.x, pxn.y, pxn.z, n.x, n.y, n.z);
-                    sums.jtj.ger(w, &jac, &jac, 1.0);
-                    sums.jtr.axpy(w * residual, &jac, 1.0);
+                    let jac = [pxn.x, pxn.y, pxn.z, n.x, n.y, n.z];
+                    // Upper triangle only; mirrored once per pass.
+                    let mut u = 0;
+                    for a in 0..6 {
+                        let wa = w * jac[a];
+                        for jb in &jac[a..] {
+                            sums.jtj_upper[u] += wa * jb;
+                            u += 1;
+                        }
+                        sums.jtr[a] += wa * residual;
+                    }
                 }
             }
             sums
@@ -384,7 +416,7 @@ fn solve_update(jtj: &Matrix6<f64>, jtr: &Vector6<f64>) -> Option<Vector6<f64>> 
     }
     let svd = jtj.svd(true, true);
     let largest = svd.singular_values.max();
-    if !(largest > 0.0) {
+    if largest.is_nan() || largest <= 0.0 {
         return None;
     }
     svd.solve(&rhs, largest * 1e-12).ok().filter(finite)
@@ -459,7 +491,8 @@ pub fn registration_icp_point_to_plane(
         if sums.num_inliers == 0 {
             break;
         }
-        let Some(x) = solve_update(&sums.jtj, &sums.jtr) else {
+        let (jtj, jtr) = sums.normal_equations();
+        let Some(x) = solve_update(&jtj, &jtr) else {
             break;
         };
         target_from_source = update_from_vector(&x) * target_from_source;
@@ -773,5 +806,39 @@ mod tests {
         let tukey = RobustKernel::Tukey { scale_m: 2.0 };
         assert_eq!(tukey.weight(1.0), 0.5625); // (1 − 1/4)²
         assert_eq!(tukey.weight(-2.5), 0.0);
+    }
+}
+
+#[cfg(test)]
+mod nearest_tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+    use rand_pcg::Pcg64Mcg;
+
+    #[test]
+    fn nearest_equals_brute_force() {
+        let mut rng = Pcg64Mcg::seed_from_u64(9);
+        let mut random_point = |scale: f64| {
+            Point3::new(
+                rng.random_range(-scale..scale),
+                rng.random_range(-scale..scale),
+                rng.random_range(-scale..scale),
+            )
+        };
+        let points: Vec<_> = (0..5000).map(|_| random_point(1.0)).collect();
+        let queries: Vec<_> = (0..2000).map(|_| random_point(1.2)).collect();
+        let target = IcpTarget::points_only(&points).unwrap();
+        let max_squared = 0.1f64 * 0.1;
+        let mut wrong = 0;
+        for q in &queries {
+            let truth = points
+                .iter()
+                .map(|p| (p - q).norm_squared())
+                .fold(f64::INFINITY, f64::min);
+            let got = target.nearest(q, max_squared).map(|(_, d)| d);
+            let expected = (truth <= max_squared).then_some(truth);
+            wrong += (got != expected) as usize;
+        }
+        assert_eq!(wrong, 0);
     }
 }
