@@ -285,3 +285,266 @@ pub fn decode_foxglove_point_cloud(payload: &[u8]) -> Result<PointCloud, DecodeE
         num_dropped_non_finite: ex.num_dropped_non_finite,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use foxglove::schemas::PackedElementField;
+    use nalgebra::{Point3, Translation3, UnitQuaternion, Vector3 as V3};
+    use rand::{RngExt, SeedableRng};
+    use rand_pcg::Pcg64;
+
+    fn field(name: &str, offset: u32, t: NumericType) -> PackedElementField {
+        PackedElementField {
+            name: name.into(),
+            offset,
+            r#type: t as i32,
+        }
+    }
+
+    /// A cloud of FLOAT32 x, y, z + UINT16 intensity at offsets 0, 4, 8, 12, stride 16.
+    fn cloud(points: &[[f32; 3]], pose: Option<Pose>) -> foxglove::schemas::PointCloud {
+        let mut data = Vec::new();
+        for (k, q) in points.iter().enumerate() {
+            for c in q {
+                data.extend(c.to_le_bytes());
+            }
+            data.extend((100 + k as u16).to_le_bytes());
+            data.extend([0xEE, 0xEE]);
+        }
+        foxglove::schemas::PointCloud {
+            timestamp: Some(Timestamp::new(1_700_000_000, 5)),
+            frame_id: "lidar".into(),
+            pose,
+            point_stride: 16,
+            fields: vec![
+                field("x", 0, NumericType::Float32),
+                field("y", 4, NumericType::Float32),
+                field("z", 8, NumericType::Float32),
+                field("intensity", 12, NumericType::Uint16),
+            ],
+            data: data.into(),
+        }
+    }
+
+    #[test]
+    fn point_cloud_identity_pose_and_fields() {
+        let pts = [[1.0, 2.0, 3.0], [f32::NAN, 0.0, 0.0], [-4.5, 0.25, 8.0]];
+        let c = decode_foxglove_point_cloud(&cloud(&pts, None).encode_to_vec()).unwrap();
+        assert_eq!(c.header.frame_id, "lidar");
+        assert_eq!(
+            c.header.stamp,
+            Time {
+                sec: 1_700_000_000,
+                nanosec: 5
+            }
+        );
+        assert_eq!(
+            c.points,
+            vec![Point3::new(1.0, 2.0, 3.0), Point3::new(-4.5, 0.25, 8.0)]
+        );
+        assert_eq!(c.intensity, Some(vec![100.0, 102.0]));
+        assert_eq!(c.num_dropped_non_finite, 1);
+        assert_eq!((c.width, c.height), (3, 1));
+    }
+
+    #[test]
+    fn point_cloud_pose_is_applied() {
+        // Pose: translate (10, 0, -1), rotate 90° about z. (1, 0, 0) → (10, 1, -1);
+        // (0, 2, 0) → (8, 0, -1); computed by hand from the rotation (x, y) → (−y, x).
+        let s = std::f64::consts::FRAC_1_SQRT_2;
+        let pose = Pose {
+            position: Some(Vector3 {
+                x: 10.0,
+                y: 0.0,
+                z: -1.0,
+            }),
+            orientation: Some(Quaternion {
+                x: 0.0,
+                y: 0.0,
+                z: s,
+                w: s,
+            }),
+        };
+        let msg = cloud(&[[1.0, 0.0, 0.0], [0.0, 2.0, 0.0]], Some(pose));
+        let c = decode_foxglove_point_cloud(&msg.encode_to_vec()).unwrap();
+        let want = [Point3::new(10.0, 1.0, -1.0), Point3::new(8.0, 0.0, -1.0)];
+        for (a, b) in c.points.iter().zip(&want) {
+            assert!((a - b).norm() < 1e-12, "{a} vs {b}");
+        }
+        assert_eq!(c.points.len(), 2);
+    }
+
+    #[test]
+    fn point_cloud_two_coordinates_and_other_types() {
+        // 2-D cloud: x as INT8, y as FLOAT64, no z; stride 9.
+        let mut data = Vec::new();
+        for (x, y) in [(-3i8, 0.5f64), (7, -1.5)] {
+            data.push(x as u8);
+            data.extend(y.to_le_bytes());
+        }
+        let msg = foxglove::schemas::PointCloud {
+            timestamp: None,
+            frame_id: "f".into(),
+            pose: None,
+            point_stride: 9,
+            fields: vec![
+                field("x", 0, NumericType::Int8),
+                field("y", 1, NumericType::Float64),
+            ],
+            data: data.into(),
+        };
+        let c = decode_foxglove_point_cloud(&msg.encode_to_vec()).unwrap();
+        assert_eq!(
+            c.points,
+            vec![Point3::new(-3.0, 0.5, 0.0), Point3::new(7.0, -1.5, 0.0)]
+        );
+        assert_eq!(c.header.stamp, Time::default());
+    }
+
+    #[test]
+    fn point_cloud_bad_input_errors() {
+        let base = cloud(&[[1.0, 2.0, 3.0]], None);
+        let field_of = |m: foxglove::schemas::PointCloud| {
+            decode_foxglove_point_cloud(&m.encode_to_vec())
+                .unwrap_err()
+                .field
+        };
+
+        let mut m = base.clone();
+        m.fields.retain(|f| f.name == "x" || f.name == "intensity");
+        assert_eq!(field_of(m), "fields");
+
+        let mut m = base.clone();
+        m.fields[1].r#type = 0;
+        assert_eq!(field_of(m), "fields[1].type");
+        let mut m = base.clone();
+        m.fields[2].r#type = 42;
+        assert_eq!(field_of(m), "fields[2].type");
+
+        let mut m = base.clone();
+        m.fields[2].offset = 13; // 13 + 4 > 16
+        assert_eq!(field_of(m), "fields[2]");
+
+        let mut m = base.clone();
+        m.point_stride = 15; // 16 bytes of data is not a whole number of 15-byte points
+        m.fields[3].offset = 0;
+        assert_eq!(field_of(m), "data");
+
+        let mut m = base.clone();
+        m.point_stride = 0;
+        m.fields.clear();
+        m.fields.push(field("x", 0, NumericType::Uint8));
+        assert_eq!(field_of(m), "fields[0]");
+
+        let mut m = base.clone();
+        m.pose = Some(Pose {
+            position: None,
+            orientation: Some(Quaternion {
+                x: 0.0,
+                y: 0.0,
+                z: 0.0,
+                w: 0.0,
+            }),
+        });
+        assert_eq!(field_of(m), "pose.orientation");
+
+        let mut m = base.clone();
+        m.timestamp = Some(Timestamp::new(u32::MAX, 0));
+        assert_eq!(field_of(m), "timestamp.sec");
+
+        // Not protobuf at all, and every truncation: Err or Ok, never a panic.
+        assert_eq!(
+            decode_foxglove_point_cloud(&[0xFF, 0xFF, 0xFF])
+                .unwrap_err()
+                .field,
+            "PointCloud"
+        );
+        let full = base.encode_to_vec();
+        for len in 0..full.len() {
+            let _ = decode_foxglove_point_cloud(&full[..len]);
+        }
+        let mut rng = Pcg64::seed_from_u64(99);
+        for _ in 0..5000 {
+            let mut b = full.clone();
+            let i = rng.random_range(0..b.len());
+            b[i] = rng.random();
+            let _ = decode_foxglove_point_cloud(&b);
+        }
+    }
+
+    fn iso(rng: &mut Pcg64) -> Isometry3<f64> {
+        Isometry3::from_parts(
+            Translation3::new(rng.random(), rng.random(), rng.random_range(-9.0..9.0)),
+            UnitQuaternion::from_scaled_axis(V3::new(0.3, -1.1, rng.random_range(-2.0..2.0))),
+        )
+    }
+
+    #[test]
+    fn pose_in_frame_round_trip_through_prost() {
+        let mut rng = Pcg64::seed_from_u64(3);
+        let pose = iso(&mut rng);
+        let bytes = encode_pose_in_frame(1_700_000_000_123_456_789, "world", &pose);
+        let m = PoseInFrame::decode(&bytes[..]).unwrap();
+        assert_eq!(m.frame_id, "world");
+        let ts = m.timestamp.unwrap();
+        assert_eq!((ts.sec(), ts.nsec()), (1_700_000_000, 123_456_789));
+        let p = m.pose.unwrap();
+        let (t, q) = (p.position.unwrap(), p.orientation.unwrap());
+        let v = pose.translation.vector;
+        assert_eq!([t.x, t.y, t.z], [v.x, v.y, v.z]);
+        let r = pose.rotation;
+        assert_eq!([q.x, q.y, q.z, q.w], [r.i, r.j, r.k, r.w]);
+
+        // Saturates beyond 2106 instead of wrapping.
+        let m = PoseInFrame::decode(&encode_pose_in_frame(u64::MAX, "w", &pose)[..]).unwrap();
+        assert_eq!(m.timestamp.unwrap(), Timestamp::MAX);
+    }
+
+    #[test]
+    fn frame_transforms_round_trip_through_prost() {
+        let mut rng = Pcg64::seed_from_u64(4);
+        let a = iso(&mut rng);
+        let b = iso(&mut rng);
+        let bytes = encode_frame_transforms(&[
+            (5, "world", "base", a),
+            (2_000_000_001, "base", "lidar", b),
+        ]);
+        let m = FrameTransforms::decode(&bytes[..]).unwrap();
+        assert_eq!(m.transforms.len(), 2);
+        for (t, (ns, parent, child, want)) in m.transforms.iter().zip([
+            (5u64, "world", "base", a),
+            (2_000_000_001, "base", "lidar", b),
+        ]) {
+            assert_eq!(t.timestamp.unwrap().total_nanos(), ns);
+            assert_eq!(
+                (t.parent_frame_id.as_str(), t.child_frame_id.as_str()),
+                (parent, child)
+            );
+            let tr = t.translation.as_ref().unwrap();
+            let q = t.rotation.as_ref().unwrap();
+            let got = isometry_from_parts([tr.x, tr.y, tr.z], [q.x, q.y, q.z, q.w], "r").unwrap();
+            // Child origin maps to the translation; exact component copies.
+            assert_eq!(got.translation.vector, want.translation.vector);
+            assert!(got.rotation.angle_to(&want.rotation) < 1e-12);
+        }
+    }
+
+    #[test]
+    fn schemas_are_named_protobuf_descriptors() {
+        for (s, name) in [
+            (point_cloud_schema(), "foxglove.PointCloud"),
+            (pose_in_frame_schema(), "foxglove.PoseInFrame"),
+            (frame_transforms_schema(), "foxglove.FrameTransforms"),
+        ] {
+            assert_eq!(s.name, name);
+            assert_eq!(s.encoding, "protobuf");
+            // A FileDescriptorSet naming the message: the type name appears in the bytes.
+            let short = name.trim_start_matches("foxglove.");
+            assert!(
+                s.data.windows(short.len()).any(|w| w == short.as_bytes()),
+                "{name} descriptor"
+            );
+        }
+    }
+}
