@@ -13,10 +13,10 @@ use nalgebra::Isometry3;
 use crate::correspondence::ranking::{CountOrder, PAPER_DESCRIPTOR_RADIUS};
 use crate::io::{cloud_file, pose_file};
 use crate::odometry::OdometryConfig;
-use crate::register::{RegisterOptions, RegisterSummary, default_output, register_log};
 use crate::pipeline::{
     PairConfig, PairResult, RankingConfig, SamplerConfig, pose_error, register_pair,
 };
+use crate::register::{RegisterOptions, RegisterSummary, default_output, register_log};
 use crate::simulate::{CSV_HEADER, SimulationConfig, SimulationRow, simulate};
 
 /// mireg: register point clouds in robotics logs with MI-RANSAC.
@@ -123,8 +123,10 @@ impl RegistrationFlags {
     pub fn config(&self) -> Result<PairConfig> {
         let mut c = match &self.config {
             Some(path) => {
-                let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-                toml::from_str::<PairConfig>(&text).with_context(|| format!("{}: invalid configuration", path.display()))?
+                let text = std::fs::read_to_string(path)
+                    .with_context(|| format!("reading {}", path.display()))?;
+                toml::from_str::<PairConfig>(&text)
+                    .with_context(|| format!("{}: invalid configuration", path.display()))?
             }
             None => PairConfig::default(),
         };
@@ -142,21 +144,39 @@ impl RegistrationFlags {
             c.ranking = match r {
                 RankingArg::Ratio => RankingConfig::Ratio,
                 RankingArg::Distance => RankingConfig::Distance,
-                RankingArg::CountMost => RankingConfig::NeighbourCount { radius, order: CountOrder::MostFirst },
-                RankingArg::CountFewest => RankingConfig::NeighbourCount { radius, order: CountOrder::FewestFirst },
+                RankingArg::CountMost => RankingConfig::NeighbourCount {
+                    radius,
+                    order: CountOrder::MostFirst,
+                },
+                RankingArg::CountFewest => RankingConfig::NeighbourCount {
+                    radius,
+                    order: CountOrder::FewestFirst,
+                },
             };
-        } else if let (Some(d), RankingConfig::NeighbourCount { radius, .. }) = (self.descriptor_radius, &mut c.ranking) {
+        } else if let (Some(d), RankingConfig::NeighbourCount { radius, .. }) =
+            (self.descriptor_radius, &mut c.ranking)
+        {
             *radius = d;
         }
         let (mut mu, mut levy_c, mut window, mut repl) = match c.sampler {
-            SamplerConfig::Levy { mu, c, window, with_replacement } => (mu, c, window, with_replacement),
+            SamplerConfig::Levy {
+                mu,
+                c,
+                window,
+                with_replacement,
+            } => (mu, c, window, with_replacement),
             _ => (-50.0, 1.0, crate::ransac::levy::DEFAULT_WINDOW, false),
         };
         mu = self.mu.unwrap_or(mu);
         levy_c = self.levy_c.unwrap_or(levy_c);
         repl |= self.with_replacement;
         window = window.max(f64::MIN_POSITIVE);
-        let levy = SamplerConfig::Levy { mu, c: levy_c, window, with_replacement: repl };
+        let levy = SamplerConfig::Levy {
+            mu,
+            c: levy_c,
+            window,
+            with_replacement: repl,
+        };
         c.sampler = match self.sampler {
             Some(SamplerArg::Uniform) => SamplerConfig::Uniform,
             Some(SamplerArg::Prosac) => SamplerConfig::Prosac {
@@ -491,7 +511,10 @@ fn run_register(args: &RegisterArgs) -> Result<()> {
     };
     let opts = RegisterOptions {
         input: args.input.clone(),
-        output: args.output.clone().unwrap_or_else(|| default_output(&args.input)),
+        output: args
+            .output
+            .clone()
+            .unwrap_or_else(|| default_output(&args.input)),
         topic: args.topic.clone(),
         config,
         force: args.force,
@@ -515,10 +538,17 @@ pub const DEFAULT_FIXTURE: &str = "fixtures/icl_livingroom1.mcap";
 /// prints a summary.
 fn run_default() -> Result<()> {
     let local = PathBuf::from(DEFAULT_FIXTURE);
-    let input = if local.is_file() { local } else { Path::new(env!("CARGO_MANIFEST_DIR")).join(DEFAULT_FIXTURE) };
+    let input = if local.is_file() {
+        local
+    } else {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join(DEFAULT_FIXTURE)
+    };
     let dir = tempfile::tempdir().context("creating a temporary directory")?;
     let output = dir.path().join("icl_livingroom1.mireg.mcap");
-    eprintln!("mireg: no arguments: registering the embedded fixture {} (see `mireg --help`)", input.display());
+    eprintln!(
+        "mireg: no arguments: registering the embedded fixture {} (see `mireg --help`)",
+        input.display()
+    );
     let opts = RegisterOptions {
         input,
         output,
@@ -531,12 +561,19 @@ fn run_default() -> Result<()> {
     };
     let summary = register_log(&opts)?;
     print_summary(&summary);
-    println!("(output was written to a temporary directory and removed; run `mireg register {DEFAULT_FIXTURE}` to keep it)");
+    println!(
+        "(output was written to a temporary directory and removed; run `mireg register {DEFAULT_FIXTURE}` to keep it)"
+    );
     Ok(())
 }
 
 fn print_summary(s: &RegisterSummary) {
-    println!("registered {} frames of {} -> {}", s.frames, s.topic, s.output.display());
+    println!(
+        "registered {} frames of {} -> {}",
+        s.frames,
+        s.topic,
+        s.output.display()
+    );
     println!(
         "failed frames {} ({:.1} %), mean inliers {:.1}, {:.2} frames/s ({:.2} s), {} input messages copied, poses on {} and /mireg/pose",
         s.failed_frames,

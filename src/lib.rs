@@ -17,7 +17,7 @@ pub mod refine;
 pub mod simulate;
 
 pub use error::{Error, Result};
-pub mod pipeline;
-pub mod odometry;
 pub mod evaluate;
+pub mod odometry;
+pub mod pipeline;
 pub mod register;

@@ -27,7 +27,11 @@ pub struct OdometryConfig {
 
 impl Default for OdometryConfig {
     fn default() -> Self {
-        Self { pair: PairConfig::default(), min_inliers: 12, min_fitness: 0.3 }
+        Self {
+            pair: PairConfig::default(),
+            min_inliers: 12,
+            min_fitness: 0.3,
+        }
     }
 }
 
@@ -79,7 +83,12 @@ impl Odometry {
     /// A new trajectory; fails if the pairwise configuration is invalid.
     pub fn new(config: OdometryConfig) -> Result<Self> {
         config.pair.resolved()?;
-        Ok(Self { config, previous: None, velocity: Isometry3::identity(), frames: 0 })
+        Ok(Self {
+            config,
+            previous: None,
+            velocity: Isometry3::identity(),
+            frames: 0,
+        })
     }
 
     /// The configuration in force.
@@ -128,13 +137,15 @@ impl Odometry {
         }
 
         let pair = register_prepared(&frame, prev, &self.config.pair)?;
-        let failure = pair.failure.or(if pair.num_inliers < self.config.min_inliers {
-            Some(FailureReason::TooFewInliers)
-        } else if pair.fitness < self.config.min_fitness {
-            Some(FailureReason::LowFitness)
-        } else {
-            None
-        });
+        let failure = pair
+            .failure
+            .or(if pair.num_inliers < self.config.min_inliers {
+                Some(FailureReason::TooFewInliers)
+            } else if pair.fitness < self.config.min_fitness {
+                Some(FailureReason::LowFitness)
+            } else {
+                None
+            });
         if failure.is_none() {
             est.prev_from_curr = pair.target_from_source;
             self.velocity = pair.target_from_source;
@@ -163,7 +174,11 @@ impl Odometry {
                 .max_iterations(c.icp_max_iterations);
             let r = registration_icp_point_to_plane(src.points(), tgt, &self.velocity, &icp)?;
             if r.fitness >= self.config.min_fitness {
-                return Ok((r.target_from_source, Fallback::ConstantVelocityIcp, r.iterations));
+                return Ok((
+                    r.target_from_source,
+                    Fallback::ConstantVelocityIcp,
+                    r.iterations,
+                ));
             }
         }
         Ok((self.velocity, Fallback::ConstantVelocity, 0))

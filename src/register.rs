@@ -8,7 +8,7 @@
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
-use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, sync_channel};
+use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 use std::time::Instant;
 
 use mcap::records::Record;
@@ -52,7 +52,10 @@ pub struct RegisterOptions {
 
 /// Default output path: `NAME.mireg.mcap` next to `NAME.mcap`.
 pub fn default_output(input: &Path) -> PathBuf {
-    let stem = input.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "out".into());
+    let stem = input
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "out".into());
     input.with_file_name(format!("{stem}.mireg.mcap"))
 }
 
@@ -102,18 +105,32 @@ enum CloudKind {
 }
 
 fn cloud_kind(c: &ChannelInfo) -> Option<CloudKind> {
-    (c.schema_name == ros2::POINT_CLOUD2_SCHEMA_NAME && c.message_encoding == "cdr").then_some(CloudKind::Ros2)
+    (c.schema_name == ros2::POINT_CLOUD2_SCHEMA_NAME && c.message_encoding == "cdr")
+        .then_some(CloudKind::Ros2)
 }
 
 /// Picks the point cloud channel: the one named `requested`, or the only cloud topic.
-fn choose_topic(path: &Path, channels: &[ChannelInfo], requested: Option<&str>) -> Result<(String, CloudKind)> {
-    let clouds: Vec<&ChannelInfo> = channels.iter().filter(|c| cloud_kind(c).is_some()).collect();
+fn choose_topic(
+    path: &Path,
+    channels: &[ChannelInfo],
+    requested: Option<&str>,
+) -> Result<(String, CloudKind)> {
+    let clouds: Vec<&ChannelInfo> = channels
+        .iter()
+        .filter(|c| cloud_kind(c).is_some())
+        .collect();
     if let Some(topic) = requested {
-        let c = channels.iter().find(|c| c.topic == topic).ok_or_else(|| Error::InvalidInput(format!(
-            "{}: no topic {topic:?} (topics: {})",
-            path.display(),
-            channels.iter().map(|c| c.topic.as_str()).collect::<Vec<_>>().join(", ")
-        )))?;
+        let c = channels.iter().find(|c| c.topic == topic).ok_or_else(|| {
+            Error::InvalidInput(format!(
+                "{}: no topic {topic:?} (topics: {})",
+                path.display(),
+                channels
+                    .iter()
+                    .map(|c| c.topic.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ))
+        })?;
         let kind = cloud_kind(c).ok_or_else(|| Error::InvalidInput(format!(
             "{}: topic {topic:?} carries {} ({}), not a point cloud (sensor_msgs/msg/PointCloud2, cdr)",
             path.display(),
@@ -126,13 +143,20 @@ fn choose_topic(path: &Path, channels: &[ChannelInfo], requested: Option<&str>) 
         [] => Err(Error::InvalidInput(format!(
             "{}: no point cloud topic (sensor_msgs/msg/PointCloud2, cdr); topics: {}",
             path.display(),
-            channels.iter().map(|c| format!("{} [{}]", c.topic, c.schema_name)).collect::<Vec<_>>().join(", ")
+            channels
+                .iter()
+                .map(|c| format!("{} [{}]", c.topic, c.schema_name))
+                .collect::<Vec<_>>()
+                .join(", ")
         ))),
         [one] => Ok((one.topic.clone(), cloud_kind(one).expect("filtered"))),
         many => Err(Error::InvalidInput(format!(
             "{}: several point cloud topics, choose one with --topic: {}",
             path.display(),
-            many.iter().map(|c| c.topic.as_str()).collect::<Vec<_>>().join(", ")
+            many.iter()
+                .map(|c| c.topic.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
         ))),
     }
 }
@@ -164,7 +188,10 @@ struct FrameOut {
 fn decode_error(path: &Path, topic: &str, log_time: u64, e: ros2::DecodeError) -> Error {
     Error::Format {
         path: path.to_path_buf(),
-        detail: format!("message on {topic} at log time {log_time} ns: field {}: {}", e.field, e.detail),
+        detail: format!(
+            "message on {topic} at log time {log_time} ns: field {}: {}",
+            e.field, e.detail
+        ),
     }
 }
 
@@ -238,7 +265,10 @@ struct Outputs {
 }
 
 fn write_frame(log: &mut OutputLog, ch: &Outputs, world_frame: &str, out: &FrameOut) -> Result<()> {
-    let header = ros2::Header { stamp: out.header.stamp, frame_id: world_frame.to_string() };
+    let header = ros2::Header {
+        stamp: out.header.stamp,
+        frame_id: world_frame.to_string(),
+    };
     let pose = ros2::encode_pose_stamped(&header, &out.est.world_from_frame);
     let tf = ros2::encode_tf_message(&[ros2::TransformStamped {
         header: header.clone(),
@@ -261,33 +291,58 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
             source: std::io::Error::new(std::io::ErrorKind::NotFound, "input MCAP not found"),
         });
     }
-    if let (Ok(a), Ok(b)) = (input.canonicalize(), opts.output.canonicalize()) {
-        if a == b {
-            return Err(Error::InvalidInput(format!(
-                "output {} is the input; mireg never writes over its input",
-                opts.output.display()
-            )));
-        }
+    if let (Ok(a), Ok(b)) = (input.canonicalize(), opts.output.canonicalize())
+        && a == b
+    {
+        return Err(Error::InvalidInput(format!(
+            "output {} is the input; mireg never writes over its input",
+            opts.output.display()
+        )));
     }
     let mut odometry = Odometry::new(opts.config.clone())?;
     let channels = list_channels(input)?;
     let (topic, _kind) = choose_topic(input, &channels, opts.topic.as_deref())?;
-    let tf_topic = if channels.iter().any(|c| c.topic == "/tf") { "/mireg/tf" } else { "/tf" }.to_string();
+    let tf_topic = if channels.iter().any(|c| c.topic == "/tf") {
+        "/mireg/tf"
+    } else {
+        "/tf"
+    }
+    .to_string();
     let reference_topic = channels
         .iter()
-        .find(|c| c.topic == DEFAULT_REFERENCE_TOPIC && c.schema_name == ros2::POSE_STAMPED_SCHEMA_NAME)
+        .find(|c| {
+            c.topic == DEFAULT_REFERENCE_TOPIC && c.schema_name == ros2::POSE_STAMPED_SCHEMA_NAME
+        })
         .map(|c| c.topic.clone());
-    let total_frames = channels.iter().filter(|c| c.topic == topic).filter_map(|c| c.message_count).sum::<u64>();
+    let total_frames = channels
+        .iter()
+        .filter(|c| c.topic == topic)
+        .filter_map(|c| c.message_count)
+        .sum::<u64>();
 
     let mut log = OutputLog::create(&opts.output, opts.force, "ros2")?;
     let ch = Outputs {
-        tf: log.add_channel(&tf_topic, ros2::TF_MESSAGE_SCHEMA_NAME, ros2::SCHEMA_ENCODING, ros2::TF_MESSAGE_SCHEMA.as_bytes(), ros2::MESSAGE_ENCODING)?,
-        pose: log.add_channel("/mireg/pose", ros2::POSE_STAMPED_SCHEMA_NAME, ros2::SCHEMA_ENCODING, ros2::POSE_STAMPED_SCHEMA.as_bytes(), ros2::MESSAGE_ENCODING)?,
+        tf: log.add_channel(
+            &tf_topic,
+            ros2::TF_MESSAGE_SCHEMA_NAME,
+            ros2::SCHEMA_ENCODING,
+            ros2::TF_MESSAGE_SCHEMA.as_bytes(),
+            ros2::MESSAGE_ENCODING,
+        )?,
+        pose: log.add_channel(
+            "/mireg/pose",
+            ros2::POSE_STAMPED_SCHEMA_NAME,
+            ros2::SCHEMA_ENCODING,
+            ros2::POSE_STAMPED_SCHEMA.as_bytes(),
+            ros2::MESSAGE_ENCODING,
+        )?,
         stats: log.add_channel(
             "/mireg/stats",
             "mireg.FrameStats",
             "jsonschema",
-            serde_json::to_string(&stats_json_schema()).expect("schema JSON").as_bytes(),
+            serde_json::to_string(&stats_json_schema())
+                .expect("schema JSON")
+                .as_bytes(),
             "json",
         )?,
     };
@@ -295,8 +350,10 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     let progress = if opts.progress && std::io::IsTerminal::is_terminal(&std::io::stderr()) {
         let bar = indicatif::ProgressBar::new(total_frames);
         bar.set_style(
-            indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames  {per_sec}  ETA {eta}")
-                .expect("valid template"),
+            indicatif::ProgressStyle::with_template(
+                "{bar:40} {pos}/{len} frames  {per_sec}  ETA {eta}",
+            )
+            .expect("valid template"),
         );
         Some(bar)
     } else {
@@ -309,7 +366,8 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     let config = &opts.config;
 
     std::thread::scope(|scope| -> Result<()> {
-        let (cloud_tx, cloud_rx): (SyncSender<CloudMsg>, Receiver<CloudMsg>) = sync_channel(QUEUE_CAPACITY);
+        let (cloud_tx, cloud_rx): (SyncSender<CloudMsg>, Receiver<CloudMsg>) =
+            sync_channel(QUEUE_CAPACITY);
         let (prep_tx, prep_rx) = sync_channel::<Result<PreparedMsg>>(QUEUE_CAPACITY);
         // Unbounded: results are small (no point data), and the reading thread, which drains them,
         // may itself be blocked handing on a cloud; a bound here could close a cycle and deadlock.
@@ -324,7 +382,13 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                     .and_then(|cloud| {
                         let decode_s = t.elapsed().as_secs_f64();
                         let frame = prepare_frame(&cloud.points, &config.pair)?;
-                        Ok(PreparedMsg { log_time: msg.log_time, publish_time: msg.publish_time, header: cloud.header, decode_s, frame })
+                        Ok(PreparedMsg {
+                            log_time: msg.log_time,
+                            publish_time: msg.publish_time,
+                            header: cloud.header,
+                            decode_s,
+                            frame,
+                        })
                     });
                 let failed = r.is_err();
                 if prep_tx.send(r).is_err() || failed {
@@ -382,34 +446,39 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
             log.copy(&record)?;
             match &record {
                 Record::Channel(c) if c.topic == topic => cloud_channels.push(c.id),
-                Record::Channel(c) if Some(&c.topic) == reference_topic.as_ref() => reference_channels.push(c.id),
+                Record::Channel(c) if Some(&c.topic) == reference_topic.as_ref() => {
+                    reference_channels.push(c.id)
+                }
                 Record::Message { header, data } => {
                     copied += 1;
                     if cloud_channels.contains(&header.channel_id) {
                         pending.insert(
                             (header.log_time, order),
-                            CloudMsg { log_time: header.log_time, publish_time: header.publish_time, data: data.to_vec() },
+                            CloudMsg {
+                                log_time: header.log_time,
+                                publish_time: header.publish_time,
+                                data: data.to_vec(),
+                            },
                         );
                         order += 1;
                         if pending.len() > REORDER_WINDOW {
                             let (_, msg) = pending.pop_first().expect("non-empty");
                             if cloud_tx.as_ref().expect("open").send(msg).is_err() {
-                                return Err(Error::InvalidInput("registration stopped early".into()));
+                                return Err(Error::InvalidInput(
+                                    "registration stopped early".into(),
+                                ));
                             }
                         }
-                    } else if reference_channels.contains(&header.channel_id) {
-                        if let Ok((h, pose)) = ros2::decode_pose_stamped(data) {
-                            reference.insert(h.stamp.to_ns(), pose);
-                        }
+                    } else if reference_channels.contains(&header.channel_id)
+                        && let Ok((h, pose)) = ros2::decode_pose_stamped(data)
+                    {
+                        reference.insert(h.stamp.to_ns(), pose);
                     }
                 }
                 _ => {}
             }
-            loop {
-                match out_rx.try_recv() {
-                    Ok(r) => handle_out(&mut log, r)?,
-                    Err(TryRecvError::Empty) | Err(TryRecvError::Disconnected) => break,
-                }
+            while let Ok(r) = out_rx.try_recv() {
+                handle_out(&mut log, r)?;
             }
             Ok(())
         });
@@ -435,7 +504,10 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
 
     let mut meta = BTreeMap::new();
     meta.insert("version".to_string(), env!("CARGO_PKG_VERSION").to_string());
-    meta.insert("config".to_string(), serde_json::to_string(&opts.config).expect("config JSON"));
+    meta.insert(
+        "config".to_string(),
+        serde_json::to_string(&opts.config).expect("config JSON"),
+    );
     meta.insert("seed".to_string(), opts.config.pair.seed.to_string());
     meta.insert("command_line".to_string(), opts.command_line.clone());
     meta.insert("input".to_string(), input.display().to_string());
@@ -445,8 +517,17 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
 
     let frames = estimates.len();
     let failed_frames = estimates.iter().filter(|e| !e.2).count();
-    let registered: Vec<usize> = estimates.iter().skip(1).filter(|e| e.2).map(|e| e.3).collect();
-    let mean_inliers = if registered.is_empty() { 0.0 } else { registered.iter().sum::<usize>() as f64 / registered.len() as f64 };
+    let registered: Vec<usize> = estimates
+        .iter()
+        .skip(1)
+        .filter(|e| e.2)
+        .map(|e| e.3)
+        .collect();
+    let mean_inliers = if registered.is_empty() {
+        0.0
+    } else {
+        registered.iter().sum::<usize>() as f64 / registered.len() as f64
+    };
     let reference = reference_topic.and_then(|t| reference_errors(&t, &estimates, &reference));
     let elapsed_s = start.elapsed().as_secs_f64();
     Ok(RegisterSummary {
@@ -468,8 +549,10 @@ fn reference_errors(
     estimates: &[(i64, Isometry3<f64>, bool, usize)],
     reference: &HashMap<i64, Isometry3<f64>>,
 ) -> Option<ReferenceErrors> {
-    let (est, gt): (Vec<_>, Vec<_>) =
-        estimates.iter().filter_map(|(stamp, pose, _, _)| reference.get(stamp).map(|g| (*pose, *g))).unzip();
+    let (est, gt): (Vec<_>, Vec<_>) = estimates
+        .iter()
+        .filter_map(|(stamp, pose, _, _)| reference.get(stamp).map(|g| (*pose, *g)))
+        .unzip();
     if est.len() < 2 {
         return None;
     }

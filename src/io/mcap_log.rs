@@ -19,11 +19,17 @@ use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader};
 use crate::{Error, Result};
 
 fn io_err(path: &Path, source: std::io::Error) -> Error {
-    Error::Io { path: path.to_path_buf(), source }
+    Error::Io {
+        path: path.to_path_buf(),
+        source,
+    }
 }
 
 fn mcap_err(path: &Path, what: &str, e: impl std::fmt::Display) -> Error {
-    Error::Format { path: path.to_path_buf(), detail: format!("{what}: {e}") }
+    Error::Format {
+        path: path.to_path_buf(),
+        detail: format!("{what}: {e}"),
+    }
 }
 
 /// A channel of an MCAP file, with its schema's name and encoding.
@@ -50,7 +56,9 @@ pub fn list_channels(path: &Path) -> Result<Vec<ChannelInfo>> {
     while let Some(event) = reader.next_event() {
         match event.map_err(|e| mcap_err(path, "reading the MCAP summary", e))? {
             SummaryReadEvent::ReadRequest(need) => {
-                let n = file.read(reader.insert(need)).map_err(|e| io_err(path, e))?;
+                let n = file
+                    .read(reader.insert(need))
+                    .map_err(|e| io_err(path, e))?;
                 reader.notify_read(n);
             }
             SummaryReadEvent::SeekRequest(to) => {
@@ -59,8 +67,8 @@ pub fn list_channels(path: &Path) -> Result<Vec<ChannelInfo>> {
             }
         }
     }
-    if let Some(summary) = reader.finish() {
-        if !summary.channels.is_empty() {
+    if let Some(summary) = reader.finish().filter(|s| !s.channels.is_empty()) {
+        {
             let counts = summary.stats.as_ref().map(|s| &s.channel_message_counts);
             let mut out: Vec<ChannelInfo> = summary
                 .channels
@@ -68,8 +76,16 @@ pub fn list_channels(path: &Path) -> Result<Vec<ChannelInfo>> {
                 .map(|c| ChannelInfo {
                     id: c.id,
                     topic: c.topic.clone(),
-                    schema_name: c.schema.as_ref().map(|s| s.name.clone()).unwrap_or_default(),
-                    schema_encoding: c.schema.as_ref().map(|s| s.encoding.clone()).unwrap_or_default(),
+                    schema_name: c
+                        .schema
+                        .as_ref()
+                        .map(|s| s.name.clone())
+                        .unwrap_or_default(),
+                    schema_encoding: c
+                        .schema
+                        .as_ref()
+                        .map(|s| s.encoding.clone())
+                        .unwrap_or_default(),
                     message_encoding: c.message_encoding.clone(),
                     message_count: counts.and_then(|m| m.get(&c.id).copied()),
                 })
@@ -120,7 +136,9 @@ pub fn for_each_record(path: &Path, mut f: impl FnMut(Record<'_>) -> Result<()>)
     while let Some(event) = reader.next_event() {
         match event.map_err(|e| mcap_err(path, "reading MCAP records", e))? {
             LinearReadEvent::ReadRequest(need) => {
-                let n = source.read(reader.insert(need)).map_err(|e| io_err(path, e))?;
+                let n = source
+                    .read(reader.insert(need))
+                    .map_err(|e| io_err(path, e))?;
                 if n == 0 {
                     return Err(mcap_err(
                         path,
@@ -134,8 +152,13 @@ pub fn for_each_record(path: &Path, mut f: impl FnMut(Record<'_>) -> Result<()>)
                 if data_ended {
                     continue;
                 }
-                let record = mcap::parse_record(opcode, data)
-                    .map_err(|e| mcap_err(path, &format!("parsing MCAP record (opcode 0x{opcode:02x})"), e))?;
+                let record = mcap::parse_record(opcode, data).map_err(|e| {
+                    mcap_err(
+                        path,
+                        &format!("parsing MCAP record (opcode 0x{opcode:02x})"),
+                        e,
+                    )
+                })?;
                 if matches!(record, Record::DataEnd(_)) {
                     data_ended = true;
                     continue;
@@ -145,7 +168,11 @@ pub fn for_each_record(path: &Path, mut f: impl FnMut(Record<'_>) -> Result<()>)
         }
     }
     if !data_ended {
-        return Err(mcap_err(path, "reading MCAP records", "no data-end record (truncated MCAP?)"));
+        return Err(mcap_err(
+            path,
+            "reading MCAP records",
+            "no data-end record (truncated MCAP?)",
+        ));
     }
     Ok(())
 }
@@ -163,7 +190,9 @@ pub struct OutputLog {
 
 impl std::fmt::Debug for OutputLog {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("OutputLog").field("target", &self.target).finish()
+        f.debug_struct("OutputLog")
+            .field("target", &self.target)
+            .finish()
     }
 }
 
@@ -180,7 +209,10 @@ impl OutputLog {
             Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
             _ => PathBuf::from("."),
         };
-        let name = target.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let name = target
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
         let temp = tempfile::Builder::new()
             .prefix(&format!(".{name}."))
             .suffix(".partial")
@@ -226,21 +258,39 @@ impl OutputLog {
                 let schema = if c.schema_id == 0 {
                     0
                 } else {
-                    *self.schema_ids.get(&c.schema_id).ok_or_else(|| Error::Format {
-                        path: self.target.clone(),
-                        detail: format!("input channel {} ({}) names unknown schema {}", c.id, c.topic, c.schema_id),
-                    })?
+                    *self
+                        .schema_ids
+                        .get(&c.schema_id)
+                        .ok_or_else(|| Error::Format {
+                            path: self.target.clone(),
+                            detail: format!(
+                                "input channel {} ({}) names unknown schema {}",
+                                c.id, c.topic, c.schema_id
+                            ),
+                        })?
                 };
-                let r = self.w().add_channel(schema, &c.topic, &c.message_encoding, &c.metadata);
+                let r = self
+                    .w()
+                    .add_channel(schema, &c.topic, &c.message_encoding, &c.metadata);
                 let id = self.wrap("copying a channel", r)?;
                 self.channel_ids.insert(c.id, id);
             }
             Record::Message { header, data } => {
-                let channel_id = *self.channel_ids.get(&header.channel_id).ok_or_else(|| Error::Format {
-                    path: self.target.clone(),
-                    detail: format!("input message on unknown channel {}", header.channel_id),
-                })?;
-                let h = MessageHeader { channel_id, ..*header };
+                let channel_id =
+                    *self
+                        .channel_ids
+                        .get(&header.channel_id)
+                        .ok_or_else(|| Error::Format {
+                            path: self.target.clone(),
+                            detail: format!(
+                                "input message on unknown channel {}",
+                                header.channel_id
+                            ),
+                        })?;
+                let h = MessageHeader {
+                    channel_id,
+                    ..*header
+                };
                 let r = self.w().write_to_known_channel(&h, data);
                 self.wrap("copying a message", r)?;
             }
@@ -275,22 +325,38 @@ impl OutputLog {
     ) -> Result<u16> {
         let r = self.w().add_schema(schema_name, schema_encoding, schema);
         let schema_id = self.wrap("adding a schema", r)?;
-        let r = self.w().add_channel(schema_id, topic, message_encoding, &BTreeMap::new());
+        let r = self
+            .w()
+            .add_channel(schema_id, topic, message_encoding, &BTreeMap::new());
         self.wrap("adding a channel", r)
     }
 
     /// Writes one of our messages on an output channel from [`add_channel`](Self::add_channel).
-    pub fn write(&mut self, channel_id: u16, log_time: u64, publish_time: u64, data: &[u8]) -> Result<()> {
+    pub fn write(
+        &mut self,
+        channel_id: u16,
+        log_time: u64,
+        publish_time: u64,
+        data: &[u8],
+    ) -> Result<()> {
         let seq = self.sequences.entry(channel_id).or_default();
         *seq += 1;
-        let header = MessageHeader { channel_id, sequence: *seq, log_time, publish_time };
+        let header = MessageHeader {
+            channel_id,
+            sequence: *seq,
+            log_time,
+            publish_time,
+        };
         let r = self.w().write_to_known_channel(&header, data);
         self.wrap("writing a message", r)
     }
 
     /// Writes a metadata record.
     pub fn write_metadata(&mut self, name: &str, entries: BTreeMap<String, String>) -> Result<()> {
-        let r = self.w().write_metadata(&Metadata { name: name.into(), metadata: entries });
+        let r = self.w().write_metadata(&Metadata {
+            name: name.into(),
+            metadata: entries,
+        });
         self.wrap("writing metadata", r)
     }
 
@@ -301,14 +367,18 @@ impl OutputLog {
         let r = writer.finish();
         self.wrap("finishing MCAP output", r)?;
         let buf = writer.into_inner();
-        let file = buf.into_inner().map_err(|e| io_err(&self.target, e.into_error()))?;
+        let file = buf
+            .into_inner()
+            .map_err(|e| io_err(&self.target, e.into_error()))?;
         file.sync_all().map_err(|e| io_err(&self.target, e))?;
         drop(file);
         let temp = self.temp.take().expect("temp path present until finish");
         if self.overwrite {
-            temp.persist(&self.target).map_err(|e| io_err(&self.target, e.error))?;
+            temp.persist(&self.target)
+                .map_err(|e| io_err(&self.target, e.error))?;
         } else {
-            temp.persist_noclobber(&self.target).map_err(|e| io_err(&self.target, e.error))?;
+            temp.persist_noclobber(&self.target)
+                .map_err(|e| io_err(&self.target, e.error))?;
         }
         Ok(())
     }
