@@ -341,6 +341,8 @@ pub enum FailureReason {
     TooFewInliers,
     /// Fitness after ICP below the caller's minimum.
     LowFitness,
+    /// The cloud could not be prepared (e.g. coordinates so large the voxel grid overflows).
+    InvalidCloud,
 }
 
 impl FailureReason {
@@ -352,6 +354,7 @@ impl FailureReason {
             FailureReason::NoConsensus => "no_consensus",
             FailureReason::TooFewInliers => "too_few_inliers",
             FailureReason::LowFitness => "low_fitness",
+            FailureReason::InvalidCloud => "invalid_cloud",
         }
     }
 }

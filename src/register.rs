@@ -17,7 +17,7 @@ use serde_json::json;
 
 use crate::evaluate::{ate_rmse, relative_pose_errors};
 use crate::io::mcap_log::{ChannelInfo, OutputLog, for_each_record, list_channels};
-use crate::io::ros2;
+use crate::io::{foxglove_msgs, ros2};
 use crate::odometry::{FrameEstimate, Odometry, OdometryConfig};
 use crate::pipeline::{PreparedFrame, prepare_frame};
 use crate::{Error, Result};
@@ -99,14 +99,38 @@ pub struct RegisterSummary {
     pub reference: Option<ReferenceErrors>,
 }
 
+/// The point cloud message types `register` reads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum CloudKind {
+    /// ROS 2 `sensor_msgs/msg/PointCloud2`, cdr.
     Ros2,
+    /// `foxglove.PointCloud`, protobuf (its `pose` applied).
+    Foxglove,
 }
 
+const FOXGLOVE_POINT_CLOUD: &str = "foxglove.PointCloud";
+
 fn cloud_kind(c: &ChannelInfo) -> Option<CloudKind> {
-    (c.schema_name == ros2::POINT_CLOUD2_SCHEMA_NAME && c.message_encoding == "cdr")
-        .then_some(CloudKind::Ros2)
+    if c.schema_name == ros2::POINT_CLOUD2_SCHEMA_NAME
+        && c.message_encoding == ros2::MESSAGE_ENCODING
+    {
+        Some(CloudKind::Ros2)
+    } else if c.schema_name == FOXGLOVE_POINT_CLOUD
+        && c.message_encoding == foxglove_msgs::MESSAGE_ENCODING
+    {
+        Some(CloudKind::Foxglove)
+    } else {
+        None
+    }
+}
+
+impl CloudKind {
+    fn decode(self, payload: &[u8]) -> std::result::Result<ros2::PointCloud, ros2::DecodeError> {
+        match self {
+            CloudKind::Ros2 => ros2::decode_point_cloud2(payload),
+            CloudKind::Foxglove => foxglove_msgs::decode_foxglove_point_cloud(payload),
+        }
+    }
 }
 
 /// Picks the point cloud channel: the one named `requested`, or the only cloud topic.
@@ -132,7 +156,7 @@ fn choose_topic(
             ))
         })?;
         let kind = cloud_kind(c).ok_or_else(|| Error::InvalidInput(format!(
-            "{}: topic {topic:?} carries {} ({}), not a point cloud (sensor_msgs/msg/PointCloud2, cdr)",
+            "{}: topic {topic:?} carries {} ({}), not a point cloud (sensor_msgs/msg/PointCloud2 in cdr, or foxglove.PointCloud in protobuf)",
             path.display(),
             c.schema_name,
             c.message_encoding
@@ -141,7 +165,7 @@ fn choose_topic(
     }
     match clouds.as_slice() {
         [] => Err(Error::InvalidInput(format!(
-            "{}: no point cloud topic (sensor_msgs/msg/PointCloud2, cdr); topics: {}",
+            "{}: no point cloud topic (sensor_msgs/msg/PointCloud2 in cdr, or foxglove.PointCloud in protobuf); topics: {}",
             path.display(),
             channels
                 .iter()
@@ -168,6 +192,8 @@ struct CloudMsg {
 }
 
 struct PreparedMsg {
+    /// Why the cloud could not be prepared (the frame is then empty and flagged).
+    invalid: Option<String>,
     log_time: u64,
     publish_time: u64,
     header: ros2::Header,
@@ -176,6 +202,7 @@ struct PreparedMsg {
 }
 
 struct FrameOut {
+    invalid: Option<String>,
     log_time: u64,
     publish_time: u64,
     header: ros2::Header,
@@ -206,7 +233,8 @@ pub fn stats_json_schema() -> serde_json::Value {
         "type": "object",
         "properties": {
             "frame": int, "stamp_ns": int, "success": {"type": "boolean"},
-            "failure_reason": {"type": ["string", "null"]}, "fallback": {"type": ["string", "null"]},
+            "failure_reason": {"type": ["string", "null"]},
+            "failure_detail": {"type": ["string", "null"]}, "fallback": {"type": ["string", "null"]},
             "num_points": int, "num_points_downsampled": int, "num_correspondences": int,
             "num_inliers": int, "inlier_ratio": num, "hypotheses": int,
             "best_found_at": {"type": ["integer", "null"]}, "fitness": num, "inlier_rmse_m": num,
@@ -230,6 +258,7 @@ fn frame_stats(out: &FrameOut) -> serde_json::Value {
         "stamp_ns": out.header.stamp.to_ns(),
         "success": e.success,
         "failure_reason": e.failure.map(|f| f.as_str()),
+        "failure_detail": out.invalid,
         "fallback": e.fallback.map(|f| match f {
             crate::odometry::Fallback::ConstantVelocityIcp => "constant_velocity_icp",
             crate::odometry::Fallback::ConstantVelocity => "constant_velocity",
@@ -259,22 +288,101 @@ fn frame_stats(out: &FrameOut) -> serde_json::Value {
 }
 
 struct Outputs {
+    kind: CloudKind,
     tf: u16,
     pose: u16,
     stats: u16,
 }
 
+impl Outputs {
+    /// Registers our channels: ROS 2 messages for ROS 2 inputs, foxglove protobuf messages for
+    /// foxglove inputs (so both open natively in Foxglove and Rerun).
+    fn create(log: &mut OutputLog, kind: CloudKind, tf_topic: &str) -> Result<Self> {
+        let (tf, pose) = match kind {
+            CloudKind::Ros2 => (
+                log.add_channel(
+                    tf_topic,
+                    ros2::TF_MESSAGE_SCHEMA_NAME,
+                    ros2::SCHEMA_ENCODING,
+                    ros2::TF_MESSAGE_SCHEMA.as_bytes(),
+                    ros2::MESSAGE_ENCODING,
+                )?,
+                log.add_channel(
+                    "/mireg/pose",
+                    ros2::POSE_STAMPED_SCHEMA_NAME,
+                    ros2::SCHEMA_ENCODING,
+                    ros2::POSE_STAMPED_SCHEMA.as_bytes(),
+                    ros2::MESSAGE_ENCODING,
+                )?,
+            ),
+            CloudKind::Foxglove => {
+                let (t, p) = (
+                    foxglove_msgs::frame_transforms_schema(),
+                    foxglove_msgs::pose_in_frame_schema(),
+                );
+                (
+                    log.add_channel(
+                        tf_topic,
+                        &t.name,
+                        &t.encoding,
+                        &t.data,
+                        foxglove_msgs::MESSAGE_ENCODING,
+                    )?,
+                    log.add_channel(
+                        "/mireg/pose",
+                        &p.name,
+                        &p.encoding,
+                        &p.data,
+                        foxglove_msgs::MESSAGE_ENCODING,
+                    )?,
+                )
+            }
+        };
+        let schema = serde_json::to_string(&stats_json_schema()).expect("schema JSON");
+        let stats = log.add_channel(
+            "/mireg/stats",
+            "mireg.FrameStats",
+            "jsonschema",
+            schema.as_bytes(),
+            "json",
+        )?;
+        Ok(Self {
+            kind,
+            tf,
+            pose,
+            stats,
+        })
+    }
+}
+
 fn write_frame(log: &mut OutputLog, ch: &Outputs, world_frame: &str, out: &FrameOut) -> Result<()> {
-    let header = ros2::Header {
-        stamp: out.header.stamp,
-        frame_id: world_frame.to_string(),
+    let world_from_frame = out.est.world_from_frame;
+    let (pose, tf) = match ch.kind {
+        CloudKind::Ros2 => {
+            let header = ros2::Header {
+                stamp: out.header.stamp,
+                frame_id: world_frame.to_string(),
+            };
+            let tf = ros2::encode_tf_message(&[ros2::TransformStamped {
+                header: header.clone(),
+                child_frame_id: out.header.frame_id.clone(),
+                transform: world_from_frame,
+            }]);
+            (ros2::encode_pose_stamped(&header, &world_from_frame), tf)
+        }
+        CloudKind::Foxglove => {
+            let stamp = u64::try_from(out.header.stamp.to_ns()).unwrap_or(0);
+            (
+                foxglove_msgs::encode_pose_in_frame(stamp, world_frame, &world_from_frame),
+                foxglove_msgs::encode_frame_transforms(&[(
+                    stamp,
+                    world_frame,
+                    &out.header.frame_id,
+                    world_from_frame,
+                )]),
+            )
+        }
     };
-    let pose = ros2::encode_pose_stamped(&header, &out.est.world_from_frame);
-    let tf = ros2::encode_tf_message(&[ros2::TransformStamped {
-        header: header.clone(),
-        child_frame_id: out.header.frame_id.clone(),
-        transform: out.est.world_from_frame,
-    }]);
     let stats = serde_json::to_vec(&frame_stats(out)).expect("JSON of plain values");
     log.write(ch.tf, out.log_time, out.publish_time, &tf)?;
     log.write(ch.pose, out.log_time, out.publish_time, &pose)?;
@@ -301,7 +409,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     }
     let mut odometry = Odometry::new(opts.config.clone())?;
     let channels = list_channels(input)?;
-    let (topic, _kind) = choose_topic(input, &channels, opts.topic.as_deref())?;
+    let (topic, kind) = choose_topic(input, &channels, opts.topic.as_deref())?;
     let tf_topic = if channels.iter().any(|c| c.topic == "/tf") {
         "/mireg/tf"
     } else {
@@ -321,31 +429,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         .sum::<u64>();
 
     let mut log = OutputLog::create(&opts.output, opts.force, "ros2")?;
-    let ch = Outputs {
-        tf: log.add_channel(
-            &tf_topic,
-            ros2::TF_MESSAGE_SCHEMA_NAME,
-            ros2::SCHEMA_ENCODING,
-            ros2::TF_MESSAGE_SCHEMA.as_bytes(),
-            ros2::MESSAGE_ENCODING,
-        )?,
-        pose: log.add_channel(
-            "/mireg/pose",
-            ros2::POSE_STAMPED_SCHEMA_NAME,
-            ros2::SCHEMA_ENCODING,
-            ros2::POSE_STAMPED_SCHEMA.as_bytes(),
-            ros2::MESSAGE_ENCODING,
-        )?,
-        stats: log.add_channel(
-            "/mireg/stats",
-            "mireg.FrameStats",
-            "jsonschema",
-            serde_json::to_string(&stats_json_schema())
-                .expect("schema JSON")
-                .as_bytes(),
-            "json",
-        )?,
-    };
+    let ch = Outputs::create(&mut log, kind, &tf_topic)?;
 
     let progress = if opts.progress && std::io::IsTerminal::is_terminal(&std::io::stderr()) {
         let bar = indicatif::ProgressBar::new(total_frames);
@@ -377,12 +461,19 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         scope.spawn(move || {
             for msg in cloud_rx {
                 let t = Instant::now();
-                let r = ros2::decode_point_cloud2(&msg.data)
+                let r = kind
+                    .decode(&msg.data)
                     .map_err(|e| decode_error(input, topic_ref, msg.log_time, e))
                     .and_then(|cloud| {
                         let decode_s = t.elapsed().as_secs_f64();
-                        let frame = prepare_frame(&cloud.points, &config.pair)?;
+                        // A cloud the pipeline cannot take (e.g. a glitch at 1e38 m) is one bad
+                        // frame: flag it, keep going.
+                        let (frame, invalid) = match prepare_frame(&cloud.points, &config.pair) {
+                            Ok(f) => (f, None),
+                            Err(e) => (prepare_frame(&[], &config.pair)?, Some(e.to_string())),
+                        };
                         Ok(PreparedMsg {
+                            invalid,
                             log_time: msg.log_time,
                             publish_time: msg.publish_time,
                             header: cloud.header,
@@ -402,8 +493,12 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                 let r = msg.and_then(|m| {
                     let prep = m.frame.timings;
                     let t = Instant::now();
-                    let est = odometry.push(m.frame)?;
+                    let mut est = odometry.push(m.frame)?;
+                    if m.invalid.is_some() {
+                        est.failure = Some(crate::pipeline::FailureReason::InvalidCloud);
+                    }
                     Ok(FrameOut {
+                        invalid: m.invalid,
                         log_time: m.log_time,
                         publish_time: m.publish_time,
                         header: m.header,
@@ -490,13 +585,20 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
             }
         }
         drop(cloud_tx.take());
+        // A worker's error is the root cause of any later failure to hand it work: report it.
         let mut result = read;
+        let mut worker_error = None;
         for r in out_rx.iter() {
-            if result.is_ok() {
-                result = handle_out(&mut log, r);
+            match r {
+                Err(e) => worker_error = worker_error.or(Some(e)),
+                Ok(out) if result.is_ok() => result = handle_out(&mut log, Ok(out)),
+                Ok(_) => {}
             }
         }
-        result
+        match worker_error {
+            Some(e) => Err(e),
+            None => result,
+        }
     })?;
     if let Some(bar) = &progress {
         bar.finish_and_clear();

@@ -51,48 +51,30 @@ pub struct ChannelInfo {
 
 /// Channels of `path`, from its summary section when present, else by scanning the records.
 pub fn list_channels(path: &Path) -> Result<Vec<ChannelInfo>> {
-    let mut file = File::open(path).map_err(|e| io_err(path, e))?;
-    let mut reader = SummaryReader::new();
-    while let Some(event) = reader.next_event() {
-        match event.map_err(|e| mcap_err(path, "reading the MCAP summary", e))? {
-            SummaryReadEvent::ReadRequest(need) => {
-                let n = file
-                    .read(reader.insert(need))
-                    .map_err(|e| io_err(path, e))?;
-                reader.notify_read(n);
-            }
-            SummaryReadEvent::SeekRequest(to) => {
-                let pos = file.seek(to).map_err(|e| io_err(path, e))?;
-                reader.notify_seeked(pos);
-            }
-        }
-    }
-    if let Some(summary) = reader.finish().filter(|s| !s.channels.is_empty()) {
-        {
-            let counts = summary.stats.as_ref().map(|s| &s.channel_message_counts);
-            let mut out: Vec<ChannelInfo> = summary
-                .channels
-                .values()
-                .map(|c| ChannelInfo {
-                    id: c.id,
-                    topic: c.topic.clone(),
-                    schema_name: c
-                        .schema
-                        .as_ref()
-                        .map(|s| s.name.clone())
-                        .unwrap_or_default(),
-                    schema_encoding: c
-                        .schema
-                        .as_ref()
-                        .map(|s| s.encoding.clone())
-                        .unwrap_or_default(),
-                    message_encoding: c.message_encoding.clone(),
-                    message_count: counts.and_then(|m| m.get(&c.id).copied()),
-                })
-                .collect();
-            out.sort_by_key(|c| c.id);
-            return Ok(out);
-        }
+    if let Some(summary) = read_summary(path)?.filter(|s| !s.channels.is_empty()) {
+        let counts = summary.stats.as_ref().map(|s| &s.channel_message_counts);
+        let mut out: Vec<ChannelInfo> = summary
+            .channels
+            .values()
+            .map(|c| ChannelInfo {
+                id: c.id,
+                topic: c.topic.clone(),
+                schema_name: c
+                    .schema
+                    .as_ref()
+                    .map(|s| s.name.clone())
+                    .unwrap_or_default(),
+                schema_encoding: c
+                    .schema
+                    .as_ref()
+                    .map(|s| s.encoding.clone())
+                    .unwrap_or_default(),
+                message_encoding: c.message_encoding.clone(),
+                message_count: counts.and_then(|m| m.get(&c.id).copied()),
+            })
+            .collect();
+        out.sort_by_key(|c| c.id);
+        return Ok(out);
     }
     // No summary (e.g. a log cut short while recording): one pass over the records.
     let mut schemas: HashMap<u16, (String, String)> = HashMap::new();
@@ -125,13 +107,38 @@ pub fn list_channels(path: &Path) -> Result<Vec<ChannelInfo>> {
     Ok(out)
 }
 
+/// The summary section of `path`; `None` when the file has none or it cannot be read (a log
+/// cut short has no footer: the caller then scans the records, which reports what is wrong).
+fn read_summary(path: &Path) -> Result<Option<mcap::Summary>> {
+    let mut file = File::open(path).map_err(|e| io_err(path, e))?;
+    let mut reader = SummaryReader::new();
+    while let Some(event) = reader.next_event() {
+        let Ok(event) = event else { return Ok(None) };
+        match event {
+            SummaryReadEvent::ReadRequest(need) => {
+                let n = file
+                    .read(reader.insert(need))
+                    .map_err(|e| io_err(path, e))?;
+                reader.notify_read(n);
+            }
+            SummaryReadEvent::SeekRequest(to) => {
+                let pos = file.seek(to).map_err(|e| io_err(path, e))?;
+                reader.notify_seeked(pos);
+            }
+        }
+    }
+    Ok(reader.finish())
+}
+
 /// Calls `f` on every record of the data section of `path` in file order, decompressing chunks
 /// one at a time (memory bounded by the largest chunk). Stops at the data-end record; the summary
 /// section is not visited. A truncated or corrupt file is an [`Error::Format`] naming the file.
 pub fn for_each_record(path: &Path, mut f: impl FnMut(Record<'_>) -> Result<()>) -> Result<()> {
     let file = File::open(path).map_err(|e| io_err(path, e))?;
     let mut source = BufReader::with_capacity(1 << 20, file);
-    let mut reader = LinearReader::new();
+    let mut reader = LinearReader::new_with_options(
+        mcap::sans_io::linear_reader::LinearReaderOptions::default().with_validate_chunk_crcs(true),
+    );
     let mut data_ended = false;
     while let Some(event) = reader.next_event() {
         match event.map_err(|e| mcap_err(path, "reading MCAP records", e))? {
@@ -370,6 +377,13 @@ impl OutputLog {
         let file = buf
             .into_inner()
             .map_err(|e| io_err(&self.target, e.into_error()))?;
+        // Temporary files are created private (0600); a finished log is an ordinary file.
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            file.set_permissions(std::fs::Permissions::from_mode(0o644))
+                .map_err(|e| io_err(&self.target, e))?;
+        }
         file.sync_all().map_err(|e| io_err(&self.target, e))?;
         drop(file);
         let temp = self.temp.take().expect("temp path present until finish");

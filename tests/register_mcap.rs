@@ -1,0 +1,506 @@
+//! `mireg register` end to end: pass-through of every input record, recovered motion against
+//! known transforms, the reference trajectory of the fixture, and clean failure on bad input.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use mcap::records::{MessageHeader, Record};
+use mireg::io::mcap_log::for_each_record;
+use mireg::io::ros2::{self, Header, Time};
+use mireg::odometry::OdometryConfig;
+use mireg::pipeline::{PairConfig, pose_error};
+use mireg::register::{RegisterOptions, register_log};
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use rand::{RngExt, SeedableRng};
+
+fn fixture() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/icl_livingroom1.mcap")
+}
+
+fn options(input: &Path, output: &Path, voxel: f64) -> RegisterOptions {
+    RegisterOptions {
+        input: input.to_path_buf(),
+        output: output.to_path_buf(),
+        topic: None,
+        config: OdometryConfig {
+            pair: PairConfig {
+                voxel_size_m: voxel,
+                seed: 3,
+                ..Default::default()
+            },
+            ..Default::default()
+        },
+        force: false,
+        world_frame: "world".into(),
+        command_line: "test".into(),
+        progress: false,
+    }
+}
+
+/// Everything a log holds, by kind: messages as (topic, log_time, publish_time, data), metadata,
+/// attachments.
+#[derive(Default)]
+struct Contents {
+    messages: Vec<(String, u64, u64, Vec<u8>)>,
+    metadata: Vec<(String, BTreeMap<String, String>)>,
+    attachments: Vec<(String, String, u64, Vec<u8>)>,
+}
+
+fn contents(path: &Path) -> Contents {
+    let mut topics = BTreeMap::new();
+    let mut c = Contents::default();
+    for_each_record(path, |r| {
+        match r {
+            Record::Channel(ch) => {
+                topics.insert(ch.id, ch.topic);
+            }
+            Record::Message { header, data } => c.messages.push((
+                topics[&header.channel_id].clone(),
+                header.log_time,
+                header.publish_time,
+                data.to_vec(),
+            )),
+            Record::Metadata(m) => c.metadata.push((m.name, m.metadata)),
+            Record::Attachment { header, data, .. } => c.attachments.push((
+                header.name,
+                header.media_type,
+                header.log_time,
+                data.to_vec(),
+            )),
+            _ => {}
+        }
+        Ok(())
+    })
+    .unwrap();
+    c.messages.sort();
+    c
+}
+
+fn assert_superset(input: &Contents, output: &Contents) {
+    let mut out = output.messages.clone();
+    for m in &input.messages {
+        let i = out
+            .binary_search(m)
+            .unwrap_or_else(|_| panic!("input message on {} at {} missing or altered", m.0, m.1));
+        out.remove(i);
+    }
+    for m in &input.metadata {
+        assert!(output.metadata.contains(m), "metadata {} lost", m.0);
+    }
+    for a in &input.attachments {
+        assert!(output.attachments.contains(a), "attachment {} lost", a.0);
+    }
+}
+
+fn poses(c: &Contents, topic: &str) -> Vec<(i64, Isometry3<f64>)> {
+    c.messages
+        .iter()
+        .filter(|m| m.0 == topic)
+        .map(|m| {
+            let (h, p) = ros2::decode_pose_stamped(&m.3).unwrap();
+            (h.stamp.to_ns(), p)
+        })
+        .collect()
+}
+
+#[test]
+fn fixture_passes_through_and_follows_the_reference() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.mcap");
+    let summary = register_log(&options(&fixture(), &out, 0.05)).unwrap();
+    let (input, output) = (contents(&fixture()), contents(&out));
+    assert_superset(&input, &output);
+    let frames = input
+        .messages
+        .iter()
+        .filter(|m| m.0 == "/camera/depth/points")
+        .count();
+    assert_eq!(summary.frames, frames);
+    for topic in ["/tf", "/mireg/pose", "/mireg/stats"] {
+        assert_eq!(
+            output.messages.iter().filter(|m| m.0 == topic).count(),
+            frames,
+            "{topic}"
+        );
+    }
+    let meta = &output
+        .metadata
+        .iter()
+        .find(|m| m.0 == "mireg")
+        .expect("mireg metadata")
+        .1;
+    for key in ["version", "config", "seed", "command_line"] {
+        assert!(meta.contains_key(key), "metadata key {key}");
+    }
+    // Stats: one JSON object per frame with the documented fields.
+    for m in output.messages.iter().filter(|m| m.0 == "/mireg/stats") {
+        let v: serde_json::Value = serde_json::from_slice(&m.3).unwrap();
+        for key in [
+            "frame",
+            "stamp_ns",
+            "success",
+            "failure_reason",
+            "num_inliers",
+            "inlier_ratio",
+            "hypotheses",
+            "fitness",
+            "timings_s",
+        ] {
+            assert!(v.get(key).is_some(), "stats key {key}");
+        }
+    }
+    // Against the fixture's reference poses (Open3D's reconstruction, first frame = identity).
+    let est = poses(&output, "/mireg/pose");
+    let reference: BTreeMap<i64, Isometry3<f64>> =
+        poses(&output, "/ground_truth/pose").into_iter().collect();
+    assert_eq!(est[0].1, Isometry3::identity());
+    let mut worst = (0.0f64, 0.0f64);
+    for (stamp, pose) in &est {
+        let (r, t) = pose_error(&reference[stamp], pose);
+        worst = (worst.0.max(r), worst.1.max(t));
+    }
+    // Frame-to-frame odometry drifts: 71 frames over a 3.7 m path; this bound catches gross
+    // failures, the ATE/RPE bounds below judge accuracy.
+    assert!(
+        worst.0 < 8.0 && worst.1 < 0.20,
+        "worst drift {:.2}° {:.3} m over the log",
+        worst.0,
+        worst.1
+    );
+    assert!(
+        summary.failed_frames * 10 <= frames,
+        "{} failed frames",
+        summary.failed_frames
+    );
+    let r = summary.reference.expect("reference errors");
+    assert!(r.ate_rmse_m < 0.05 && r.rpe_trans_mean_m < 0.02, "{r:?}");
+}
+
+/// A room with boxes and spheres: enough structure for FPFH.
+fn scene(seed: u64) -> Vec<Point3<f64>> {
+    let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(seed);
+    let mut pts = Vec::new();
+    for _ in 0..6000 {
+        let (u, v): (f64, f64) = (rng.random_range(-4.0..4.0), rng.random_range(0.0..3.0));
+        match rng.random_range(0..3u32) {
+            0 => pts.push(Point3::new(u, v - 1.5, 4.0)), // back wall
+            1 => pts.push(Point3::new(-4.0, v - 1.5, u + 4.0)), // left wall
+            _ => pts.push(Point3::new(u, 1.5, v * 2.5)), // floor (y down)
+        }
+    }
+    for k in 0..8 {
+        let c = Vector3::new(
+            rng.random_range(-3.0..3.0),
+            rng.random_range(-1.0..1.2),
+            rng.random_range(2.0..7.0),
+        );
+        let r = rng.random_range(0.2..0.6);
+        for _ in 0..500 {
+            let d = Vector3::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+            );
+            if k % 2 == 0 {
+                pts.push(Point3::from(c + d.normalize() * r)); // sphere
+            } else {
+                let mut e = d * r;
+                let axis = rng.random_range(0..3usize);
+                e[axis] = r * e[axis].signum(); // box face
+                pts.push(Point3::from(c + e));
+            }
+        }
+    }
+    pts
+}
+
+fn world_from_camera(k: usize) -> Isometry3<f64> {
+    let k = k as f64;
+    Isometry3::from_parts(
+        Translation3::new(0.08 * k, -0.02 * k, 0.05 * k),
+        UnitQuaternion::from_euler_angles(0.01 * k, 0.04 * k, -0.02 * k),
+    )
+}
+
+/// Writes a log with a cloud topic seen from `world_from_camera(k)`, plus unrelated channels,
+/// metadata and an attachment.
+fn write_synthetic_log(path: &Path, frames: usize) {
+    let world = scene(1);
+    let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    let mut w = mcap::WriteOptions::new()
+        .profile("ros2")
+        .create(file)
+        .unwrap();
+    let cloud_schema = w
+        .add_schema(
+            ros2::POINT_CLOUD2_SCHEMA_NAME,
+            "ros2msg",
+            ros2::POINT_CLOUD2_SCHEMA.as_bytes(),
+        )
+        .unwrap();
+    let clouds = w
+        .add_channel(cloud_schema, "/sensor/points", "cdr", &BTreeMap::new())
+        .unwrap();
+    let json_schema = w
+        .add_schema("Note", "jsonschema", br#"{"type":"object"}"#)
+        .unwrap();
+    let notes = w
+        .add_channel(
+            json_schema,
+            "/notes",
+            "json",
+            &BTreeMap::from([("k".into(), "v".into())]),
+        )
+        .unwrap();
+    let raw = w
+        .add_channel(0, "/raw", "application/octet-stream", &BTreeMap::new())
+        .unwrap();
+    w.write_metadata(&mcap::records::Metadata {
+        name: "robot".into(),
+        metadata: BTreeMap::from([("id".into(), "r2".into())]),
+    })
+    .unwrap();
+    w.attach(&mcap::Attachment {
+        log_time: 5,
+        create_time: 6,
+        name: "calib.yaml".into(),
+        media_type: "application/yaml".into(),
+        data: std::borrow::Cow::Borrowed(b"fx: 525\n"),
+    })
+    .unwrap();
+    let t0 = 1_700_000_000_000_000_000u64;
+    for k in 0..frames {
+        let t = t0 + k as u64 * 100_000_000;
+        let cam_from_world = world_from_camera(k).inverse();
+        let pts: Vec<Point3<f64>> = world.iter().map(|p| cam_from_world * p).collect();
+        let header = Header {
+            stamp: Time::from_ns(t as i64).unwrap(),
+            frame_id: "lidar".into(),
+        };
+        let data = ros2::encode_point_cloud2(&header, &pts, None);
+        w.write_to_known_channel(
+            &MessageHeader {
+                channel_id: clouds,
+                sequence: k as u32,
+                log_time: t,
+                publish_time: t + 1,
+            },
+            &data,
+        )
+        .unwrap();
+        let note = format!(r#"{{"k":{k}}}"#);
+        w.write_to_known_channel(
+            &MessageHeader {
+                channel_id: notes,
+                sequence: k as u32,
+                log_time: t + 5,
+                publish_time: t + 5,
+            },
+            note.as_bytes(),
+        )
+        .unwrap();
+        w.write_to_known_channel(
+            &MessageHeader {
+                channel_id: raw,
+                sequence: 7,
+                log_time: t + 9,
+                publish_time: t,
+            },
+            &[k as u8, 0, 255],
+        )
+        .unwrap();
+    }
+    w.finish().unwrap();
+}
+
+#[test]
+fn synthetic_log_recovers_known_motion_and_keeps_every_record() {
+    let dir = tempfile::tempdir().unwrap();
+    let (input, out) = (dir.path().join("in.mcap"), dir.path().join("out.mcap"));
+    write_synthetic_log(&input, 6);
+    let summary = register_log(&options(&input, &out, 0.1)).unwrap();
+    assert_eq!(summary.frames, 6);
+    assert_eq!(summary.failed_frames, 0);
+    let (a, b) = (contents(&input), contents(&out));
+    assert_superset(&a, &b);
+    assert_eq!(b.metadata.len(), a.metadata.len() + 1);
+    // world = the first camera: world_from_frame_k = camera_0_from_world · world_from_camera_k.
+    for (k, (_, est)) in poses(&b, "/mireg/pose").iter().enumerate() {
+        let truth = world_from_camera(0).inverse() * world_from_camera(k);
+        let (r, t) = pose_error(&truth, est);
+        assert!(r < 0.3 && t < 0.01, "frame {k}: {r:.3}° {t:.4} m");
+    }
+    // /tf carries the same pose, parent "world", child = the cloud's frame.
+    for m in b.messages.iter().filter(|m| m.0 == "/tf") {
+        let tfs = ros2::decode_tf_message(&m.3).unwrap();
+        assert_eq!(
+            (
+                tfs[0].header.frame_id.as_str(),
+                tfs[0].child_frame_id.as_str()
+            ),
+            ("world", "lidar")
+        );
+    }
+}
+
+fn no_partial_files(dir: &Path) {
+    let left: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert!(
+        left.iter()
+            .all(|n| !n.to_string_lossy().contains("partial")),
+        "left behind: {left:?}"
+    );
+}
+
+#[test]
+fn truncated_and_corrupt_logs_fail_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let bytes = std::fs::read(fixture()).unwrap();
+    let truncated = dir.path().join("truncated.mcap");
+    std::fs::write(&truncated, &bytes[..bytes.len() / 2]).unwrap();
+    let mut flipped = bytes.clone();
+    for b in &mut flipped[bytes.len() / 3..bytes.len() / 3 + 64] {
+        *b ^= 0x5a;
+    }
+    let corrupt = dir.path().join("corrupt.mcap");
+    std::fs::write(&corrupt, &flipped).unwrap();
+    for input in [&truncated, &corrupt] {
+        let out = dir.path().join("out.mcap");
+        let err = register_log(&options(input, &out, 0.05))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains(&input.display().to_string()),
+            "error does not name the file: {err}"
+        );
+        assert!(!out.exists(), "output left behind for {}", input.display());
+        no_partial_files(dir.path());
+    }
+}
+
+#[test]
+fn never_overwrites_without_force_and_never_the_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.mcap");
+    std::fs::write(&out, b"precious").unwrap();
+    let err = register_log(&options(&fixture(), &out, 0.05))
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("--force"), "{err}");
+    assert_eq!(std::fs::read(&out).unwrap(), b"precious");
+    let input = dir.path().join("in.mcap");
+    std::fs::copy(fixture(), &input).unwrap();
+    let mut opts = options(&input, &input, 0.05);
+    opts.force = true;
+    assert!(register_log(&opts).is_err());
+    assert_eq!(
+        std::fs::read(&input).unwrap(),
+        std::fs::read(fixture()).unwrap()
+    );
+}
+
+#[test]
+fn real_rosbag2_log_passes_through_untouched() {
+    let nav2 =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/mcap/nav2_turtlebot.mcap");
+    if !nav2.exists() {
+        eprintln!(
+            "skipping: {} not found (../shared/data is absent)",
+            nav2.display()
+        );
+        return;
+    }
+    // The nav2 log has no clouds: append a cloud channel to a copy of its records.
+    let dir = tempfile::tempdir().unwrap();
+    let (input, out) = (
+        dir.path().join("nav2_with_clouds.mcap"),
+        dir.path().join("out.mcap"),
+    );
+    {
+        let mut log = mireg::io::mcap_log::OutputLog::create(&input, false, "ros2").unwrap();
+        let mut first = None;
+        for_each_record(&nav2, |r| {
+            if let Record::Message { header, .. } = &r {
+                first.get_or_insert(header.log_time);
+            }
+            log.copy(&r)
+        })
+        .unwrap();
+        let ch = log
+            .add_channel(
+                "/scan/points",
+                ros2::POINT_CLOUD2_SCHEMA_NAME,
+                "ros2msg",
+                ros2::POINT_CLOUD2_SCHEMA.as_bytes(),
+                "cdr",
+            )
+            .unwrap();
+        let world = scene(2);
+        for k in 0..3 {
+            let t = first.unwrap() + k as u64 * 1_000_000_000;
+            let pts: Vec<_> = world
+                .iter()
+                .map(|p| world_from_camera(k).inverse() * p)
+                .collect();
+            let header = Header {
+                stamp: Time::from_ns(t as i64).unwrap(),
+                frame_id: "base_scan".into(),
+            };
+            log.write(ch, t, t, &ros2::encode_point_cloud2(&header, &pts, None))
+                .unwrap();
+        }
+        log.finish().unwrap();
+    }
+    let summary = register_log(&options(&input, &out, 0.1)).unwrap();
+    assert_eq!(summary.tf_topic, "/mireg/tf", "the log has /tf already");
+    let (original, output) = (contents(&nav2), contents(&out));
+    assert_superset(&original, &output);
+    assert_eq!(
+        output
+            .messages
+            .iter()
+            .filter(|m| m.0 == "/mireg/tf")
+            .count(),
+        3
+    );
+}
+
+#[test]
+fn cli_register_json_summary() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("o.mcap");
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_mireg"))
+        .args([
+            "register",
+            fixture().to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--json",
+            "--quiet",
+        ])
+        .output()
+        .unwrap();
+    // --quiet suppresses the summary unless --json asks for it.
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert_eq!(v["frames"], 71);
+    assert!(out.exists());
+    let again = std::process::Command::new(env!("CARGO_BIN_EXE_mireg"))
+        .args([
+            "register",
+            fixture().to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(again.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&again.stderr).contains("exists"));
+}
