@@ -66,9 +66,11 @@ import argparse
 import json
 import os
 import shutil
+import socket
 import subprocess
 import sys
 import tempfile
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -77,6 +79,8 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 TIMELINE = "message_log_time"
+MAX_FAILURE_LABELS = 8  # more failure boxes than this: labels hidden (hover shows them)
+SCREENSHOT_SETTLE_S = 6.0  # seconds between seeking and shooting (toasts fade, views repaint)
 POSE_TOPIC = "/mireg/pose"
 STATS_TOPIC = "/mireg/stats"
 REFERENCE_TOPIC = "/ground_truth/pose"
@@ -140,7 +144,14 @@ class Run:
 
     @property
     def config(self) -> dict:
+        """The run's configuration from the metadata (``{"pair": {...}, "min_inliers": ...}``)."""
         return self.metadata.get("config") or {}
+
+    @property
+    def pair_config(self) -> dict:
+        """The pairwise registration config (the ``pair`` table of the run config, if nested)."""
+        cfg = self.config
+        return cfg.get("pair", cfg) if isinstance(cfg, dict) else {}
 
 
 def pose_to_matrix(pose) -> np.ndarray:
@@ -287,6 +298,36 @@ def _decode(decoders, factory, schema, channel, message):
     return dec(message.data)
 
 
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(float(v)) if isinstance(v, float) else str(v)
+    if isinstance(v, str):
+        return json.dumps(v)  # a JSON string of plain text is a valid TOML basic string
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {v!r} as TOML")
+
+
+def to_toml(d: dict, prefix: str = "") -> str:
+    """Minimal TOML for a JSON-like config: scalars/arrays first, then nested tables; None (an
+    unset Option in mireg's config) is left out so mireg derives the default."""
+    lines, tables = [], []
+    for key, value in d.items():
+        if value is None:
+            continue
+        if isinstance(value, dict):
+            tables.append((key, value))
+        else:
+            lines.append(f"{key} = {_toml_value(value)}")
+    text = "\n".join(lines) + ("\n" if lines else "")
+    for key, value in tables:
+        name = f"{prefix}{key}"
+        text += f"\n[{name}]\n" + to_toml(value, prefix=name + ".")
+    return text
+
+
 def transform(m: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Apply a 4×4 rigid transform to N×3 points."""
     return pts @ m[:3, :3].T + m[:3, 3]
@@ -366,7 +407,7 @@ def make_blueprint(rrb, eye, collapse_panels: bool, with_reference: bool):
     )
     return rrb.Blueprint(
         rrb.Horizontal(spatial, rrb.Vertical(*stat_plots), column_shares=[3, 2]),
-        rrb.TimePanel(timeline=TIMELINE),
+        rrb.TimePanel(timeline=TIMELINE, state="collapsed" if collapse_panels else None),
         collapse_panels=collapse_panels,
     )
 
@@ -385,7 +426,8 @@ def log_run(rr, run: Run, args) -> dict:
     shown = [f for f in frames if f.index % args.every == 0 and f.points is not None]
     if args.frame is not None:
         # the frame of interest is always shown, whatever --every says
-        shown = sorted(set(shown) | {frames[args.frame]}, key=lambda f: f.index)
+        extra = [frames[args.frame]] if frames[args.frame] not in shown else []
+        shown = sorted(shown + extra, key=lambda f: f.index)
 
     # World points of the shown clouds (subsampled), for colours and the camera placement.
     world_pts = {}
@@ -467,6 +509,7 @@ def log_run(rr, run: Run, args) -> dict:
                     half_sizes=[[0.05, 0.05, 0.05]] * len(failures),
                     colors=[255, 0, 0],
                     labels=[label for _, label in failures],
+                    show_labels=len(failures) <= MAX_FAILURE_LABELS,
                     radii=0.006,
                 ),
             )
@@ -484,12 +527,16 @@ def log_run(rr, run: Run, args) -> dict:
         log_pair(rr, run, args)
 
     # Camera: look at the middle of the map from behind and above the first sensor.
-    anchor = all_pts if len(all_pts) else np.array(est_positions or [[0.0, 0.0, 0.0]])
-    lo_b, hi_b = np.percentile(anchor, 5, axis=0), np.percentile(anchor, 95, axis=0)
+    # Box = 5–95 % of the map points plus the whole trajectory, so both are in the picture.
+    traj = np.array(est_positions or [[0.0, 0.0, 0.0]])
+    lo_b, hi_b = traj.min(axis=0), traj.max(axis=0)
+    if len(all_pts):
+        lo_b = np.minimum(lo_b, np.percentile(all_pts, 5, axis=0))
+        hi_b = np.maximum(hi_b, np.percentile(all_pts, 95, axis=0))
     centre = (lo_b + hi_b) / 2
     extent = float(np.linalg.norm(hi_b - lo_b)) or 1.0
     forward = np.array([0.0, 0.0, 1.0]) if frame_id.endswith("optical_frame") else np.array([1.0, 0, 0])
-    position = centre - forward * 0.9 * extent + up * 0.8 * extent
+    position = centre - forward * 0.8 * extent + up * 0.85 * extent
     return {"position": position, "look_target": centre, "eye_up": up}
 
 
@@ -499,7 +546,7 @@ def log_pair(rr, run: Run, args):
     src, tgt = run.frames[k], run.frames[k - 1]
     if src.points is None or tgt.points is None or tgt.estimate is None:
         raise SystemExit(f"--frame {k}: clouds or pose missing")
-    cfg = run.config
+    cfg = run.pair_config
     voxel = float(cfg.get("voxel_size_m") or 0.05)
     threshold = float(cfg.get("inlier_threshold_m") or 1.5 * voxel)
     cmd = [str(args.mireg), "pair"]
@@ -507,9 +554,16 @@ def log_pair(rr, run: Run, args):
         src_path, tgt_path = Path(tmp, "source.npy"), Path(tmp, "target.npy")
         np.save(src_path, np.ascontiguousarray(src.points, dtype=np.float64))
         np.save(tgt_path, np.ascontiguousarray(tgt.points, dtype=np.float64))
-        cmd += [str(src_path), str(tgt_path), "--json", "--voxel", repr(voxel)]
-        if run.metadata.get("seed") not in (None, ""):
-            cmd += ["--seed", str(run.metadata["seed"])]
+        cmd += [str(src_path), str(tgt_path), "--json"]
+        if cfg:
+            # the run's full pairwise configuration (sampler, ranking, ICP, seed, ...) as TOML
+            config_path = Path(tmp, "pair.toml")
+            config_path.write_text(to_toml(cfg))
+            cmd += ["--config", str(config_path)]
+        else:
+            cmd += ["--voxel", repr(voxel)]
+            if run.metadata.get("seed") not in (None, ""):
+                cmd += ["--seed", str(run.metadata["seed"])]
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     if proc.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed ({proc.returncode}):\n{proc.stderr}")
@@ -522,11 +576,11 @@ def log_pair(rr, run: Run, args):
     inlier = dist <= threshold
     segments = np.stack([src_w[inlier], tgt_w[idx[inlier]]], axis=1)
     set_frame_time(rr, src)
-    rr.log("world/pair/target", rr.Points3D(tgt_w, colors=[60, 140, 255], radii=0.008))
-    rr.log("world/pair/source", rr.Points3D(src_w, colors=[255, 150, 0], radii=0.008))
+    rr.log("world/pair/target", rr.Points3D(tgt_w, colors=[255, 255, 255], radii=0.012))
+    rr.log("world/pair/source", rr.Points3D(src_w, colors=[255, 0, 255], radii=0.012))
     rr.log(
         "world/pair/correspondences",
-        rr.LineStrips3D(segments, colors=[255, 255, 0], radii=0.002),
+        rr.LineStrips3D(segments, colors=[255, 255, 0], radii=0.004),
     )
     text = (
         f"recomputed pair {k}->{k - 1} with `mireg pair` (voxel {voxel} m, inlier threshold "
@@ -556,30 +610,87 @@ def rerun_binary() -> str:
     return found
 
 
-def screenshot(rrd: Path, png: Path, window_size: str, timeout: float) -> None:
-    """Render ``rrd`` with the headless viewer and write ``png``."""
+def free_port() -> int:
+    """A currently free TCP port on 127.0.0.1 (for the headless viewer's gRPC server)."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def screenshot(
+    rrd: Path, png: Path, window_size: str, timeout: float, end_ns: int | None, colors: int = 0
+) -> None:
+    """Render ``rrd`` with the headless viewer and write ``png``.
+
+    Starts ``rerun RRD --headless --bind 127.0.0.1 --port <free>`` (the binary from the rerun-sdk
+    wheel), drives it with ``rerun.experimental.ViewerClient``: waits until the recording is
+    loaded up to ``end_ns`` on ``message_log_time``, puts the time cursor there (paused, so the
+    whole accumulated map is shown), lets start-up notifications fade, takes the screenshot and
+    stops the viewer. ``colors`` > 0 quantizes the PNG to that many colours (smaller file).
+    ``rerun --screenshot-to`` alone shoots the first painted frame, before the
+    data has loaded, which is why it is not used here.
+    """
+    from rerun.experimental import ViewerClient
+
     png.parent.mkdir(parents=True, exist_ok=True)
-    cmd = [
-        rerun_binary(),
-        str(rrd),
-        "--headless",
-        "--screenshot-to",
-        str(png),
-        "--window-size",
-        window_size,
-        "--bind",
-        "127.0.0.1",
-    ]
+    port = free_port()
+    cmd = [rerun_binary(), str(rrd), "--headless", "--window-size", window_size,
+           "--bind", "127.0.0.1", "--port", str(port)]
     env = dict(os.environ, RERUN_ANALYTICS="0")
-    try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
-    except subprocess.TimeoutExpired:
-        raise SystemExit(f"screenshot timed out after {timeout} s: {' '.join(cmd)}")
-    if proc.returncode != 0 or not png.exists() or png.stat().st_size == 0:
+    log = tempfile.TemporaryFile(mode="w+")
+    proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env)
+    deadline = time.monotonic() + timeout
+
+    def fail(why: str):
+        log.seek(0)
+        tail = log.read()[-3000:]
         raise SystemExit(
-            f"screenshot failed ({proc.returncode}): {' '.join(cmd)}\n{proc.stderr[-3000:]}\n"
-            "Headless rendering needs a Vulkan driver: bash tools/setup_viewer_venv.sh --screenshot"
+            f"screenshot failed: {why}\n{' '.join(cmd)}\n{tail}\nHeadless rendering needs a "
+            "Vulkan driver (mesa lavapipe): bash tools/setup_viewer_venv.sh --screenshot"
         )
+
+    try:
+        client, last_error = None, None
+        while client is None:
+            if proc.poll() is not None:
+                fail(f"viewer exited with {proc.returncode}")
+            if time.monotonic() > deadline:
+                fail(f"no connection to the viewer: {last_error}")
+            try:
+                candidate = ViewerClient.connect(f"rerun+http://127.0.0.1:{port}/proxy")
+                candidate.get_state()
+                client = candidate
+            except Exception as e:  # not listening yet
+                last_error = e
+                time.sleep(0.5)
+        while True:  # wait for the data (the viewer streams the .rrd in lazily)
+            state = client.get_state()
+            ends = [t.end for r in state.recordings for t in r.timelines if t.name == TIMELINE]
+            if not state.loading and ends and (end_ns is None or max(ends) >= end_ns):
+                break
+            if time.monotonic() > deadline:
+                fail("the recording did not finish loading")
+            time.sleep(0.3)
+        seek = end_ns if end_ns is not None else max(ends)
+        client.set_time(TIMELINE, timestamp=np.datetime64(seek, "ns"), play_state="paused")
+        time.sleep(SCREENSHOT_SETTLE_S)  # let the views render and the toasts fade
+        data = client.take_screenshot()
+        if not data:
+            fail("empty screenshot")
+        png.write_bytes(data)
+        if colors:
+            from PIL import Image  # Pillow comes with matplotlib
+
+            with Image.open(png) as image:
+                image.convert("RGB").quantize(colors=colors).save(png, optimize=True)
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)
+        log.close()
 
 
 def parse_args(argv=None):
@@ -603,6 +714,8 @@ def parse_args(argv=None):
     p.add_argument("--axis-length", type=float, default=0.15, help="pose axes length [m]")
     p.add_argument("--window-size", default="1280x800", help="screenshot size (default %(default)s)")
     p.add_argument("--timeout", type=float, default=180.0, help="screenshot timeout [s]")
+    p.add_argument("--png-colors", type=int, default=0, metavar="N",
+                   help="quantize the screenshot to N colours (e.g. 256 for docs), 0 = keep")
     args = p.parse_args(argv)
     if args.every < 1:
         p.error("--every must be >= 1")
@@ -626,6 +739,7 @@ def main(argv=None) -> int:
         raise SystemExit("no display: use --save out.rrd or --screenshot out.png")
 
     rr.init("mireg_view", spawn=False)
+    rr.set_log_time_enabled(False)  # no wall-clock "log_time" timeline next to message_log_time
     tmpdir = None
     if args.save is not None:
         rrd = args.save
@@ -650,7 +764,15 @@ def main(argv=None) -> int:
         if args.save is not None:
             print(f"wrote {rrd}", file=sys.stderr)
         elif args.screenshot is not None:
-            screenshot(rrd, args.screenshot, args.window_size, args.timeout)
+            # with --frame K show the scene at frame K (its pair on top of the map so far)
+            end_ns = (
+                run.frames[args.frame].log_time
+                if args.frame is not None
+                else max((f.log_time for f in run.frames), default=None)
+            )
+            screenshot(
+                rrd, args.screenshot, args.window_size, args.timeout, end_ns, args.png_colors
+            )
             print(f"wrote {args.screenshot}", file=sys.stderr)
         else:
             subprocess.run([rerun_binary(), str(rrd), "--bind", "127.0.0.1"], check=False)
