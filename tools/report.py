@@ -95,7 +95,10 @@ def make_report(mcap: Path, out: Path, dpi: int = 110) -> dict:
     ax_traj.legend(fontsize=8)
 
     def series(key):
-        return np.array([s.get(key) if s.get(key) is not None else np.nan for s in stats], float)
+        values = np.array([s.get(key) if s.get(key) is not None else np.nan for s in stats], float)
+        if len(values):
+            values[0] = np.nan  # the first frame has no predecessor: nothing was registered
+        return values
 
     ax_inl.plot(idx, series("num_inliers"), ".-", color="tab:blue", label="inliers")
     ax_inl.plot(idx, series("num_correspondences"), ".-", color="tab:gray", alpha=0.7,

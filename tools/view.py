@@ -31,8 +31,9 @@ Entity paths
                                   Scalars, one per ``/mireg/stats`` message (null fields are skipped)
 ``stats/timings_ms/<stage>``      Scalars per stage of ``timings_s`` (decode, downsample, normals,
                                   features, matching, ranking, ransac, icp, register), in ms
-``world/pair/target``, ``world/pair/source``, ``world/pair/correspondences``, ``log/pair``
-                                  only with ``--frame K``, see below
+``world/pair/target`` (white), ``world/pair/source`` (magenta), ``world/pair/correspondences``
+(yellow), ``log/pair``            only with ``--frame K``, see below; shown in a second 3-D view
+                                  (the map view leaves them out)
 
 ``--frame K`` (correspondences of frame K → K−1): the MCAP does **not** store correspondences, so
 this is a *recomputation*: clouds K (source) and K−1 (target) are written as float64 N×3 ``.npy``
@@ -382,8 +383,9 @@ def set_frame_time(rr, frame: Frame):
     rr.set_time("frame", sequence=frame.index)
 
 
-def make_blueprint(rrb, eye, collapse_panels: bool, with_reference: bool):
-    """Layout: 3-D world view left; stats plots and the failure log right."""
+def make_blueprint(rrb, eyes, collapse_panels: bool, with_reference: bool, frame=None):
+    """Layout: 3-D world view left (with ``--frame K`` above a second 3-D view of only the pair);
+    stats plots and the failure log right."""
     stat_plots = [
         rrb.TimeSeriesView(
             name="inliers / correspondences",
@@ -395,16 +397,29 @@ def make_blueprint(rrb, eye, collapse_panels: bool, with_reference: bool):
         rrb.TimeSeriesView(name="timings [ms]", origin="stats/timings_ms"),
         rrb.TextLogView(name="log", origin="log"),
     ]
-    spatial = rrb.Spatial3DView(
-        name="world (estimate: white line, reference: green)" if with_reference else "world",
-        origin="world",
-        eye_controls=rrb.EyeControls3D(
+    def eye_controls(eye):
+        return rrb.EyeControls3D(
             kind=rrb.Eye3DKind.Orbital,
             position=eye["position"],
             look_target=eye["look_target"],
             eye_up=eye["eye_up"],
-        ),
+        )
+
+    spatial = rrb.Spatial3DView(
+        name="world (estimate: white line, reference: green)" if with_reference else "world",
+        origin="world",
+        contents=["+ $origin/**", "- $origin/pair/**"] if frame is not None else "$origin/**",
+        eye_controls=eye_controls(eyes["map"]),
     )
+    if frame is not None and "pair" in eyes:
+        pair_view = rrb.Spatial3DView(
+            name=f"frame {frame} -> {frame - 1}: target white, source magenta, "
+            "inlier pairs yellow (recomputed)",
+            origin="world",
+            contents=["+ $origin/pair/**", "+ $origin/camera/**"],
+            eye_controls=eye_controls(eyes["pair"]),
+        )
+        spatial = rrb.Vertical(spatial, pair_view)
     return rrb.Blueprint(
         rrb.Horizontal(spatial, rrb.Vertical(*stat_plots), column_shares=[3, 2]),
         rrb.TimePanel(timeline=TIMELINE, state="collapsed" if collapse_panels else None),
@@ -523,8 +538,7 @@ def log_run(rr, run: Run, args) -> dict:
                 ),
             )
 
-    if args.frame is not None:
-        log_pair(rr, run, args)
+    pair_box = log_pair(rr, run, args) if args.frame is not None else None
 
     # Camera: look at the middle of the map from behind and above the first sensor.
     # Box = 5–95 % of the map points plus the whole trajectory, so both are in the picture.
@@ -537,7 +551,15 @@ def log_run(rr, run: Run, args) -> dict:
     extent = float(np.linalg.norm(hi_b - lo_b)) or 1.0
     forward = np.array([0.0, 0.0, 1.0]) if frame_id.endswith("optical_frame") else np.array([1.0, 0, 0])
     position = centre - forward * 0.8 * extent + up * 0.85 * extent
-    return {"position": position, "look_target": centre, "eye_up": up}
+    eyes = {"map": {"position": position, "look_target": centre, "eye_up": up}}
+    if pair_box is not None:
+        pc, pe = pair_box
+        eyes["pair"] = {
+            "position": pc - forward * 0.7 * pe + up * 0.6 * pe,
+            "look_target": pc,
+            "eye_up": up,
+        }
+    return eyes
 
 
 def log_pair(rr, run: Run, args):
@@ -576,8 +598,8 @@ def log_pair(rr, run: Run, args):
     inlier = dist <= threshold
     segments = np.stack([src_w[inlier], tgt_w[idx[inlier]]], axis=1)
     set_frame_time(rr, src)
-    rr.log("world/pair/target", rr.Points3D(tgt_w, colors=[255, 255, 255], radii=0.012))
-    rr.log("world/pair/source", rr.Points3D(src_w, colors=[255, 0, 255], radii=0.012))
+    rr.log("world/pair/target", rr.Points3D(tgt_w, colors=[255, 255, 255], radii=0.007))
+    rr.log("world/pair/source", rr.Points3D(src_w, colors=[255, 0, 255], radii=0.007))
     rr.log(
         "world/pair/correspondences",
         rr.LineStrips3D(segments, colors=[255, 255, 0], radii=0.004),
@@ -592,6 +614,9 @@ def log_pair(rr, run: Run, args):
         text += f"; the MCAP's run had {src.stats.get('num_inliers')} inliers"
     rr.log("log/pair", rr.TextLog(text, level=rr.TextLogLevel.INFO))
     print(text, file=sys.stderr)
+    both = np.concatenate([tgt_w, src_w])
+    lo_b, hi_b = np.percentile(both, 5, axis=0), np.percentile(both, 95, axis=0)
+    return (lo_b + hi_b) / 2, float(np.linalg.norm(hi_b - lo_b)) or 1.0
 
 
 # --------------------------------------------------------------------------------------------------
@@ -749,9 +774,13 @@ def main(argv=None) -> int:
         rrd = Path(tmpdir.name, "view.rrd")
     # Until a sink is set the recording stream buffers everything; rr.save then writes the buffer,
     # so the blueprint (whose camera depends on the data) can be made after logging.
-    eye = log_run(rr, run, args)
+    eyes = log_run(rr, run, args)
     blueprint = make_blueprint(
-        rrb, eye, collapse_panels=args.screenshot is not None, with_reference=run.has_reference
+        rrb,
+        eyes,
+        collapse_panels=args.screenshot is not None,
+        with_reference=run.has_reference,
+        frame=args.frame,
     )
     rr.save(rrd, default_blueprint=blueprint)
     n_failed = sum(1 for f in run.frames if f.stats and not f.stats.get("success", True))
