@@ -67,6 +67,7 @@ import argparse
 import json
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -642,6 +643,26 @@ def free_port() -> int:
         return sock.getsockname()[1]
 
 
+def stop_group(proc: subprocess.Popen) -> None:
+    """SIGTERM the process group led by ``proc`` (started with start_new_session=True), SIGKILL
+    after 10 s."""
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        try:
+            os.killpg(proc.pid, sig)
+        except ProcessLookupError:
+            break
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            try:
+                os.killpg(proc.pid, 0)  # any member left?
+            except ProcessLookupError:
+                proc.wait()
+                return
+            proc.poll()
+            time.sleep(0.1)
+    proc.wait()
+
+
 def screenshot(
     rrd: Path, png: Path, window_size: str, timeout: float, end_ns: int | None, colors: int = 0
 ) -> None:
@@ -663,7 +684,11 @@ def screenshot(
            "--bind", "127.0.0.1", "--port", str(port)]
     env = dict(os.environ, RERUN_ANALYTICS="0")
     log = tempfile.TemporaryFile(mode="w+")
-    proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env)
+    # Own session: the wheel's `rerun` is a Python launcher that starts the real viewer binary as a
+    # child, so the whole process group has to be stopped afterwards, not just the launcher.
+    proc = subprocess.Popen(
+        cmd, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True
+    )
     deadline = time.monotonic() + timeout
 
     def fail(why: str):
@@ -709,12 +734,7 @@ def screenshot(
             with Image.open(png) as image:
                 image.convert("RGB").quantize(colors=colors).save(png, optimize=True)
     finally:
-        proc.terminate()
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(10)
+        stop_group(proc)
         log.close()
 
 
