@@ -504,3 +504,102 @@ fn cli_register_json_summary() {
     assert_eq!(again.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&again.stderr).contains("exists"));
 }
+
+#[test]
+fn foxglove_point_clouds_get_foxglove_poses() {
+    use foxglove::schemas::packed_element_field::NumericType;
+    use foxglove::schemas::{PackedElementField, PointCloud, Timestamp};
+    use prost::Message;
+
+    let dir = tempfile::tempdir().unwrap();
+    let (input, out) = (dir.path().join("fox.mcap"), dir.path().join("out.mcap"));
+    let schema = mireg::io::foxglove_msgs::point_cloud_schema();
+    {
+        let file = std::io::BufWriter::new(std::fs::File::create(&input).unwrap());
+        let mut w = mcap::WriteOptions::new().create(file).unwrap();
+        let s = w
+            .add_schema(&schema.name, &schema.encoding, &schema.data)
+            .unwrap();
+        let ch = w
+            .add_channel(s, "/lidar", "protobuf", &BTreeMap::new())
+            .unwrap();
+        let world = scene(4);
+        for k in 0..4u32 {
+            let cam_from_world = world_from_camera(k as usize).inverse();
+            let mut data = Vec::new();
+            for p in &world {
+                let q = cam_from_world * p;
+                for c in [q.x as f32, q.y as f32, q.z as f32] {
+                    data.extend(c.to_le_bytes());
+                }
+            }
+            let field = |name: &str, offset| PackedElementField {
+                name: name.into(),
+                offset,
+                r#type: NumericType::Float32 as i32,
+            };
+            let msg = PointCloud {
+                timestamp: Some(Timestamp::new(1_700_000_000 + k, 0)),
+                frame_id: "lidar".into(),
+                pose: None,
+                point_stride: 12,
+                fields: vec![field("x", 0), field("y", 4), field("z", 8)],
+                data: data.into(),
+            };
+            let t = (1_700_000_000 + k as u64) * 1_000_000_000;
+            w.write_to_known_channel(
+                &MessageHeader {
+                    channel_id: ch,
+                    sequence: k,
+                    log_time: t,
+                    publish_time: t,
+                },
+                &msg.encode_to_vec(),
+            )
+            .unwrap();
+        }
+        w.finish().unwrap();
+    }
+    let summary = register_log(&options(&input, &out, 0.1)).unwrap();
+    assert_eq!((summary.frames, summary.failed_frames), (4, 0));
+    let mut schemas = BTreeMap::new();
+    let mut pose_channel = None;
+    let mut poses = Vec::new();
+    for_each_record(&out, |r| {
+        match r {
+            Record::Schema { header, .. } => {
+                schemas.insert(header.id, header.name);
+            }
+            Record::Channel(c) if c.topic == "/mireg/pose" => {
+                assert_eq!(schemas[&c.schema_id], "foxglove.PoseInFrame");
+                pose_channel = Some(c.id);
+            }
+            Record::Channel(c) if c.topic == "/tf" => {
+                assert_eq!(schemas[&c.schema_id], "foxglove.FrameTransforms")
+            }
+            Record::Message { header, data } if Some(header.channel_id) == pose_channel => {
+                let p = foxglove::schemas::PoseInFrame::decode(&data[..]).unwrap();
+                assert_eq!(p.frame_id, "world");
+                poses.push(p);
+            }
+            _ => {}
+        }
+        Ok(())
+    })
+    .unwrap();
+    assert_eq!(poses.len(), 4);
+    for (k, p) in poses.iter().enumerate() {
+        let pose = p.pose.as_ref().unwrap();
+        let (t, q) = (
+            pose.position.as_ref().unwrap(),
+            pose.orientation.as_ref().unwrap(),
+        );
+        let est = Isometry3::from_parts(
+            Translation3::new(t.x, t.y, t.z),
+            UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q.w, q.x, q.y, q.z)),
+        );
+        let truth = world_from_camera(0).inverse() * world_from_camera(k);
+        let (r, e) = pose_error(&truth, &est);
+        assert!(r < 0.3 && e < 0.01, "frame {k}: {r:.3}° {e:.4} m");
+    }
+}
