@@ -184,6 +184,10 @@ pub fn for_each_record(path: &Path, mut f: impl FnMut(Record<'_>) -> Result<()>)
     Ok(())
 }
 
+/// zstd level of the output chunks: 1 (fastest) keeps pass-through of large non-cloud channels
+/// (images, raw sensor data) near copy speed; logs are rarely archived by mireg itself.
+pub const OUTPUT_ZSTD_LEVEL: u32 = 1;
+
 /// An MCAP being written to a temporary file beside `target`; [`OutputLog::finish`] renames it.
 pub struct OutputLog {
     writer: Option<mcap::Writer<BufWriter<File>>>,
@@ -228,6 +232,7 @@ impl OutputLog {
         let (file, temp) = temp.into_parts();
         let writer = mcap::WriteOptions::new()
             .compression(Some(mcap::Compression::Zstd))
+            .compression_level(OUTPUT_ZSTD_LEVEL)
             .profile(profile)
             .library(format!("mireg {}", env!("CARGO_PKG_VERSION")))
             .create(BufWriter::with_capacity(1 << 20, file))
