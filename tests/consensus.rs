@@ -238,3 +238,44 @@ fn bit_identical_on_one_and_two_threads() {
         );
     }
 }
+
+#[test]
+fn prosac_termination_stops_early_on_ranked_inliers() {
+    // 80 inliers in the top 100 ranks of 1500: PROSAC's non-randomness + maximality rule (Chum &
+    // Matas 2005, Sec. 2.3) may stop long before the uniform rule would (w = 80/1500).
+    use mireg::ransac::Termination;
+    let n = 1500;
+    let ranks: Vec<usize> = (0..100).filter(|r| r % 5 != 0).collect();
+    let s = scene(31, n, &ranks, 0.002);
+    let est = RigidEstimator::new(&s.source, &s.target);
+    let base = ConsensusConfig {
+        inlier_threshold: 0.02,
+        max_hypotheses: 100_000,
+        seed: 4,
+        ..Default::default()
+    };
+    let prosac = Prosac::new(n, 3, 200_000).unwrap();
+    let adaptive = run_consensus(&prosac, &est, &base);
+    let with_rule = run_consensus(
+        &prosac,
+        &est,
+        &ConsensusConfig {
+            termination: Termination::Prosac {
+                beta: 0.05,
+                psi: 0.05,
+            },
+            ..base.clone()
+        },
+    );
+    for r in [&adaptive, &with_rule] {
+        let (rot, trans) = errors(&s.gt, r.model.as_ref().unwrap());
+        assert!(rot < 0.2 && trans < 0.01);
+        assert!(r.converged);
+    }
+    assert!(
+        with_rule.hypotheses * 10 < adaptive.hypotheses,
+        "PROSAC rule {} vs adaptive {}",
+        with_rule.hypotheses,
+        adaptive.hypotheses
+    );
+}

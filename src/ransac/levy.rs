@@ -256,6 +256,26 @@ mod tests {
     }
 
     #[test]
+    fn with_replacement_repeats_indices_like_the_authors_code() {
+        // Over 10 ranks with μ = −1 the top rank has ~30 % mass: triples repeat often when each
+        // slot is independent, never when samples are distinct.
+        let d = TruncatedLevy::new(-1.0, 1.0, 100.0).unwrap();
+        let distinct = Levy::new(d, 10).unwrap();
+        let authors = distinct.clone().with_replacement(true);
+        let mut rng = super::super::sampler::hypothesis_rng(1, 0);
+        let (mut s, mut repeats) = ([0usize; 3], [0u32; 2]);
+        for (k, sampler) in [&distinct, &authors].into_iter().enumerate() {
+            for h in 0..2000 {
+                sampler.draw(h, &mut rng, &mut s);
+                repeats[k] += (s[0] == s[1] || s[0] == s[2] || s[1] == s[2]) as u32;
+            }
+        }
+        assert_eq!(repeats[0], 0);
+        // P(some pair equal) = 1 − P(all distinct) ≥ 1 − (1 − p0)… with p0 ≈ 0.3: well above 20 %.
+        assert!(repeats[1] > 400, "{} repeats in 2000 triples", repeats[1]);
+    }
+
+    #[test]
     fn table_rank_matches_direct_inversion() {
         let n = 997;
         for &mu in &[-1.0, -50.0, -1e6] {
