@@ -21,3 +21,5 @@ pub mod evaluate;
 pub mod odometry;
 pub mod pipeline;
 pub mod register;
+pub mod trajectory;
+pub mod cli_eval;
