@@ -265,10 +265,29 @@ fn write_text(
     Ok(())
 }
 
+/// A closed stdout (`mireg export … | head`) ends the output quietly, like other Unix tools.
+fn ignore_broken_pipe(r: Result<()>) -> Result<()> {
+    match r {
+        Err(e)
+            if e.chain().any(|c| {
+                c.downcast_ref::<std::io::Error>()
+                    .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
+            }) =>
+        {
+            Ok(())
+        }
+        r => r,
+    }
+}
+
 /// Runs `mireg evaluate`.
 pub fn run_evaluate(args: &EvaluateArgs) -> Result<()> {
+    ignore_broken_pipe(evaluate_to_stdout(args))
+}
+
+fn evaluate_to_stdout(args: &EvaluateArgs) -> Result<()> {
     let (ev, reference) = evaluate_log(args)?;
-    let estimate = format!("{}", args.est_topic);
+    let estimate = args.est_topic.clone();
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
     if args.csv {
@@ -312,8 +331,10 @@ pub fn run_export(args: &ExportArgs) -> Result<()> {
         None => {
             let stdout = std::io::stdout();
             let mut w = std::io::BufWriter::new(stdout.lock());
-            write_trajectory(&t, args.format, &mut w)?;
-            w.flush().context("writing stdout")?;
+            ignore_broken_pipe(
+                write_trajectory(&t, args.format, &mut w)
+                    .and_then(|()| w.flush().context("writing stdout")),
+            )?;
         }
     }
     Ok(())

@@ -38,6 +38,8 @@ pub const DEFAULT_MAX_DT_NS: i64 = 10_000_000;
 pub const TUM_QUATERNION_NORM_TOLERANCE: f64 = 1e-3;
 
 const NANOS_PER_SEC: i64 = 1_000_000_000;
+/// Path named in [`Error::Io`] when a writer's output stream fails (the caller knows the file).
+pub const OUTPUT_STREAM: &str = "(output stream)";
 
 /// A sequence of poses `world_from_frame` with optional stamps.
 ///
@@ -241,7 +243,7 @@ pub fn write_tum(trajectory: &Trajectory, out: &mut impl std::io::Write) -> Resu
         ));
     }
     let io = |source| Error::Io {
-        path: "<output>".into(),
+        path: OUTPUT_STREAM.into(),
         source,
     };
     for (stamp, pose) in trajectory.stamps_ns.iter().zip(&trajectory.poses) {
@@ -332,7 +334,7 @@ pub fn write_kitti(trajectory: &Trajectory, out: &mut impl std::io::Write) -> Re
             .map(|(r, c)| format!("{}", h[(r, c)]))
             .collect();
         writeln!(out, "{}", row.join(" ")).map_err(|source| Error::Io {
-            path: "<output>".into(),
+            path: OUTPUT_STREAM.into(),
             source,
         })?;
     }

@@ -38,6 +38,11 @@ def main():
         default=os.path.join(os.path.dirname(sys.executable), "evo_ape"),
         help="evo_ape executable [default: next to this Python]",
     )
+    ap.add_argument(
+        "--evo-rpe",
+        default=os.path.join(os.path.dirname(sys.executable), "evo_rpe"),
+        help="evo_rpe executable [default: next to this Python]",
+    )
     ap.add_argument("--est-topic", default="/mireg/pose")
     ap.add_argument("--gt-topic", default="/ground_truth/pose")
     ap.add_argument("--max-dt", type=float, default=0.01, help="association tolerance [s]")
@@ -58,6 +63,15 @@ def main():
              "--t_max_diff", repr(a.max_dt), "--no_warnings", "--save_results", res])
         with zipfile.ZipFile(res) as z:
             stats = json.loads(z.read("stats.json"))
+        # RPE between consecutive frames (no alignment needed: RPE is invariant to it).
+        rpe = {}
+        for relation in ("trans_part", "angle_deg"):
+            out = os.path.join(tmp, f"rpe_{relation}.zip")
+            run([a.evo_rpe, "tum", gt, est, "--delta", "1", "--delta_unit", "f",
+                 "--pose_relation", relation, "--t_max_diff", repr(a.max_dt),
+                 "--no_warnings", "--save_results", out])
+            with zipfile.ZipFile(out) as z:
+                rpe[relation] = json.loads(z.read("stats.json"))["mean"]
     evo_rmse = stats["rmse"]
     mireg_rmse = mireg_json["ate_rmse_m"]
     diff = abs(evo_rmse - mireg_rmse)
@@ -65,6 +79,12 @@ def main():
     print(f"evo_ape RMSE       {evo_rmse:.12f} m")
     print(f"mireg ate_rmse_m   {mireg_rmse:.12f} m")
     print(f"|difference|       {diff:.3e} m (tolerance {a.tol:g})")
+    rpe_t_diff = abs(rpe["trans_part"] - mireg_json["rpe_trans_mean_m"])
+    rpe_r_diff = abs(rpe["angle_deg"] - mireg_json["rpe_rot_mean_deg"])
+    print(f"evo_rpe mean       {rpe['trans_part']:.12f} m, {rpe['angle_deg']:.12f} deg")
+    print(f"mireg rpe mean     {mireg_json['rpe_trans_mean_m']:.12f} m, "
+          f"{mireg_json['rpe_rot_mean_deg']:.12f} deg")
+    print(f"|difference|       {rpe_t_diff:.3e} m, {rpe_r_diff:.3e} deg (informational)")
     if not diff <= a.tol:
         print("MISMATCH", file=sys.stderr)
         sys.exit(1)
