@@ -90,7 +90,14 @@ fn max_dt_ns(seconds: f64) -> Result<i64> {
 /// Where the reference came from, for messages and JSON.
 fn reference_name(args: &EvaluateArgs, topic: Option<&str>) -> String {
     match (&args.gt, topic) {
-        (Some(p), _) => format!("{} ({:?})", p.display(), args.gt_format).to_lowercase(),
+        (Some(p), _) => {
+            let format = args
+                .gt_format
+                .to_possible_value()
+                .map(|v| v.get_name().to_string())
+                .unwrap_or_default();
+            format!("{} ({format})", p.display())
+        }
         (None, Some(t)) => t.to_string(),
         (None, None) => String::new(),
     }

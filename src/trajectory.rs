@@ -416,22 +416,23 @@ pub fn check_pose_topic(path: &Path, channels: &[ChannelInfo], topic: &str) -> R
 }
 
 /// Calls `f(topic index, log time [ns], payload)` for every message on one of `topics`, in file
-/// order, in one pass.
+/// order, in one pass (once per index when a topic is listed twice).
 fn for_each_message_on(
     path: &Path,
     topics: &[&str],
     mut f: impl FnMut(usize, u64, &[u8]) -> Result<()>,
 ) -> Result<()> {
-    let mut channel_topic: HashMap<u16, usize> = HashMap::new();
+    let mut channel_topics: HashMap<u16, Vec<usize>> = HashMap::new();
     for_each_record(path, |record| {
         match record {
             Record::Channel(c) => {
-                if let Some(k) = topics.iter().position(|t| *t == c.topic) {
-                    channel_topic.insert(c.id, k);
+                let ks: Vec<usize> = (0..topics.len()).filter(|&k| topics[k] == c.topic).collect();
+                if !ks.is_empty() {
+                    channel_topics.insert(c.id, ks);
                 }
             }
             Record::Message { header, data } => {
-                if let Some(&k) = channel_topic.get(&header.channel_id) {
+                for &k in channel_topics.get(&header.channel_id).into_iter().flatten() {
                     f(k, header.log_time, &data)?;
                 }
             }
@@ -552,7 +553,7 @@ pub struct Association {
 
 /// Pairs `estimate` with `reference` (see the module docs): by stamp when both are stamped
 /// (exact, else nearest within `max_dt_ns`, each reference pose used once, closest first),
-/// otherwise by index.
+/// otherwise by index. Panics if `max_dt_ns < 0` (a programming error).
 ///
 /// # Errors
 /// [`Error::InvalidInput`] when index association is needed and the lengths differ.
@@ -561,6 +562,7 @@ pub fn associate(
     reference: &Trajectory,
     max_dt_ns: i64,
 ) -> Result<Association> {
+    assert!(max_dt_ns >= 0, "max_dt_ns must be non-negative");
     if !(estimate.has_stamps() && reference.has_stamps()) {
         if estimate.len() != reference.len() {
             return Err(Error::InvalidInput(format!(
