@@ -232,7 +232,8 @@ pub fn read_tum(path: &Path) -> Result<Trajectory> {
 
 /// Writes `trajectory` in TUM format (`evo`'s `file_interface.read_tum_trajectory_file`): one
 /// line `timestamp tx ty tz qx qy qz qw` per pose, the timestamp in seconds with nine decimals
-/// (exact nanoseconds), the other numbers in Rust's shortest round-trip notation.
+/// (exact nanoseconds), the other numbers in Rust's shortest round-trip notation (`{:?}`:
+/// `1.0`, `-2.220446049250313e-16`).
 ///
 /// # Errors
 /// [`Error::InvalidInput`] if the trajectory has no stamps (TUM needs them).
@@ -251,7 +252,7 @@ pub fn write_tum(trajectory: &Trajectory, out: &mut impl std::io::Write) -> Resu
         let q = pose.rotation.quaternion();
         writeln!(
             out,
-            "{} {} {} {} {} {} {} {}",
+            "{} {:?} {:?} {:?} {:?} {:?} {:?} {:?}",
             format_seconds(*stamp),
             t.x,
             t.y,
@@ -321,7 +322,7 @@ pub fn read_kitti(path: &Path) -> Result<Trajectory> {
 }
 
 /// Writes `trajectory` in KITTI format (`evo`'s `read_kitti_poses_file`): per pose one line of
-/// the 12 numbers of `[R | t]` row-major, Rust's shortest round-trip notation. Stamps are not
+/// the 12 numbers of `[R | t]` row-major, Rust's shortest round-trip notation (`{:?}`). Stamps are not
 /// written.
 ///
 /// # Errors
@@ -331,7 +332,7 @@ pub fn write_kitti(trajectory: &Trajectory, out: &mut impl std::io::Write) -> Re
         let h = pose.to_homogeneous();
         let row: Vec<String> = (0..3)
             .flat_map(|r| (0..4).map(move |c| (r, c)))
-            .map(|(r, c)| format!("{}", h[(r, c)]))
+            .map(|(r, c)| format!("{:?}", h[(r, c)]))
             .collect();
         writeln!(out, "{}", row.join(" ")).map_err(|source| Error::Io {
             path: OUTPUT_STREAM.into(),
@@ -807,7 +808,7 @@ mod tests {
         write_tum(&t, &mut buf).expect("write");
         assert_eq!(
             String::from_utf8(buf).expect("utf8"),
-            "1700000000.033333333 1 -2.5 0.25 0.5 0.5 0.5 0.5\n-1.500000000 0 0 0 0 0 0 1\n"
+            "1700000000.033333333 1.0 -2.5 0.25 0.5 0.5 0.5 0.5\n-1.500000000 0.0 0.0 0.0 0.0 0.0 0.0 1.0\n"
         );
     }
 
@@ -864,7 +865,19 @@ mod tests {
         assert!((p - nalgebra::Point3::new(1.0, 3.0, 3.0)).norm() < 1e-12, "{p}");
         let mut buf = Vec::new();
         write_kitti(&t, &mut buf).expect("write");
-        assert_eq!(String::from_utf8(buf).expect("utf8"), "0 -1 0 1 1 0 0 2 0 0 1 3\n");
+        // Written back in the same order (up to the quaternion's rounding, ~1e-16).
+        let back = parse_line_numbers(
+            Path::new("k.txt"),
+            1,
+            std::str::from_utf8(&buf).expect("utf8").trim(),
+            12,
+            "3×4",
+        )
+        .expect("12 numbers");
+        let want = [0.0, -1.0, 0.0, 1.0, 1.0, 0.0, 0.0, 2.0, 0.0, 0.0, 1.0, 3.0];
+        for (a, b) in back.iter().zip(want) {
+            assert!((a - b).abs() < 1e-15, "{back:?}");
+        }
     }
 
     #[test]
