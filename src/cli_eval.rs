@@ -126,7 +126,10 @@ pub fn evaluate_log(args: &EvaluateArgs) -> Result<(Evaluation, String)> {
             let topic = match &args.gt_topic {
                 Some(t) => t.clone(),
                 None => {
-                    if !channels.iter().any(|c| c.topic == DEFAULT_GROUND_TRUTH_TOPIC) {
+                    if !channels
+                        .iter()
+                        .any(|c| c.topic == DEFAULT_GROUND_TRUTH_TOPIC)
+                    {
                         let topics = trajectory::pose_stamped_topics(&channels);
                         bail!(
                             "{}: no reference topic {DEFAULT_GROUND_TRUTH_TOPIC}; choose one with --gt-topic (PoseStamped topics: {}) or pass a file with --gt",
@@ -151,7 +154,11 @@ pub fn evaluate_log(args: &EvaluateArgs) -> Result<(Evaluation, String)> {
         }
     };
     if estimate.is_empty() {
-        bail!("{}: topic {} has no messages", input.display(), args.est_topic);
+        bail!(
+            "{}: topic {} has no messages",
+            input.display(),
+            args.est_topic
+        );
     }
     let flags = trajectory::read_frame_flags(input, DEFAULT_STATS_TOPIC)?;
     let ev = trajectory::evaluate(&estimate, &reference, flags.as_deref(), max_dt)

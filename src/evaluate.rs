@@ -98,7 +98,8 @@ pub fn path_distances(poses: &[Isometry3<f64>]) -> Vec<f64> {
 }
 
 /// Segment lengths of the KITTI odometry benchmark [m] (Geiger et al. 2012, devkit `lengths`).
-pub const KITTI_SEGMENT_LENGTHS_M: [f64; 8] = [100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0];
+pub const KITTI_SEGMENT_LENGTHS_M: [f64; 8] =
+    [100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0];
 /// Frames between segment start points in the KITTI devkit (`step_size`, 1 s at 10 Hz).
 pub const KITTI_STEP_FRAMES: usize = 10;
 /// Segment lengths for paths shorter than the first KITTI length, as fractions of the path
@@ -317,7 +318,10 @@ mod tests {
             .collect();
         let errs = aligned_position_errors(&est, &gt);
         for (k, e) in errs.iter().enumerate() {
-            assert!((e - 0.01 * (k as f64 - 4.5).abs()).abs() < 1e-9, "frame {k}: {e}");
+            assert!(
+                (e - 0.01 * (k as f64 - 4.5).abs()).abs() < 1e-9,
+                "frame {k}: {e}"
+            );
         }
         assert!((ate_rmse(&est, &gt) - 0.01 * (99.0_f64 / 12.0).sqrt()).abs() < 1e-9);
     }
@@ -397,7 +401,10 @@ mod tests {
             assert!((l - w).abs() < 1e-12);
         }
         let (lengths, step) = drift_segment_lengths(350.0);
-        assert_eq!((lengths, step), (vec![100.0, 200.0, 300.0], KITTI_STEP_FRAMES));
+        assert_eq!(
+            (lengths, step),
+            (vec![100.0, 200.0, 300.0], KITTI_STEP_FRAMES)
+        );
         assert!(drift_segment_lengths(0.0).0.is_empty());
         // A path that never moves has no segment.
         let still = vec![Isometry3::identity(); 5];

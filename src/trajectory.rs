@@ -120,7 +120,10 @@ fn parse_line_numbers(
                 .ok()
                 .filter(|x| x.is_finite())
                 .ok_or_else(|| {
-                    format_err(path, format!("line {line_no}: '{t}' is not a finite number"))
+                    format_err(
+                        path,
+                        format!("line {line_no}: '{t}' is not a finite number"),
+                    )
                 })
         })
         .collect::<Result<_>>()?;
@@ -399,9 +402,10 @@ pub fn check_pose_topic(path: &Path, channels: &[ChannelInfo], topic: &str) -> R
             format!("no topic {topic:?}"),
         ));
     }
-    if let Some(c) = matching.iter().find(|c| {
-        c.schema_name != ros2::POSE_STAMPED_SCHEMA_NAME || c.message_encoding != "cdr"
-    }) {
+    if let Some(c) = matching
+        .iter()
+        .find(|c| c.schema_name != ros2::POSE_STAMPED_SCHEMA_NAME || c.message_encoding != "cdr")
+    {
         return Err(pose_topic_error(
             path,
             channels,
@@ -427,7 +431,9 @@ fn for_each_message_on(
     for_each_record(path, |record| {
         match record {
             Record::Channel(c) => {
-                let ks: Vec<usize> = (0..topics.len()).filter(|&k| topics[k] == c.topic).collect();
+                let ks: Vec<usize> = (0..topics.len())
+                    .filter(|&k| topics[k] == c.topic)
+                    .collect();
                 if !ks.is_empty() {
                     channel_topics.insert(c.id, ks);
                 }
@@ -697,8 +703,16 @@ pub fn evaluate(
             span(reference)
         )));
     }
-    let est: Vec<_> = assoc.pairs.iter().map(|&(i, _)| estimate.poses[i]).collect();
-    let gt: Vec<_> = assoc.pairs.iter().map(|&(_, j)| reference.poses[j]).collect();
+    let est: Vec<_> = assoc
+        .pairs
+        .iter()
+        .map(|&(i, _)| estimate.poses[i])
+        .collect();
+    let gt: Vec<_> = assoc
+        .pairs
+        .iter()
+        .map(|&(_, j)| reference.poses[j])
+        .collect();
     let rpe = relative_pose_errors(&est, &gt);
     let ate = aligned_position_errors(&est, &gt);
     let by_stamp: HashMap<i64, &FrameFlag> = flags
@@ -785,8 +799,8 @@ mod tests {
         let t = random_trajectory(50, 11);
         let mut buf = Vec::new();
         write_tum(&t, &mut buf).expect("write");
-        let back = parse_tum(std::str::from_utf8(&buf).expect("utf8"), Path::new("x.tum"))
-            .expect("parse");
+        let back =
+            parse_tum(std::str::from_utf8(&buf).expect("utf8"), Path::new("x.tum")).expect("parse");
         assert_eq!(back.stamps_ns, t.stamps_ns);
         // Shortest round-trip floats: the quaternion is renormalised on read (≤ 1 ulp-ish).
         assert_same_poses(&back.poses, &t.poses, 1e-12);
@@ -814,7 +828,10 @@ mod tests {
 
     #[test]
     fn tum_stamps_parse_to_exact_nanoseconds() {
-        assert_eq!(parse_seconds_ns("1700000000.033333333"), Some(1_700_000_000_033_333_333));
+        assert_eq!(
+            parse_seconds_ns("1700000000.033333333"),
+            Some(1_700_000_000_033_333_333)
+        );
         assert_eq!(parse_seconds_ns("12"), Some(12_000_000_000));
         assert_eq!(parse_seconds_ns("0.5"), Some(500_000_000));
         assert_eq!(parse_seconds_ns("-1.5"), Some(-1_500_000_000));
@@ -834,10 +851,16 @@ mod tests {
         assert_eq!(parse_tum(ok, p).expect("valid").len(), 1);
         let short = "1.0 0 0 0 0 0 0 1\n2.0 0 0 0 0 0 1\n";
         let e = parse_tum(short, p).expect_err("7 numbers").to_string();
-        assert!(e.contains("traj.txt") && e.contains("line 2") && e.contains("found 7"), "{e}");
+        assert!(
+            e.contains("traj.txt") && e.contains("line 2") && e.contains("found 7"),
+            "{e}"
+        );
         let nan = "1.0 0 0 0 0 0 0 1\n\n2.0 0 x 0 0 0 0 1\n";
         let e = parse_tum(nan, p).expect_err("not a number").to_string();
-        assert!(e.contains("traj.txt") && e.contains("line 3") && e.contains("'x'"), "{e}");
+        assert!(
+            e.contains("traj.txt") && e.contains("line 3") && e.contains("'x'"),
+            "{e}"
+        );
         let bad_q = "1.0 0 0 0 0 0 0 2\n";
         let e = parse_tum(bad_q, p).expect_err("norm 2").to_string();
         assert!(e.contains("line 1") && e.contains("quaternion"), "{e}");
@@ -862,7 +885,10 @@ mod tests {
         let text = "0 -1 0 1 1 0 0 2 0 0 1 3\n";
         let t = parse_kitti(text, Path::new("k.txt")).expect("parse");
         let p = t.poses[0] * nalgebra::Point3::new(1.0, 0.0, 0.0);
-        assert!((p - nalgebra::Point3::new(1.0, 3.0, 3.0)).norm() < 1e-12, "{p}");
+        assert!(
+            (p - nalgebra::Point3::new(1.0, 3.0, 3.0)).norm() < 1e-12,
+            "{p}"
+        );
         let mut buf = Vec::new();
         write_kitti(&t, &mut buf).expect("write");
         // Written back in the same order (up to the quaternion's rounding, ~1e-16).
@@ -886,7 +912,10 @@ mod tests {
         let e = parse_kitti("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0 0 1 0 0 0 0 1\n", p)
             .expect_err("11 numbers")
             .to_string();
-        assert!(e.contains("seq00.txt") && e.contains("line 2") && e.contains("found 11"), "{e}");
+        assert!(
+            e.contains("seq00.txt") && e.contains("line 2") && e.contains("found 11"),
+            "{e}"
+        );
         let e = parse_kitti("2 0 0 0 0 1 0 0 0 0 1 0\n", p)
             .expect_err("not a rotation")
             .to_string();
@@ -929,7 +958,9 @@ mod tests {
         assert_eq!(a.method, AssociationMethod::Index);
         assert_eq!(a.pairs, vec![(0, 0), (1, 1), (2, 2)]);
         let gt = Trajectory::unstamped(vec![pose; 4]);
-        let e = associate(&est, &gt, 0).expect_err("lengths differ").to_string();
+        let e = associate(&est, &gt, 0)
+            .expect_err("lengths differ")
+            .to_string();
         assert!(e.contains("3 poses") && e.contains("reference 4"), "{e}");
     }
 
@@ -940,11 +971,15 @@ mod tests {
         let stamps: Vec<i64> = (0..n).map(|k| 1_000 + 100 * k).collect();
         let gt = Trajectory::stamped(
             stamps.clone(),
-            (0..n).map(|k| Isometry3::translation(k as f64, 0.0, 0.0)).collect(),
+            (0..n)
+                .map(|k| Isometry3::translation(k as f64, 0.0, 0.0))
+                .collect(),
         );
         let est = Trajectory::stamped(
             stamps.clone(),
-            (0..n).map(|k| Isometry3::translation(1.1 * k as f64, 0.0, 0.0)).collect(),
+            (0..n)
+                .map(|k| Isometry3::translation(1.1 * k as f64, 0.0, 0.0))
+                .collect(),
         );
         let flags: Vec<FrameFlag> = stamps
             .iter()
@@ -960,7 +995,10 @@ mod tests {
         assert_eq!(ev.rows.len(), 6);
         assert_eq!(ev.failed_frames, Some(1));
         assert_eq!(ev.rows[2].success, Some(false));
-        assert_eq!(ev.rows[2].failure_reason.as_deref(), Some("too_few_inliers"));
+        assert_eq!(
+            ev.rows[2].failure_reason.as_deref(),
+            Some("too_few_inliers")
+        );
         assert_eq!(ev.rows[0].rpe_trans_m, None);
         for r in &ev.rows[1..] {
             assert!((r.rpe_trans_m.expect("k > 0") - 0.1).abs() < 1e-12);

@@ -132,9 +132,12 @@ fn gt_composed_with_fixed_se3_has_zero_ate_and_rpe() {
     let e = ev.reference_from_estimate.inverse() * x;
     assert!(e.translation.vector.norm() < 1e-9 && e.rotation.angle() < 1e-9);
 
-    let json: serde_json::Value =
-        serde_json::from_str(&stdout_of(&["evaluate", path.to_str().expect("utf8"), "--json"]))
-            .expect("JSON");
+    let json: serde_json::Value = serde_json::from_str(&stdout_of(&[
+        "evaluate",
+        path.to_str().expect("utf8"),
+        "--json",
+    ]))
+    .expect("JSON");
     assert_eq!(json["frames"], 40);
     assert_eq!(json["failed_frames"], 2);
     assert!(json["ate_rmse_m"].as_f64().expect("number") < 1e-9);
@@ -178,12 +181,18 @@ fn known_per_step_drift_gives_known_rpe_in_library_csv_and_json() {
         let rpe: f64 = r[3].parse().expect("rpe number");
         assert!((rpe - 0.02).abs() < 1e-9, "row {k}: {rpe}");
     }
-    let json: serde_json::Value =
-        serde_json::from_str(&stdout_of(&["evaluate", path.to_str().expect("utf8"), "--json"]))
-            .expect("JSON");
+    let json: serde_json::Value = serde_json::from_str(&stdout_of(&[
+        "evaluate",
+        path.to_str().expect("utf8"),
+        "--json",
+    ]))
+    .expect("JSON");
     assert!((json["rpe_trans_mean_m"].as_f64().expect("number") - 0.02).abs() < 1e-9);
     let text = stdout_of(&["evaluate", path.to_str().expect("utf8")]);
-    assert!(text.contains("ATE RMSE") && text.contains("30 frames"), "{text}");
+    assert!(
+        text.contains("ATE RMSE") && text.contains("30 frames"),
+        "{text}"
+    );
 }
 
 #[test]
@@ -255,7 +264,9 @@ fn bad_inputs_name_the_file_and_topic() {
     assert_eq!(out.status.code(), Some(2));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
-        err.contains("nogt.mcap") && err.contains("/ground_truth/pose") && err.contains("/odom/pose"),
+        err.contains("nogt.mcap")
+            && err.contains("/ground_truth/pose")
+            && err.contains("/odom/pose"),
         "{err}"
     );
     let out = mireg(&["export", p, "--format", "tum"]);
