@@ -37,6 +37,10 @@ pub enum Command {
     Pair(PairArgs),
     /// Register consecutive point clouds of an MCAP log; write poses and statistics to a new MCAP.
     Register(RegisterArgs),
+    /// Compare the estimated trajectory of a `register` output with a reference (ATE, RPE, drift).
+    Evaluate(crate::cli_eval::EvaluateArgs),
+    /// Write the estimated trajectory of a `register` output as TUM or KITTI text.
+    Export(crate::cli_eval::ExportArgs),
 }
 
 /// Sampler choice on the command line.
@@ -289,6 +293,8 @@ pub fn run(cli: Cli) -> Result<()> {
         Some(Command::Simulate(args)) => run_simulate(&args),
         Some(Command::Pair(args)) => run_pair(&args),
         Some(Command::Register(args)) => run_register(&args),
+        Some(Command::Evaluate(args)) => crate::cli_eval::run_evaluate(&args),
+        Some(Command::Export(args)) => crate::cli_eval::run_export(&args),
         None => run_default(),
     }
 }

@@ -17,7 +17,9 @@ pub mod refine;
 pub mod simulate;
 
 pub use error::{Error, Result};
+pub mod cli_eval;
 pub mod evaluate;
 pub mod odometry;
 pub mod pipeline;
 pub mod register;
+pub mod trajectory;

@@ -1,0 +1,355 @@
+//! `mireg evaluate` and `mireg export`: clap arguments → [`crate::trajectory`] calls.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use clap::{Args, ValueEnum};
+
+use crate::io::mcap_log::list_channels;
+use crate::trajectory::{
+    self, DEFAULT_ESTIMATE_TOPIC, DEFAULT_GROUND_TRUTH_TOPIC, DEFAULT_STATS_TOPIC, Evaluation,
+    Trajectory,
+};
+
+/// Format of a reference trajectory file (`--gt-format`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum TrajectoryFormat {
+    /// TUM: `timestamp tx ty tz qx qy qz qw` per line (seconds, metres); associated by stamp.
+    Tum,
+    /// KITTI: 12 numbers of the row-major 3×4 `[R | t]` per line; associated by index.
+    Kitti,
+    /// Redwood/ICL-NUIM `trajectory.log` (`world_from_camera` per record); associated by index.
+    Redwood,
+}
+
+/// Output format of `mireg export`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ExportFormat {
+    /// TUM (`evo_ape tum`): stamps in seconds with nine decimals.
+    Tum,
+    /// KITTI (`evo_ape kitti`): 12 numbers per line, no stamps.
+    Kitti,
+}
+
+/// Arguments of `mireg evaluate`.
+#[derive(Debug, Args)]
+pub struct EvaluateArgs {
+    /// MCAP written by `mireg register` (estimate on --est-topic, flags on /mireg/stats).
+    pub input: PathBuf,
+    /// Reference PoseStamped topic in INPUT [default: /ground_truth/pose when present].
+    #[arg(long, value_name = "TOPIC", conflicts_with = "gt")]
+    pub gt_topic: Option<String>,
+    /// Reference trajectory file instead of a topic.
+    #[arg(long, value_name = "FILE")]
+    pub gt: Option<PathBuf>,
+    /// Format of --gt.
+    #[arg(long, value_enum, default_value_t = TrajectoryFormat::Tum, requires = "gt")]
+    pub gt_format: TrajectoryFormat,
+    /// Estimated PoseStamped topic in INPUT.
+    #[arg(long, value_name = "TOPIC", default_value = DEFAULT_ESTIMATE_TOPIC)]
+    pub est_topic: String,
+    /// Largest stamp difference for pairing an estimate with a reference pose [s].
+    #[arg(long, value_name = "SECONDS", default_value_t = 0.01)]
+    pub max_dt: f64,
+    /// Print one CSV row per associated frame
+    /// (frame,stamp_ns,success,rpe_trans_m,rpe_rot_deg,ate_err_m).
+    #[arg(long, conflicts_with = "json")]
+    pub csv: bool,
+    /// Print a JSON summary.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Arguments of `mireg export`.
+#[derive(Debug, Args)]
+pub struct ExportArgs {
+    /// MCAP written by `mireg register` (or any log with a PoseStamped topic).
+    pub input: PathBuf,
+    /// Output format.
+    #[arg(long, value_enum)]
+    pub format: ExportFormat,
+    /// Output file (replaced if it exists) [default: stdout].
+    #[arg(short, long, value_name = "FILE")]
+    pub output: Option<PathBuf>,
+    /// PoseStamped topic to export.
+    #[arg(long, value_name = "TOPIC", default_value = DEFAULT_ESTIMATE_TOPIC)]
+    pub topic: String,
+}
+
+/// CSV header of `mireg evaluate --csv`.
+pub const EVALUATE_CSV_HEADER: &str = "frame,stamp_ns,success,rpe_trans_m,rpe_rot_deg,ate_err_m";
+
+fn max_dt_ns(seconds: f64) -> Result<i64> {
+    if !(seconds.is_finite() && (0.0..=1e9).contains(&seconds)) {
+        bail!("--max-dt must be a non-negative number of seconds, got {seconds}");
+    }
+    Ok((seconds * 1e9).round() as i64)
+}
+
+/// Where the reference came from, for messages and JSON.
+fn reference_name(args: &EvaluateArgs, topic: Option<&str>) -> String {
+    match (&args.gt, topic) {
+        (Some(p), _) => {
+            let format = args
+                .gt_format
+                .to_possible_value()
+                .map(|v| v.get_name().to_string())
+                .unwrap_or_default();
+            format!("{} ({format})", p.display())
+        }
+        (None, Some(t)) => t.to_string(),
+        (None, None) => String::new(),
+    }
+}
+
+/// Loads estimate, reference and flags as `mireg evaluate` does; returns the evaluation and
+/// the reference's name.
+pub fn evaluate_log(args: &EvaluateArgs) -> Result<(Evaluation, String)> {
+    let input = &args.input;
+    let max_dt = max_dt_ns(args.max_dt)?;
+    let channels = list_channels(input)?;
+    let (estimate, reference, name) = match &args.gt {
+        Some(path) => {
+            let reference = match args.gt_format {
+                TrajectoryFormat::Tum => trajectory::read_tum(path)?,
+                TrajectoryFormat::Kitti => trajectory::read_kitti(path)?,
+                TrajectoryFormat::Redwood => trajectory::read_redwood(path)?,
+            };
+            if reference.is_empty() {
+                bail!("{}: no poses", path.display());
+            }
+            let estimate = trajectory::read_mcap_pose_topic(input, &args.est_topic)?;
+            (estimate, reference, reference_name(args, None))
+        }
+        None => {
+            let topic = match &args.gt_topic {
+                Some(t) => t.clone(),
+                None => {
+                    if !channels
+                        .iter()
+                        .any(|c| c.topic == DEFAULT_GROUND_TRUTH_TOPIC)
+                    {
+                        let topics = trajectory::pose_stamped_topics(&channels);
+                        bail!(
+                            "{}: no reference topic {DEFAULT_GROUND_TRUTH_TOPIC}; choose one with --gt-topic (PoseStamped topics: {}) or pass a file with --gt",
+                            input.display(),
+                            if topics.is_empty() {
+                                "none".to_string()
+                            } else {
+                                topics.join(", ")
+                            }
+                        );
+                    }
+                    DEFAULT_GROUND_TRUTH_TOPIC.to_string()
+                }
+            };
+            let mut v = trajectory::read_mcap_pose_topics(input, &[&args.est_topic, &topic])?;
+            let reference = v.pop().unwrap_or_default();
+            let estimate = v.pop().unwrap_or_default();
+            if reference.is_empty() {
+                bail!("{}: topic {topic} has no messages", input.display());
+            }
+            (estimate, reference, reference_name(args, Some(&topic)))
+        }
+    };
+    if estimate.is_empty() {
+        bail!(
+            "{}: topic {} has no messages",
+            input.display(),
+            args.est_topic
+        );
+    }
+    let flags = trajectory::read_frame_flags(input, DEFAULT_STATS_TOPIC)?;
+    let ev = trajectory::evaluate(&estimate, &reference, flags.as_deref(), max_dt)
+        .with_context(|| format!("evaluating {} against {name}", input.display()))?;
+    Ok((ev, name))
+}
+
+/// The `--json` object of `mireg evaluate`: `frames`, `failed_frames` (null without
+/// statistics), `ate_rmse_m`, `rpe_trans_mean_m`, `rpe_rot_mean_deg`, `rpe_trans_rmse_m`,
+/// `path_length_m`, association details and, when a drift segment fits, `drift_trans_pct`,
+/// `drift_rot_deg_per_m`, `drift_segments` and `drift` (per length).
+pub fn evaluation_json(
+    ev: &Evaluation,
+    estimate: &str,
+    reference: &str,
+) -> Result<serde_json::Value> {
+    let mut v = serde_json::json!({
+        "estimate": estimate,
+        "reference": reference,
+        "association": ev.association,
+        "estimate_poses": ev.estimate_poses,
+        "reference_poses": ev.reference_poses,
+        "max_pair_dt_ns": ev.max_pair_dt_ns,
+        "frames": ev.rows.len(),
+        "failed_frames": ev.failed_frames,
+        "ate_rmse_m": ev.ate_rmse_m,
+        "rpe_trans_mean_m": ev.rpe_trans_mean_m,
+        "rpe_trans_rmse_m": ev.rpe_trans_rmse_m,
+        "rpe_rot_mean_deg": ev.rpe_rot_mean_deg,
+        "path_length_m": ev.path_length_m,
+    });
+    if let Some(d) = &ev.drift {
+        v["drift_trans_pct"] = d.trans_drift_pct.into();
+        v["drift_rot_deg_per_m"] = d.rot_drift_deg_per_m.into();
+        v["drift_segments"] = d.segments.into();
+        v["drift"] = serde_json::to_value(&d.per_length)?;
+    }
+    Ok(v)
+}
+
+fn opt(v: Option<f64>) -> String {
+    v.map_or(String::new(), |x| format!("{x}"))
+}
+
+fn write_csv(out: &mut impl Write, ev: &Evaluation) -> std::io::Result<()> {
+    writeln!(out, "{EVALUATE_CSV_HEADER}")?;
+    for r in &ev.rows {
+        writeln!(
+            out,
+            "{},{},{},{},{},{}",
+            r.frame,
+            r.stamp_ns.map_or(String::new(), |s| s.to_string()),
+            r.success.map_or(String::new(), |s| s.to_string()),
+            opt(r.rpe_trans_m),
+            opt(r.rpe_rot_deg),
+            r.ate_err_m
+        )?;
+    }
+    Ok(())
+}
+
+fn write_text(
+    out: &mut impl Write,
+    ev: &Evaluation,
+    input: &Path,
+    estimate: &str,
+    reference: &str,
+) -> std::io::Result<()> {
+    writeln!(
+        out,
+        "{}: {estimate} vs {reference}: {} frames associated by {} ({} estimate / {} reference poses, max dt {:.3} ms)",
+        input.display(),
+        ev.rows.len(),
+        match ev.association {
+            trajectory::AssociationMethod::Stamp => "stamp",
+            trajectory::AssociationMethod::Index => "index",
+        },
+        ev.estimate_poses,
+        ev.reference_poses,
+        ev.max_pair_dt_ns as f64 * 1e-6
+    )?;
+    match ev.failed_frames {
+        Some(f) => writeln!(
+            out,
+            "failed frames      {f} ({:.1} %)",
+            100.0 * f as f64 / ev.rows.len().max(1) as f64
+        )?,
+        None => writeln!(out, "failed frames      unknown (no {DEFAULT_STATS_TOPIC})")?,
+    }
+    writeln!(
+        out,
+        "ATE RMSE           {:.4} m (after SE(3) alignment)",
+        ev.ate_rmse_m
+    )?;
+    writeln!(
+        out,
+        "RPE per frame      {:.4} m mean ({:.4} m RMSE), {:.3} deg mean",
+        ev.rpe_trans_mean_m, ev.rpe_trans_rmse_m, ev.rpe_rot_mean_deg
+    )?;
+    writeln!(out, "path length        {:.3} m", ev.path_length_m)?;
+    match &ev.drift {
+        Some(d) => {
+            writeln!(
+                out,
+                "drift              {:.3} %, {:.4} deg/m over {} segments",
+                d.trans_drift_pct, d.rot_drift_deg_per_m, d.segments
+            )?;
+            for s in &d.per_length {
+                writeln!(
+                    out,
+                    "  {:>9.3} m       {:.3} %, {:.4} deg/m ({} segments)",
+                    s.length_m, s.trans_drift_pct, s.rot_drift_deg_per_m, s.segments
+                )?;
+            }
+        }
+        None => writeln!(out, "drift              - (path too short for any segment)")?,
+    }
+    Ok(())
+}
+
+/// A closed stdout (`mireg export … | head`) ends the output quietly, like other Unix tools.
+fn ignore_broken_pipe(r: Result<()>) -> Result<()> {
+    match r {
+        Err(e)
+            if e.chain().any(|c| {
+                c.downcast_ref::<std::io::Error>()
+                    .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
+            }) =>
+        {
+            Ok(())
+        }
+        r => r,
+    }
+}
+
+/// Runs `mireg evaluate`.
+pub fn run_evaluate(args: &EvaluateArgs) -> Result<()> {
+    ignore_broken_pipe(evaluate_to_stdout(args))
+}
+
+fn evaluate_to_stdout(args: &EvaluateArgs) -> Result<()> {
+    let (ev, reference) = evaluate_log(args)?;
+    let estimate = args.est_topic.clone();
+    let stdout = std::io::stdout();
+    let mut out = stdout.lock();
+    if args.csv {
+        write_csv(&mut out, &ev)?;
+    } else if args.json {
+        let v = evaluation_json(&ev, &estimate, &reference)?;
+        writeln!(out, "{}", serde_json::to_string_pretty(&v)?)?;
+    } else {
+        write_text(&mut out, &ev, &args.input, &estimate, &reference)?;
+    }
+    Ok(())
+}
+
+fn write_trajectory(t: &Trajectory, format: ExportFormat, out: &mut impl Write) -> Result<()> {
+    match format {
+        ExportFormat::Tum => trajectory::write_tum(t, out)?,
+        ExportFormat::Kitti => trajectory::write_kitti(t, out)?,
+    }
+    Ok(())
+}
+
+/// Runs `mireg export`.
+pub fn run_export(args: &ExportArgs) -> Result<()> {
+    let t = trajectory::read_mcap_pose_topic(&args.input, &args.topic)?;
+    if t.is_empty() {
+        bail!(
+            "{}: topic {} has no messages",
+            args.input.display(),
+            args.topic
+        );
+    }
+    match &args.output {
+        Some(path) => {
+            let file = std::fs::File::create(path)
+                .with_context(|| format!("creating {}", path.display()))?;
+            let mut w = std::io::BufWriter::new(file);
+            write_trajectory(&t, args.format, &mut w)?;
+            w.flush()
+                .with_context(|| format!("writing {}", path.display()))?;
+        }
+        None => {
+            let stdout = std::io::stdout();
+            let mut w = std::io::BufWriter::new(stdout.lock());
+            ignore_broken_pipe(
+                write_trajectory(&t, args.format, &mut w)
+                    .and_then(|()| w.flush().context("writing stdout")),
+            )?;
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,1025 @@
+//! Trajectories for evaluation and export: a [`Trajectory`] type, readers (MCAP
+//! `geometry_msgs/msg/PoseStamped` topics, TUM, KITTI, Redwood `.log`), writers (TUM, KITTI in
+//! the formats `evo` reads), association of an estimate with a reference, and
+//! [`evaluate`], which joins them to the metrics of [`crate::evaluate`].
+//!
+//! Poses are `world_from_frame` (they map points in the frame into the world, metres);
+//! stamps are nanoseconds since the epoch.
+//!
+//! Association ([`associate`]): when both trajectories have stamps, each estimate pose is paired
+//! with the reference pose of the same stamp, else with the nearest reference stamp within
+//! `max_dt_ns` (each reference pose used at most once; closest pairs first, like `evo`'s
+//! `associate_trajectories`); estimate poses without a partner are dropped. When either has no
+//! stamps (KITTI, Redwood), poses are paired by index and the lengths must agree.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use mcap::records::Record;
+use nalgebra::{Isometry3, Matrix3, Quaternion, Rotation3, Translation3, UnitQuaternion, Vector3};
+
+use crate::evaluate::{
+    Drift, aligned_position_errors, ate_rmse, path_distances, path_drift, relative_pose_errors,
+};
+use crate::io::mcap_log::{ChannelInfo, for_each_record, list_channels};
+use crate::io::{pose_file, ros2};
+use crate::{Error, Result};
+
+/// Topic of the estimated poses written by `mireg register`.
+pub const DEFAULT_ESTIMATE_TOPIC: &str = "/mireg/pose";
+/// Topic of the per-frame statistics (JSON) written by `mireg register`.
+pub const DEFAULT_STATS_TOPIC: &str = "/mireg/stats";
+/// Reference topic used by `mireg evaluate` when the log has it.
+pub const DEFAULT_GROUND_TRUTH_TOPIC: &str = "/ground_truth/pose";
+/// Default association tolerance [ns] (10 ms, `evo`'s default `--t_max_diff`).
+pub const DEFAULT_MAX_DT_NS: i64 = 10_000_000;
+/// Largest allowed deviation of a TUM quaternion's norm from 1 (unitless); TUM files are often
+/// written with four decimals. Accepted quaternions are renormalised.
+pub const TUM_QUATERNION_NORM_TOLERANCE: f64 = 1e-3;
+
+const NANOS_PER_SEC: i64 = 1_000_000_000;
+/// Path named in [`Error::Io`] when a writer's output stream fails (the caller knows the file).
+pub const OUTPUT_STREAM: &str = "(output stream)";
+
+/// A sequence of poses `world_from_frame` with optional stamps.
+///
+/// Invariant: `stamps_ns` is empty (a format without stamps: poses are identified by index) or
+/// has one stamp [ns] per pose.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Trajectory {
+    /// Stamp of each pose [ns since the epoch]; empty when the source has no stamps.
+    pub stamps_ns: Vec<i64>,
+    /// `world_from_frame` per frame (translation in metres).
+    pub poses: Vec<Isometry3<f64>>,
+}
+
+impl Trajectory {
+    /// A trajectory without stamps (poses identified by index).
+    pub fn unstamped(poses: Vec<Isometry3<f64>>) -> Self {
+        Self {
+            stamps_ns: Vec::new(),
+            poses,
+        }
+    }
+
+    /// A stamped trajectory. Panics if the lengths differ (a programming error).
+    pub fn stamped(stamps_ns: Vec<i64>, poses: Vec<Isometry3<f64>>) -> Self {
+        assert_eq!(stamps_ns.len(), poses.len(), "one stamp per pose");
+        Self { stamps_ns, poses }
+    }
+
+    /// Number of poses.
+    pub fn len(&self) -> usize {
+        self.poses.len()
+    }
+
+    /// True when there is no pose.
+    pub fn is_empty(&self) -> bool {
+        self.poses.is_empty()
+    }
+
+    /// True when every pose has a stamp (and there is at least one pose).
+    pub fn has_stamps(&self) -> bool {
+        !self.poses.is_empty() && self.stamps_ns.len() == self.poses.len()
+    }
+}
+
+fn format_err(path: &Path, detail: impl Into<String>) -> Error {
+    Error::Format {
+        path: path.to_path_buf(),
+        detail: detail.into(),
+    }
+}
+
+fn read_text(path: &Path) -> Result<String> {
+    std::fs::read_to_string(path).map_err(|source| Error::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// Numbered lines that carry data: blank lines and lines starting with `#` are skipped.
+fn data_lines(text: &str) -> impl Iterator<Item = (usize, &str)> {
+    text.lines()
+        .enumerate()
+        .map(|(k, l)| (k + 1, l.trim()))
+        .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'))
+}
+
+fn parse_line_numbers(
+    path: &Path,
+    line_no: usize,
+    line: &str,
+    expected: usize,
+    what: &str,
+) -> Result<Vec<f64>> {
+    let v: Vec<f64> = line
+        .split_whitespace()
+        .map(|t| {
+            t.parse::<f64>()
+                .ok()
+                .filter(|x| x.is_finite())
+                .ok_or_else(|| {
+                    format_err(
+                        path,
+                        format!("line {line_no}: '{t}' is not a finite number"),
+                    )
+                })
+        })
+        .collect::<Result<_>>()?;
+    if v.len() != expected {
+        return Err(format_err(
+            path,
+            format!(
+                "line {line_no}: expected {expected} numbers ({what}), found {}",
+                v.len()
+            ),
+        ));
+    }
+    Ok(v)
+}
+
+// ---------------------------------------------------------------------------------------------
+// TUM
+// ---------------------------------------------------------------------------------------------
+
+/// Parses a decimal number of seconds into nanoseconds without going through `f64` when it is
+/// written as plain decimal (`[-]digits[.digits]`; digits beyond the ninth decimal are rounded
+/// half away from zero); other spellings (exponents) go through `f64`.
+fn parse_seconds_ns(token: &str) -> Option<i64> {
+    let (neg, body) = match token.strip_prefix('-') {
+        Some(b) => (true, b),
+        None => (false, token.strip_prefix('+').unwrap_or(token)),
+    };
+    let (int, frac) = body.split_once('.').unwrap_or((body, ""));
+    let plain = !(int.is_empty() && frac.is_empty())
+        && int.bytes().all(|b| b.is_ascii_digit())
+        && frac.bytes().all(|b| b.is_ascii_digit());
+    if !plain {
+        let s: f64 = token.parse().ok()?;
+        let ns = (s * 1e9).round();
+        return (ns.is_finite() && ns.abs() < 9.0e18).then_some(ns as i64);
+    }
+    let sec: i64 = if int.is_empty() { 0 } else { int.parse().ok()? };
+    let mut nanos: i64 = 0;
+    for (k, b) in frac.bytes().enumerate() {
+        let digit = i64::from(b - b'0');
+        if k < 9 {
+            nanos = nanos * 10 + digit;
+        } else {
+            if k == 9 && digit >= 5 {
+                nanos += 1;
+            }
+            break;
+        }
+    }
+    for _ in frac.len()..9 {
+        nanos *= 10;
+    }
+    let total = sec.checked_mul(NANOS_PER_SEC)?.checked_add(nanos)?;
+    Some(if neg { -total } else { total })
+}
+
+/// Formats nanoseconds as seconds with nine decimals (exact).
+fn format_seconds(ns: i64) -> String {
+    let sign = if ns < 0 { "-" } else { "" };
+    let a = ns.unsigned_abs();
+    let n = NANOS_PER_SEC.unsigned_abs();
+    format!("{sign}{}.{:09}", a / n, a % n)
+}
+
+/// Parses a TUM trajectory: one pose per line, `timestamp tx ty tz qx qy qz qw` (timestamp in
+/// seconds, translation in metres, unit quaternion with `w` last). Blank lines and lines starting
+/// with `#` are skipped. `path` is used only in errors.
+///
+/// # Errors
+/// [`Error::Format`] naming the line for a line without 8 finite numbers, a bad timestamp or a
+/// quaternion whose norm is not within [`TUM_QUATERNION_NORM_TOLERANCE`] of 1.
+pub fn parse_tum(text: &str, path: &Path) -> Result<Trajectory> {
+    let mut out = Trajectory::default();
+    for (no, line) in data_lines(text) {
+        let v = parse_line_numbers(path, no, line, 8, "timestamp tx ty tz qx qy qz qw")?;
+        let stamp_token = line.split_whitespace().next().unwrap_or_default();
+        let stamp = parse_seconds_ns(stamp_token).ok_or_else(|| {
+            format_err(
+                path,
+                format!("line {no}: timestamp '{stamp_token}' out of range"),
+            )
+        })?;
+        let q = Quaternion::new(v[7], v[4], v[5], v[6]);
+        let norm = q.norm();
+        if (norm - 1.0).abs() > TUM_QUATERNION_NORM_TOLERANCE {
+            return Err(format_err(
+                path,
+                format!(
+                    "line {no}: quaternion norm {norm} is not within {TUM_QUATERNION_NORM_TOLERANCE:e} of 1"
+                ),
+            ));
+        }
+        out.stamps_ns.push(stamp);
+        out.poses.push(Isometry3::from_parts(
+            Translation3::new(v[1], v[2], v[3]),
+            UnitQuaternion::new_normalize(q),
+        ));
+    }
+    Ok(out)
+}
+
+/// Reads a TUM trajectory file (see [`parse_tum`]).
+///
+/// # Errors
+/// [`Error::Io`] if the file cannot be read, else as [`parse_tum`].
+pub fn read_tum(path: &Path) -> Result<Trajectory> {
+    parse_tum(&read_text(path)?, path)
+}
+
+/// Writes `trajectory` in TUM format (`evo`'s `file_interface.read_tum_trajectory_file`): one
+/// line `timestamp tx ty tz qx qy qz qw` per pose, the timestamp in seconds with nine decimals
+/// (exact nanoseconds), the other numbers in Rust's shortest round-trip notation (`{:?}`:
+/// `1.0`, `-2.220446049250313e-16`).
+///
+/// # Errors
+/// [`Error::InvalidInput`] if the trajectory has no stamps (TUM needs them).
+pub fn write_tum(trajectory: &Trajectory, out: &mut impl std::io::Write) -> Result<()> {
+    if !trajectory.is_empty() && !trajectory.has_stamps() {
+        return Err(Error::InvalidInput(
+            "TUM output needs a stamp per pose; this trajectory has none".into(),
+        ));
+    }
+    let io = |source| Error::Io {
+        path: OUTPUT_STREAM.into(),
+        source,
+    };
+    for (stamp, pose) in trajectory.stamps_ns.iter().zip(&trajectory.poses) {
+        let t = pose.translation.vector;
+        let q = pose.rotation.quaternion();
+        writeln!(
+            out,
+            "{} {:?} {:?} {:?} {:?} {:?} {:?} {:?}",
+            format_seconds(*stamp),
+            t.x,
+            t.y,
+            t.z,
+            q.i,
+            q.j,
+            q.k,
+            q.w
+        )
+        .map_err(io)?;
+    }
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------------------------
+// KITTI
+// ---------------------------------------------------------------------------------------------
+
+/// A pose from a row-major 3×4 `[R | t]`, the rotation checked within
+/// [`pose_file::ROTATION_TOLERANCE`] and snapped to the nearest rotation.
+fn isometry_from_3x4(v: &[f64]) -> std::result::Result<Isometry3<f64>, String> {
+    let r = Matrix3::new(v[0], v[1], v[2], v[4], v[5], v[6], v[8], v[9], v[10]);
+    let t = Vector3::new(v[3], v[7], v[11]);
+    let err = (r.transpose() * r - Matrix3::identity()).abs().max();
+    if err > pose_file::ROTATION_TOLERANCE {
+        return Err(format!(
+            "rotation block is not orthonormal: max |RᵀR − I| = {err:.3e} > {:e}",
+            pose_file::ROTATION_TOLERANCE
+        ));
+    }
+    if r.determinant() <= 0.0 {
+        return Err("rotation block has negative determinant (a reflection)".into());
+    }
+    let svd = r.svd(true, true);
+    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else {
+        return Err("rotation block: SVD failed".into());
+    };
+    let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(u * v_t));
+    Ok(Isometry3::from_parts(
+        Translation3::from(t),
+        UnitQuaternion::new_normalize(q.into_inner()),
+    ))
+}
+
+/// Parses a KITTI odometry pose file: one pose per line, 12 numbers = the first three rows of
+/// the 4×4 `world_from_frame`, row-major (`r11 r12 r13 tx r21 … tz`, metres). No stamps: the
+/// result is [`Trajectory::unstamped`]. Blank lines are skipped; `path` is used only in errors.
+///
+/// # Errors
+/// [`Error::Format`] naming the line for a line without 12 finite numbers or a rotation block
+/// that is not a rotation within [`pose_file::ROTATION_TOLERANCE`].
+pub fn parse_kitti(text: &str, path: &Path) -> Result<Trajectory> {
+    let mut poses = Vec::new();
+    for (no, line) in data_lines(text) {
+        let v = parse_line_numbers(path, no, line, 12, "a row-major 3×4 [R | t]")?;
+        poses.push(isometry_from_3x4(&v).map_err(|d| format_err(path, format!("line {no}: {d}")))?);
+    }
+    Ok(Trajectory::unstamped(poses))
+}
+
+/// Reads a KITTI pose file (see [`parse_kitti`]).
+///
+/// # Errors
+/// [`Error::Io`] if the file cannot be read, else as [`parse_kitti`].
+pub fn read_kitti(path: &Path) -> Result<Trajectory> {
+    parse_kitti(&read_text(path)?, path)
+}
+
+/// Writes `trajectory` in KITTI format (`evo`'s `read_kitti_poses_file`): per pose one line of
+/// the 12 numbers of `[R | t]` row-major, Rust's shortest round-trip notation (`{:?}`). Stamps are not
+/// written.
+///
+/// # Errors
+/// [`Error::Io`] if writing fails.
+pub fn write_kitti(trajectory: &Trajectory, out: &mut impl std::io::Write) -> Result<()> {
+    for pose in &trajectory.poses {
+        let h = pose.to_homogeneous();
+        let row: Vec<String> = (0..3)
+            .flat_map(|r| (0..4).map(move |c| (r, c)))
+            .map(|(r, c)| format!("{:?}", h[(r, c)]))
+            .collect();
+        writeln!(out, "{}", row.join(" ")).map_err(|source| Error::Io {
+            path: OUTPUT_STREAM.into(),
+            source,
+        })?;
+    }
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------------------------
+// Redwood
+// ---------------------------------------------------------------------------------------------
+
+/// Reads a Redwood/ICL-NUIM `trajectory.log` (records `k k k+1` + `world_from_camera_k`, see
+/// [`pose_file::parse_log`]) as an unstamped trajectory in record order.
+///
+/// # Errors
+/// As [`pose_file::read_log`].
+pub fn read_redwood(path: &Path) -> Result<Trajectory> {
+    let records = pose_file::read_log(path)?;
+    Ok(Trajectory::unstamped(
+        records.into_iter().map(|r| r.pose).collect(),
+    ))
+}
+
+// ---------------------------------------------------------------------------------------------
+// MCAP
+// ---------------------------------------------------------------------------------------------
+
+/// Topics of `channels` that carry `geometry_msgs/msg/PoseStamped` in CDR.
+pub fn pose_stamped_topics(channels: &[ChannelInfo]) -> Vec<String> {
+    let mut t: Vec<String> = channels
+        .iter()
+        .filter(|c| c.schema_name == ros2::POSE_STAMPED_SCHEMA_NAME && c.message_encoding == "cdr")
+        .map(|c| c.topic.clone())
+        .collect();
+    t.dedup();
+    t
+}
+
+fn pose_topic_error(path: &Path, channels: &[ChannelInfo], detail: String) -> Error {
+    let topics = pose_stamped_topics(channels);
+    Error::InvalidInput(format!(
+        "{}: {detail}; PoseStamped topics in this log: {}",
+        path.display(),
+        if topics.is_empty() {
+            "none".to_string()
+        } else {
+            topics.join(", ")
+        }
+    ))
+}
+
+/// Checks that `topic` exists in `channels` and carries `geometry_msgs/msg/PoseStamped` (CDR).
+///
+/// # Errors
+/// [`Error::InvalidInput`] naming the file and topic and listing the PoseStamped topics.
+pub fn check_pose_topic(path: &Path, channels: &[ChannelInfo], topic: &str) -> Result<()> {
+    let matching: Vec<&ChannelInfo> = channels.iter().filter(|c| c.topic == topic).collect();
+    if matching.is_empty() {
+        return Err(pose_topic_error(
+            path,
+            channels,
+            format!("no topic {topic:?}"),
+        ));
+    }
+    if let Some(c) = matching
+        .iter()
+        .find(|c| c.schema_name != ros2::POSE_STAMPED_SCHEMA_NAME || c.message_encoding != "cdr")
+    {
+        return Err(pose_topic_error(
+            path,
+            channels,
+            format!(
+                "topic {topic:?} carries {} ({}), not {} (cdr)",
+                c.schema_name,
+                c.message_encoding,
+                ros2::POSE_STAMPED_SCHEMA_NAME
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Calls `f(topic index, log time [ns], payload)` for every message on one of `topics`, in file
+/// order, in one pass (once per index when a topic is listed twice).
+fn for_each_message_on(
+    path: &Path,
+    topics: &[&str],
+    mut f: impl FnMut(usize, u64, &[u8]) -> Result<()>,
+) -> Result<()> {
+    let mut channel_topics: HashMap<u16, Vec<usize>> = HashMap::new();
+    for_each_record(path, |record| {
+        match record {
+            Record::Channel(c) => {
+                let ks: Vec<usize> = (0..topics.len())
+                    .filter(|&k| topics[k] == c.topic)
+                    .collect();
+                if !ks.is_empty() {
+                    channel_topics.insert(c.id, ks);
+                }
+            }
+            Record::Message { header, data } => {
+                for &k in channel_topics.get(&header.channel_id).into_iter().flatten() {
+                    f(k, header.log_time, &data)?;
+                }
+            }
+            _ => {}
+        }
+        Ok(())
+    })
+}
+
+/// Reads several `geometry_msgs/msg/PoseStamped` topics of an MCAP in one pass; each
+/// trajectory is stamped with the messages' header stamps and sorted by stamp (stable).
+///
+/// # Errors
+/// [`Error::InvalidInput`] for a missing topic or one of another type (naming the file and
+/// listing the PoseStamped topics), [`Error::Format`] for an undecodable message (naming file,
+/// topic and log time) or an unreadable MCAP.
+pub fn read_mcap_pose_topics(path: &Path, topics: &[&str]) -> Result<Vec<Trajectory>> {
+    let channels = list_channels(path)?;
+    for t in topics {
+        check_pose_topic(path, &channels, t)?;
+    }
+    let mut out: Vec<Vec<(i64, Isometry3<f64>)>> = vec![Vec::new(); topics.len()];
+    for_each_message_on(path, topics, |k, log_time, data| {
+        let (header, pose) = ros2::decode_pose_stamped(data).map_err(|e| {
+            format_err(
+                path,
+                format!(
+                    "message on {} at log time {log_time} ns: field {}: {}",
+                    topics[k], e.field, e.detail
+                ),
+            )
+        })?;
+        out[k].push((header.stamp.to_ns(), pose));
+        Ok(())
+    })?;
+    Ok(out
+        .into_iter()
+        .map(|mut v| {
+            v.sort_by_key(|(s, _)| *s);
+            let (stamps, poses) = v.into_iter().unzip();
+            Trajectory::stamped(stamps, poses)
+        })
+        .collect())
+}
+
+/// Reads one PoseStamped topic (see [`read_mcap_pose_topics`]).
+///
+/// # Errors
+/// As [`read_mcap_pose_topics`].
+pub fn read_mcap_pose_topic(path: &Path, topic: &str) -> Result<Trajectory> {
+    let mut v = read_mcap_pose_topics(path, &[topic])?;
+    Ok(v.pop().unwrap_or_default())
+}
+
+/// Outcome of one frame's registration, from a `/mireg/stats` message.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+pub struct FrameFlag {
+    /// Frame index in the registered cloud topic (0 = the first cloud).
+    pub frame: u64,
+    /// The cloud's header stamp [ns] (equal to the pose's stamp on `/mireg/pose`).
+    pub stamp_ns: i64,
+    /// False when global registration failed and the pose came from a fallback.
+    pub success: bool,
+    /// Why it failed (`None` on success).
+    pub failure_reason: Option<String>,
+}
+
+/// Reads the per-frame flags of `mireg register`'s statistics topic; `Ok(None)` when the log
+/// has no such topic (e.g. a log not written by `mireg register`).
+///
+/// # Errors
+/// [`Error::Format`] naming file, topic and log time for a message that is not the expected
+/// JSON, or an unreadable MCAP.
+pub fn read_frame_flags(path: &Path, topic: &str) -> Result<Option<Vec<FrameFlag>>> {
+    let channels = list_channels(path)?;
+    if !channels.iter().any(|c| c.topic == topic) {
+        return Ok(None);
+    }
+    let mut flags = Vec::new();
+    for_each_message_on(path, &[topic], |_, log_time, data| {
+        let f: FrameFlag = serde_json::from_slice(data).map_err(|e| {
+            format_err(
+                path,
+                format!("message on {topic} at log time {log_time} ns: {e}"),
+            )
+        })?;
+        flags.push(f);
+        Ok(())
+    })?;
+    flags.sort_by_key(|f| f.frame);
+    Ok(Some(flags))
+}
+
+// ---------------------------------------------------------------------------------------------
+// Association
+// ---------------------------------------------------------------------------------------------
+
+/// How estimate and reference poses were paired.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AssociationMethod {
+    /// By stamp: exact, or nearest within the tolerance.
+    Stamp,
+    /// By index (a trajectory without stamps).
+    Index,
+}
+
+/// Pairs of indices `(estimate, reference)`, in increasing estimate index.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Association {
+    /// How the pairs were formed.
+    pub method: AssociationMethod,
+    /// `(estimate index, reference index)` per pair.
+    pub pairs: Vec<(usize, usize)>,
+    /// Largest |stamp difference| over the pairs [ns] (0 for index association).
+    pub max_dt_ns: i64,
+}
+
+/// Pairs `estimate` with `reference` (see the module docs): by stamp when both are stamped
+/// (exact, else nearest within `max_dt_ns`, each reference pose used once, closest first),
+/// otherwise by index. Panics if `max_dt_ns < 0` (a programming error).
+///
+/// # Errors
+/// [`Error::InvalidInput`] when index association is needed and the lengths differ.
+pub fn associate(
+    estimate: &Trajectory,
+    reference: &Trajectory,
+    max_dt_ns: i64,
+) -> Result<Association> {
+    assert!(max_dt_ns >= 0, "max_dt_ns must be non-negative");
+    if !(estimate.has_stamps() && reference.has_stamps()) {
+        if estimate.len() != reference.len() {
+            return Err(Error::InvalidInput(format!(
+                "association by index (a trajectory without stamps) needs equal lengths: estimate has {} poses, reference {}",
+                estimate.len(),
+                reference.len()
+            )));
+        }
+        return Ok(Association {
+            method: AssociationMethod::Index,
+            pairs: (0..estimate.len()).map(|k| (k, k)).collect(),
+            max_dt_ns: 0,
+        });
+    }
+    let mut order: Vec<usize> = (0..reference.len()).collect();
+    order.sort_by_key(|&k| reference.stamps_ns[k]);
+    let sorted: Vec<i64> = order.iter().map(|&k| reference.stamps_ns[k]).collect();
+    // Candidates: every reference pose within the tolerance of each estimate stamp.
+    let mut candidates: Vec<(i64, usize, usize)> = Vec::new();
+    for (i, &s) in estimate.stamps_ns.iter().enumerate() {
+        let lo = sorted.partition_point(|&r| r < s.saturating_sub(max_dt_ns));
+        for (off, &r) in sorted[lo..].iter().enumerate() {
+            let dt = r.abs_diff(s);
+            if r > s.saturating_add(max_dt_ns) {
+                break;
+            }
+            candidates.push((i64::try_from(dt).unwrap_or(i64::MAX), i, order[lo + off]));
+        }
+    }
+    candidates.sort();
+    let mut used_est = vec![false; estimate.len()];
+    let mut used_ref = vec![false; reference.len()];
+    let mut pairs = Vec::new();
+    let mut max_dt = 0;
+    for (dt, i, j) in candidates {
+        if !used_est[i] && !used_ref[j] {
+            used_est[i] = true;
+            used_ref[j] = true;
+            pairs.push((i, j));
+            max_dt = max_dt.max(dt);
+        }
+    }
+    pairs.sort_unstable();
+    Ok(Association {
+        method: AssociationMethod::Stamp,
+        pairs,
+        max_dt_ns: max_dt,
+    })
+}
+
+// ---------------------------------------------------------------------------------------------
+// Evaluation
+// ---------------------------------------------------------------------------------------------
+
+/// Errors of one associated frame.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct FrameErrors {
+    /// Frame index: from the statistics when available, else the estimate's index.
+    pub frame: u64,
+    /// Estimate stamp [ns], when stamped.
+    pub stamp_ns: Option<i64>,
+    /// Registration succeeded (from the statistics; `None` without them).
+    pub success: Option<bool>,
+    /// Failure reason (from the statistics).
+    pub failure_reason: Option<String>,
+    /// RPE translation against the previous associated frame [m] (`None` for the first).
+    pub rpe_trans_m: Option<f64>,
+    /// RPE rotation against the previous associated frame [deg] (`None` for the first).
+    pub rpe_rot_deg: Option<f64>,
+    /// Position error after SE(3) alignment of the whole trajectory [m].
+    pub ate_err_m: f64,
+}
+
+/// Result of [`evaluate`].
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Evaluation {
+    /// How poses were paired.
+    pub association: AssociationMethod,
+    /// Poses in the estimate.
+    pub estimate_poses: usize,
+    /// Poses in the reference.
+    pub reference_poses: usize,
+    /// Largest stamp difference of a pair [ns].
+    pub max_pair_dt_ns: i64,
+    /// Per associated frame.
+    pub rows: Vec<FrameErrors>,
+    /// Associated frames flagged as failed; `None` without statistics.
+    pub failed_frames: Option<usize>,
+    /// ATE: RMSE of position errors after SE(3) Umeyama alignment [m].
+    pub ate_rmse_m: f64,
+    /// Mean RPE translation per frame [m].
+    pub rpe_trans_mean_m: f64,
+    /// RMSE of RPE translation per frame [m].
+    pub rpe_trans_rmse_m: f64,
+    /// Mean RPE rotation per frame [deg].
+    pub rpe_rot_mean_deg: f64,
+    /// Length of the reference path over the associated frames [m].
+    pub path_length_m: f64,
+    /// KITTI-style drift ([`crate::evaluate::path_drift`]), when a segment fits.
+    pub drift: Option<Drift>,
+    /// The alignment `reference_from_estimate` used for ATE.
+    #[serde(skip)]
+    pub reference_from_estimate: Isometry3<f64>,
+}
+
+/// Evaluates `estimate` against `reference`: associates them ([`associate`]), then computes
+/// per-frame RPE, ATE after alignment and drift on the associated poses. `flags` (from
+/// [`read_frame_flags`]) are matched to estimate poses by stamp.
+///
+/// # Errors
+/// [`Error::InvalidInput`] when fewer than two poses associate (the message says how many poses
+/// and stamps each side had), or as [`associate`].
+pub fn evaluate(
+    estimate: &Trajectory,
+    reference: &Trajectory,
+    flags: Option<&[FrameFlag]>,
+    max_dt_ns: i64,
+) -> Result<Evaluation> {
+    let assoc = associate(estimate, reference, max_dt_ns)?;
+    if assoc.pairs.len() < 2 {
+        let span = |t: &Trajectory| match (t.stamps_ns.first(), t.stamps_ns.last()) {
+            (Some(a), Some(b)) if t.has_stamps() => format!("stamps {a}..{b} ns"),
+            _ => "no stamps".into(),
+        };
+        return Err(Error::InvalidInput(format!(
+            "only {} pose pairs associate (need 2): estimate {} poses ({}), reference {} poses ({}), max dt {max_dt_ns} ns",
+            assoc.pairs.len(),
+            estimate.len(),
+            span(estimate),
+            reference.len(),
+            span(reference)
+        )));
+    }
+    let est: Vec<_> = assoc
+        .pairs
+        .iter()
+        .map(|&(i, _)| estimate.poses[i])
+        .collect();
+    let gt: Vec<_> = assoc
+        .pairs
+        .iter()
+        .map(|&(_, j)| reference.poses[j])
+        .collect();
+    let rpe = relative_pose_errors(&est, &gt);
+    let ate = aligned_position_errors(&est, &gt);
+    let by_stamp: HashMap<i64, &FrameFlag> = flags
+        .unwrap_or_default()
+        .iter()
+        .map(|f| (f.stamp_ns, f))
+        .collect();
+    let rows: Vec<FrameErrors> = assoc
+        .pairs
+        .iter()
+        .enumerate()
+        .map(|(k, &(i, _))| {
+            let stamp = estimate.has_stamps().then(|| estimate.stamps_ns[i]);
+            let flag = stamp.and_then(|s| by_stamp.get(&s));
+            FrameErrors {
+                frame: flag.map_or(i as u64, |f| f.frame),
+                stamp_ns: stamp,
+                success: flag.map(|f| f.success),
+                failure_reason: flag.and_then(|f| f.failure_reason.clone()),
+                rpe_trans_m: (k > 0).then(|| rpe[k - 1].0),
+                rpe_rot_deg: (k > 0).then(|| rpe[k - 1].1),
+                ate_err_m: ate[k],
+            }
+        })
+        .collect();
+    let n = rpe.len() as f64;
+    Ok(Evaluation {
+        association: assoc.method,
+        estimate_poses: estimate.len(),
+        reference_poses: reference.len(),
+        max_pair_dt_ns: assoc.max_dt_ns,
+        failed_frames: flags.map(|_| rows.iter().filter(|r| r.success == Some(false)).count()),
+        ate_rmse_m: ate_rmse(&est, &gt),
+        rpe_trans_mean_m: rpe.iter().map(|r| r.0).sum::<f64>() / n,
+        rpe_trans_rmse_m: (rpe.iter().map(|r| r.0 * r.0).sum::<f64>() / n).sqrt(),
+        rpe_rot_mean_deg: rpe.iter().map(|r| r.1).sum::<f64>() / n,
+        path_length_m: path_distances(&gt).last().copied().unwrap_or(0.0),
+        drift: path_drift(&est, &gt),
+        reference_from_estimate: crate::evaluate::align_positions(&est, &gt),
+        rows,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+
+    fn random_trajectory(n: usize, seed: u64) -> Trajectory {
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
+        let mut stamps = Vec::new();
+        let mut poses = Vec::new();
+        for k in 0..n {
+            stamps.push(1_700_000_000_000_000_000 + k as i64 * 33_333_333 + rng.random_range(0..7));
+            poses.push(Isometry3::from_parts(
+                Translation3::new(
+                    rng.random_range(-5.0..5.0),
+                    rng.random_range(-5.0..5.0),
+                    rng.random_range(-5.0..5.0),
+                ),
+                UnitQuaternion::from_euler_angles(
+                    rng.random_range(-3.0..3.0),
+                    rng.random_range(-1.5..1.5),
+                    rng.random_range(-3.0..3.0),
+                ),
+            ));
+        }
+        Trajectory::stamped(stamps, poses)
+    }
+
+    fn assert_same_poses(a: &[Isometry3<f64>], b: &[Isometry3<f64>], tol: f64) {
+        assert_eq!(a.len(), b.len());
+        for (k, (p, q)) in a.iter().zip(b).enumerate() {
+            let e = p.inverse() * q;
+            assert!(
+                e.translation.vector.norm() < tol && e.rotation.angle() < tol,
+                "pose {k}: {p} vs {q}"
+            );
+        }
+    }
+
+    #[test]
+    fn tum_round_trip_is_exact() {
+        let t = random_trajectory(50, 11);
+        let mut buf = Vec::new();
+        write_tum(&t, &mut buf).expect("write");
+        let back =
+            parse_tum(std::str::from_utf8(&buf).expect("utf8"), Path::new("x.tum")).expect("parse");
+        assert_eq!(back.stamps_ns, t.stamps_ns);
+        // Shortest round-trip floats: the quaternion is renormalised on read (≤ 1 ulp-ish).
+        assert_same_poses(&back.poses, &t.poses, 1e-12);
+    }
+
+    #[test]
+    fn tum_line_has_evo_layout() {
+        let t = Trajectory::stamped(
+            vec![1_700_000_000_033_333_333, -1_500_000_000],
+            vec![
+                Isometry3::from_parts(
+                    Translation3::new(1.0, -2.5, 0.25),
+                    UnitQuaternion::from_quaternion(Quaternion::new(0.5, 0.5, 0.5, 0.5)),
+                ),
+                Isometry3::identity(),
+            ],
+        );
+        let mut buf = Vec::new();
+        write_tum(&t, &mut buf).expect("write");
+        assert_eq!(
+            String::from_utf8(buf).expect("utf8"),
+            "1700000000.033333333 1.0 -2.5 0.25 0.5 0.5 0.5 0.5\n-1.500000000 0.0 0.0 0.0 0.0 0.0 0.0 1.0\n"
+        );
+    }
+
+    #[test]
+    fn tum_stamps_parse_to_exact_nanoseconds() {
+        assert_eq!(
+            parse_seconds_ns("1700000000.033333333"),
+            Some(1_700_000_000_033_333_333)
+        );
+        assert_eq!(parse_seconds_ns("12"), Some(12_000_000_000));
+        assert_eq!(parse_seconds_ns("0.5"), Some(500_000_000));
+        assert_eq!(parse_seconds_ns("-1.5"), Some(-1_500_000_000));
+        assert_eq!(parse_seconds_ns(".25"), Some(250_000_000));
+        // The tenth decimal rounds.
+        assert_eq!(parse_seconds_ns("1.0000000015"), Some(1_000_000_002));
+        assert_eq!(parse_seconds_ns("1.0000000014"), Some(1_000_000_001));
+        assert_eq!(parse_seconds_ns("1.5e3"), Some(1_500_000_000_000));
+        assert_eq!(parse_seconds_ns("abc"), None);
+        assert_eq!(parse_seconds_ns("."), None);
+    }
+
+    #[test]
+    fn tum_skips_comments_and_reports_bad_lines() {
+        let p = Path::new("traj.txt");
+        let ok = "# timestamp tx ty tz qx qy qz qw\n\n1.0 0 0 0 0 0 0 1\n";
+        assert_eq!(parse_tum(ok, p).expect("valid").len(), 1);
+        let short = "1.0 0 0 0 0 0 0 1\n2.0 0 0 0 0 0 1\n";
+        let e = parse_tum(short, p).expect_err("7 numbers").to_string();
+        assert!(
+            e.contains("traj.txt") && e.contains("line 2") && e.contains("found 7"),
+            "{e}"
+        );
+        let nan = "1.0 0 0 0 0 0 0 1\n\n2.0 0 x 0 0 0 0 1\n";
+        let e = parse_tum(nan, p).expect_err("not a number").to_string();
+        assert!(
+            e.contains("traj.txt") && e.contains("line 3") && e.contains("'x'"),
+            "{e}"
+        );
+        let bad_q = "1.0 0 0 0 0 0 0 2\n";
+        let e = parse_tum(bad_q, p).expect_err("norm 2").to_string();
+        assert!(e.contains("line 1") && e.contains("quaternion"), "{e}");
+    }
+
+    #[test]
+    fn kitti_round_trip_is_exact_up_to_snapping() {
+        let t = random_trajectory(40, 12);
+        let mut buf = Vec::new();
+        write_kitti(&t, &mut buf).expect("write");
+        let text = String::from_utf8(buf).expect("utf8");
+        assert_eq!(text.lines().count(), 40);
+        assert!(text.lines().all(|l| l.split_whitespace().count() == 12));
+        let back = parse_kitti(&text, Path::new("poses.txt")).expect("parse");
+        assert!(back.stamps_ns.is_empty());
+        assert_same_poses(&back.poses, &t.poses, 1e-12);
+    }
+
+    #[test]
+    fn kitti_rows_are_row_major_r_then_t() {
+        // R_z(90°): x → y. Row-major [R | t] = 0 -1 0 1 / 1 0 0 2 / 0 0 1 3.
+        let text = "0 -1 0 1 1 0 0 2 0 0 1 3\n";
+        let t = parse_kitti(text, Path::new("k.txt")).expect("parse");
+        let p = t.poses[0] * nalgebra::Point3::new(1.0, 0.0, 0.0);
+        assert!(
+            (p - nalgebra::Point3::new(1.0, 3.0, 3.0)).norm() < 1e-12,
+            "{p}"
+        );
+        let mut buf = Vec::new();
+        write_kitti(&t, &mut buf).expect("write");
+        // Written back in the same order (up to the quaternion's rounding, ~1e-16).
+        let back = parse_line_numbers(
+            Path::new("k.txt"),
+            1,
+            std::str::from_utf8(&buf).expect("utf8").trim(),
+            12,
+            "3×4",
+        )
+        .expect("12 numbers");
+        let want = [0.0, -1.0, 0.0, 1.0, 1.0, 0.0, 0.0, 2.0, 0.0, 0.0, 1.0, 3.0];
+        for (a, b) in back.iter().zip(want) {
+            assert!((a - b).abs() < 1e-15, "{back:?}");
+        }
+    }
+
+    #[test]
+    fn kitti_errors_name_file_and_line() {
+        let p = Path::new("seq00.txt");
+        let e = parse_kitti("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0 0 1 0 0 0 0 1\n", p)
+            .expect_err("11 numbers")
+            .to_string();
+        assert!(
+            e.contains("seq00.txt") && e.contains("line 2") && e.contains("found 11"),
+            "{e}"
+        );
+        let e = parse_kitti("2 0 0 0 0 1 0 0 0 0 1 0\n", p)
+            .expect_err("not a rotation")
+            .to_string();
+        assert!(e.contains("line 1") && e.contains("orthonormal"), "{e}");
+        let e = parse_kitti("-1 0 0 0 0 1 0 0 0 0 1 0\n", p)
+            .expect_err("reflection")
+            .to_string();
+        assert!(e.contains("line 1") && e.contains("reflection"), "{e}");
+    }
+
+    #[test]
+    fn tum_refuses_unstamped_trajectories() {
+        let t = Trajectory::unstamped(vec![Isometry3::identity()]);
+        assert!(write_tum(&t, &mut Vec::new()).is_err());
+    }
+
+    #[test]
+    fn association_exact_then_nearest_within_tolerance() {
+        let pose = Isometry3::identity();
+        let est = Trajectory::stamped(vec![0, 100, 200, 300, 400], vec![pose; 5]);
+        // 100 exact; 206 and 197 both within 10 of 200, 197 nearer; 310 exactly 10 from 300
+        // (the tolerance is inclusive); 0 and 400 have no partner within 10.
+        let gt = Trajectory::stamped(vec![100, 206, 197, 310, 425], vec![pose; 5]);
+        let a = associate(&est, &gt, 10).expect("stamped");
+        assert_eq!(a.method, AssociationMethod::Stamp);
+        assert_eq!(a.pairs, vec![(1, 0), (2, 2), (3, 3)]);
+        assert_eq!(a.max_dt_ns, 10);
+        // Each reference pose once: two estimates at the same distance of one reference.
+        let est = Trajectory::stamped(vec![90, 110], vec![pose; 2]);
+        let gt = Trajectory::stamped(vec![100], vec![pose]);
+        assert_eq!(associate(&est, &gt, 10).expect("ok").pairs.len(), 1);
+    }
+
+    #[test]
+    fn association_by_index_needs_equal_lengths() {
+        let pose = Isometry3::identity();
+        let est = Trajectory::stamped(vec![0, 1, 2], vec![pose; 3]);
+        let gt = Trajectory::unstamped(vec![pose; 3]);
+        let a = associate(&est, &gt, 0).expect("equal lengths");
+        assert_eq!(a.method, AssociationMethod::Index);
+        assert_eq!(a.pairs, vec![(0, 0), (1, 1), (2, 2)]);
+        let gt = Trajectory::unstamped(vec![pose; 4]);
+        let e = associate(&est, &gt, 0)
+            .expect_err("lengths differ")
+            .to_string();
+        assert!(e.contains("3 poses") && e.contains("reference 4"), "{e}");
+    }
+
+    #[test]
+    fn evaluate_flags_and_known_step_error() {
+        // GT: 1 m steps along x. Estimate: 1.1 m steps ⇒ RPE 0.1 m per frame. Frame 2 failed.
+        let n = 6;
+        let stamps: Vec<i64> = (0..n).map(|k| 1_000 + 100 * k).collect();
+        let gt = Trajectory::stamped(
+            stamps.clone(),
+            (0..n)
+                .map(|k| Isometry3::translation(k as f64, 0.0, 0.0))
+                .collect(),
+        );
+        let est = Trajectory::stamped(
+            stamps.clone(),
+            (0..n)
+                .map(|k| Isometry3::translation(1.1 * k as f64, 0.0, 0.0))
+                .collect(),
+        );
+        let flags: Vec<FrameFlag> = stamps
+            .iter()
+            .enumerate()
+            .map(|(k, &s)| FrameFlag {
+                frame: k as u64,
+                stamp_ns: s,
+                success: k != 2,
+                failure_reason: (k == 2).then(|| "too_few_inliers".to_string()),
+            })
+            .collect();
+        let ev = evaluate(&est, &gt, Some(&flags), 0).expect("evaluates");
+        assert_eq!(ev.rows.len(), 6);
+        assert_eq!(ev.failed_frames, Some(1));
+        assert_eq!(ev.rows[2].success, Some(false));
+        assert_eq!(
+            ev.rows[2].failure_reason.as_deref(),
+            Some("too_few_inliers")
+        );
+        assert_eq!(ev.rows[0].rpe_trans_m, None);
+        for r in &ev.rows[1..] {
+            assert!((r.rpe_trans_m.expect("k > 0") - 0.1).abs() < 1e-12);
+        }
+        assert!((ev.rpe_trans_mean_m - 0.1).abs() < 1e-12);
+        assert!((ev.path_length_m - 5.0).abs() < 1e-12);
+        // Centroid-aligned line: errors 0.1·|k − 2.5|, RMSE 0.1·sqrt((6² − 1)/12).
+        assert!((ev.ate_rmse_m - 0.1 * (35.0_f64 / 12.0).sqrt()).abs() < 1e-9);
+        // Without flags: success unknown, failed_frames unknown.
+        let ev = evaluate(&est, &gt, None, 0).expect("evaluates");
+        assert_eq!((ev.failed_frames, ev.rows[2].success), (None, None));
+    }
+
+    #[test]
+    fn evaluate_needs_two_pairs() {
+        let pose = Isometry3::identity();
+        let est = Trajectory::stamped(vec![0, 1_000_000_000], vec![pose; 2]);
+        let gt = Trajectory::stamped(vec![500_000_000, 1_500_000_000], vec![pose; 2]);
+        let e = evaluate(&est, &gt, None, DEFAULT_MAX_DT_NS)
+            .expect_err("nothing associates")
+            .to_string();
+        assert!(e.contains("only 0 pose pairs"), "{e}");
+    }
+}
