@@ -16,13 +16,13 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use mcap::records::Record;
-use nalgebra::{Isometry3, Matrix3, Quaternion, Rotation3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix3, Quaternion, Translation3, UnitQuaternion, Vector3};
 
 use crate::evaluate::{
     Drift, aligned_position_errors, ate_rmse, path_distances, path_drift, relative_pose_errors,
 };
 use crate::io::mcap_log::{ChannelInfo, for_each_record, list_channels};
-use crate::io::{pose_file, ros2};
+use crate::io::{format_err, pose_file, read_text, ros2};
 use crate::{Error, Result};
 
 /// Topic of the estimated poses written by `mireg register`.
@@ -82,20 +82,6 @@ impl Trajectory {
     pub fn has_stamps(&self) -> bool {
         !self.poses.is_empty() && self.stamps_ns.len() == self.poses.len()
     }
-}
-
-fn format_err(path: &Path, detail: impl Into<String>) -> Error {
-    Error::Format {
-        path: path.to_path_buf(),
-        detail: detail.into(),
-    }
-}
-
-fn read_text(path: &Path) -> Result<String> {
-    std::fs::read_to_string(path).map_err(|source| Error::Io {
-        path: path.to_path_buf(),
-        source,
-    })
 }
 
 /// Numbered lines that carry data: blank lines and lines starting with `#` are skipped.
@@ -279,25 +265,7 @@ pub fn write_tum(trajectory: &Trajectory, out: &mut impl std::io::Write) -> Resu
 fn isometry_from_3x4(v: &[f64]) -> std::result::Result<Isometry3<f64>, String> {
     let r = Matrix3::new(v[0], v[1], v[2], v[4], v[5], v[6], v[8], v[9], v[10]);
     let t = Vector3::new(v[3], v[7], v[11]);
-    let err = (r.transpose() * r - Matrix3::identity()).abs().max();
-    if err > pose_file::ROTATION_TOLERANCE {
-        return Err(format!(
-            "rotation block is not orthonormal: max |RᵀR − I| = {err:.3e} > {:e}",
-            pose_file::ROTATION_TOLERANCE
-        ));
-    }
-    if r.determinant() <= 0.0 {
-        return Err("rotation block has negative determinant (a reflection)".into());
-    }
-    let svd = r.svd(true, true);
-    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else {
-        return Err("rotation block: SVD failed".into());
-    };
-    let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(u * v_t));
-    Ok(Isometry3::from_parts(
-        Translation3::from(t),
-        UnitQuaternion::new_normalize(q.into_inner()),
-    ))
+    pose_file::isometry_from_rotation_translation(&r, &t, pose_file::ROTATION_TOLERANCE)
 }
 
 /// Parses a KITTI odometry pose file: one pose per line, 12 numbers = the first three rows of

@@ -15,6 +15,7 @@ use std::path::Path;
 
 use nalgebra::Point3;
 
+use super::format_err;
 use crate::{Error, Result};
 
 mod kitti;
@@ -65,14 +66,6 @@ pub fn read_points(path: &Path) -> Result<Vec<Point3<f64>>> {
 
 /// A format parser: bytes and the path for error messages in, points out.
 type Parser = fn(&[u8], &Path) -> Result<Vec<Point3<f64>>>;
-
-/// Builds an [`Error::Format`] for `path`.
-fn format_err(path: &Path, detail: impl Into<String>) -> Error {
-    Error::Format {
-        path: path.to_path_buf(),
-        detail: detail.into(),
-    }
-}
 
 /// Appends `(x, y, z)` unless a coordinate is NaN or infinite.
 fn push_finite(points: &mut Vec<Point3<f64>>, x: f64, y: f64, z: f64) {

@@ -9,3 +9,23 @@ pub mod foxglove_msgs;
 pub mod mcap_log;
 pub mod pose_file;
 pub mod ros2;
+
+use std::path::Path;
+
+use crate::{Error, Result};
+
+/// Builds an [`Error::Format`] for `path`.
+pub(crate) fn format_err(path: &Path, detail: impl Into<String>) -> Error {
+    Error::Format {
+        path: path.to_path_buf(),
+        detail: detail.into(),
+    }
+}
+
+/// Reads a whole text file, naming it in the error.
+pub(crate) fn read_text(path: &Path) -> Result<String> {
+    std::fs::read_to_string(path).map_err(|source| Error::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}

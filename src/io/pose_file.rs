@@ -8,9 +8,12 @@
 
 use std::path::Path;
 
-use nalgebra::{Isometry3, Matrix3, Matrix4, Quaternion, Rotation3, Translation3, UnitQuaternion};
+use nalgebra::{
+    Isometry3, Matrix3, Matrix4, Quaternion, Rotation3, Translation3, UnitQuaternion, Vector3,
+};
 
-use crate::{Error, Result};
+use super::{format_err, read_text};
+use crate::Result;
 
 /// Largest allowed |RᵀR − I| entry for a rotation read from a pose file (unitless). Accepted
 /// rotations are snapped to the nearest true rotation.
@@ -23,20 +26,6 @@ pub const ROTATION_TOLERANCE: f64 = 1e-3;
 /// Largest allowed deviation of a `bun.conf` quaternion's norm from 1 (unitless); the file
 /// stores six significant digits.
 pub const QUATERNION_NORM_TOLERANCE: f64 = 1e-4;
-
-fn format_err(path: &Path, detail: impl Into<String>) -> Error {
-    Error::Format {
-        path: path.to_path_buf(),
-        detail: detail.into(),
-    }
-}
-
-fn read_text(path: &Path) -> Result<String> {
-    std::fs::read_to_string(path).map_err(|source| Error::Io {
-        path: path.to_path_buf(),
-        source,
-    })
-}
 
 fn parse_numbers(line: &str) -> std::result::Result<Vec<f64>, String> {
     line.split_whitespace()
@@ -62,7 +51,17 @@ fn isometry_from_matrix(
         return Err(format!("bottom row is {bottom:?}, expected [0, 0, 0, 1]"));
     }
     let r: Matrix3<f64> = m.fixed_view::<3, 3>(0, 0).into_owned();
-    let t = m.fixed_view::<3, 1>(0, 3).into_owned();
+    let t: Vector3<f64> = m.fixed_view::<3, 1>(0, 3).into_owned();
+    isometry_from_rotation_translation(&r, &t, tolerance)
+}
+
+/// `[R | t]` as an isometry: entries finite, `R` orthonormal within `tolerance` with det > 0,
+/// then snapped to the nearest rotation. The error text names what is wrong.
+pub(crate) fn isometry_from_rotation_translation(
+    r: &Matrix3<f64>,
+    t: &Vector3<f64>,
+    tolerance: f64,
+) -> std::result::Result<Isometry3<f64>, String> {
     if !r.iter().chain(t.iter()).all(|v| v.is_finite()) {
         return Err("matrix has a non-finite entry".into());
     }
@@ -82,14 +81,14 @@ fn isometry_from_matrix(
     };
     let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(u * v_t));
     let q = UnitQuaternion::new_normalize(q.into_inner());
-    Ok(Isometry3::from_parts(Translation3::from(t), q))
+    Ok(Isometry3::from_parts(Translation3::from(*t), q))
 }
 
 /// Parses a 4×4 homogeneous transform written as 16 whitespace-separated numbers in
 /// row-major order (line breaks are not significant); `path` is used only in errors.
 ///
 /// # Errors
-/// [`Error::Format`] if there are not exactly 16 numbers, the bottom row is not `0 0 0 1`, or
+/// [`crate::Error::Format`] if there are not exactly 16 numbers, the bottom row is not `0 0 0 1`, or
 /// the rotation block is not a rotation within [`ROTATION_TOLERANCE`].
 pub fn parse_matrix4(text: &str, path: &Path) -> Result<Isometry3<f64>> {
     let v = parse_numbers(text).map_err(|d| format_err(path, format!("4×4 matrix: {d}")))?;
@@ -106,7 +105,7 @@ pub fn parse_matrix4(text: &str, path: &Path) -> Result<Isometry3<f64>> {
 /// Reads a 4×4 text matrix file (see [`parse_matrix4`]).
 ///
 /// # Errors
-/// [`Error::Io`] if the file cannot be read, else as [`parse_matrix4`].
+/// [`crate::Error::Io`] if the file cannot be read, else as [`parse_matrix4`].
 pub fn read_matrix4(path: &Path) -> Result<Isometry3<f64>> {
     parse_matrix4(&read_text(path)?, path)
 }
@@ -132,7 +131,7 @@ pub struct LogRecord {
 /// by four lines of four numbers. Blank lines are ignored; `path` is used only in errors.
 ///
 /// # Errors
-/// [`Error::Format`] naming the line for a malformed header or matrix row, a file that ends
+/// [`crate::Error::Format`] naming the line for a malformed header or matrix row, a file that ends
 /// inside a record, or an invalid transform (rotation checked within
 /// [`ROTATION_TOLERANCE`]).
 pub fn parse_log(text: &str, path: &Path) -> Result<Vec<LogRecord>> {
@@ -194,7 +193,7 @@ pub fn parse_log(text: &str, path: &Path) -> Result<Vec<LogRecord>> {
 /// Reads a Redwood/3DMatch `.log` file (see [`parse_log`]).
 ///
 /// # Errors
-/// [`Error::Io`] if the file cannot be read, else as [`parse_log`].
+/// [`crate::Error::Io`] if the file cannot be read, else as [`parse_log`].
 pub fn read_log(path: &Path) -> Result<Vec<LogRecord>> {
     parse_log(&read_text(path)?, path)
 }
@@ -222,7 +221,7 @@ pub struct BunnyScan {
 /// *not* the obvious `R·x + t`. So `world_from_scan` has rotation q⁻¹ and translation t.
 ///
 /// # Errors
-/// [`Error::Format`] naming the line for an unknown keyword, a wrong number of values, or a
+/// [`crate::Error::Format`] naming the line for an unknown keyword, a wrong number of values, or a
 /// quaternion whose norm is not 1 within [`QUATERNION_NORM_TOLERANCE`].
 pub fn parse_bunny_conf(text: &str, path: &Path) -> Result<Vec<BunnyScan>> {
     let mut scans = Vec::new();
@@ -280,7 +279,7 @@ pub fn parse_bunny_conf(text: &str, path: &Path) -> Result<Vec<BunnyScan>> {
 /// `target_from_source = bunny_pose(conf, B)?.inverse() * bunny_pose(conf, A)?`.
 ///
 /// # Errors
-/// As [`parse_bunny_conf`], or [`Error::Format`] if the conf has no `bmesh` line for the scan.
+/// As [`parse_bunny_conf`], or [`crate::Error::Format`] if the conf has no `bmesh` line for the scan.
 pub fn bunny_pose(conf_text: &str, scan_file: &str) -> Result<Isometry3<f64>> {
     let path = Path::new("bun.conf");
     parse_bunny_conf(conf_text, path)?
@@ -293,7 +292,8 @@ pub fn bunny_pose(conf_text: &str, scan_file: &str) -> Result<Isometry3<f64>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::{Point3, Vector3};
+    use crate::Error;
+    use nalgebra::Point3;
 
     fn p() -> &'static Path {
         Path::new("pose.txt")
