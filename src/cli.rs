@@ -87,7 +87,7 @@ pub struct RegistrationFlags {
     /// TOML file with any fields of the pairwise configuration (see docs/CONFIG.md).
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
-    /// Voxel size [m]; normal, feature, inlier and ICP radii derive from it [default: 0.05].
+    /// Voxel size in metres; normal, feature, inlier and ICP radii derive from it [default: 0.05].
     #[arg(long)]
     pub voxel: Option<f64>,
     /// Hypothesis sampler [default: levy].
@@ -105,7 +105,7 @@ pub struct RegistrationFlags {
     /// Correspondence ranking [default: ratio].
     #[arg(long, value_enum)]
     pub ranking: Option<RankingArg>,
-    /// Descriptor radius τ_d for the count rankings [FPFH units, default: 12].
+    /// Descriptor radius τ_d for the count rankings, in FPFH units [default: 12].
     #[arg(long)]
     pub descriptor_radius: Option<f32>,
     /// Keep only mutual nearest neighbours in feature space.

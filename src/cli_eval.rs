@@ -49,7 +49,7 @@ pub struct EvaluateArgs {
     /// Estimated PoseStamped topic in INPUT.
     #[arg(long, value_name = "TOPIC", default_value = DEFAULT_ESTIMATE_TOPIC)]
     pub est_topic: String,
-    /// Largest stamp difference for pairing an estimate with a reference pose [s].
+    /// Largest stamp difference for pairing an estimate with a reference pose, in seconds.
     #[arg(long, value_name = "SECONDS", default_value_t = 0.01)]
     pub max_dt: f64,
     /// Print one CSV row per associated frame

@@ -4,8 +4,8 @@
 use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3};
 
 /// Relative pose error between consecutive frames: for each `k ≥ 1`,
-/// `E_k = (gt_{k−1}⁻¹ gt_k)⁻¹ (est_{k−1}⁻¹ est_k)`; returns per-frame (translation [m],
-/// rotation [deg]) of `E_k` (Sturm et al., Eq. 1 with Δ = 1).
+/// `E_k = (gt_{k−1}⁻¹ gt_k)⁻¹ (est_{k−1}⁻¹ est_k)`; returns per-frame (translation \[m\],
+/// rotation \[deg\]) of `E_k` (Sturm et al., Eq. 1 with Δ = 1).
 pub fn relative_pose_errors(
     estimate: &[Isometry3<f64>],
     truth: &[Isometry3<f64>],
@@ -57,7 +57,7 @@ pub fn align_positions(estimate: &[Isometry3<f64>], truth: &[Isometry3<f64>]) ->
     Isometry3::from_parts(Translation3::from(cq - rotation * cp), rotation)
 }
 
-/// Absolute trajectory error: RMSE of position differences [m] after [`align_positions`].
+/// Absolute trajectory error: RMSE of position differences \[m\] after [`align_positions`].
 pub fn ate_rmse(estimate: &[Isometry3<f64>], truth: &[Isometry3<f64>]) -> f64 {
     if estimate.is_empty() {
         return 0.0;
@@ -71,7 +71,7 @@ pub fn ate_rmse(estimate: &[Isometry3<f64>], truth: &[Isometry3<f64>]) -> f64 {
     (sum / estimate.len() as f64).sqrt()
 }
 
-/// Per-frame position error [m] after [`align_positions`]: `‖truth_k.t − T·estimate_k.t‖`; the
+/// Per-frame position error \[m\] after [`align_positions`]: `‖truth_k.t − T·estimate_k.t‖`; the
 /// root mean square of these is [`ate_rmse`].
 pub fn aligned_position_errors(estimate: &[Isometry3<f64>], truth: &[Isometry3<f64>]) -> Vec<f64> {
     assert_eq!(estimate.len(), truth.len(), "trajectories differ in length");
@@ -83,7 +83,7 @@ pub fn aligned_position_errors(estimate: &[Isometry3<f64>], truth: &[Isometry3<f
         .collect()
 }
 
-/// Cumulative distance travelled [m]: `d_0 = 0`, `d_k = d_{k−1} + ‖t_k − t_{k−1}‖` (KITTI devkit
+/// Cumulative distance travelled \[m\]: `d_0 = 0`, `d_k = d_{k−1} + ‖t_k − t_{k−1}‖` (KITTI devkit
 /// `trajectoryDistances`).
 pub fn path_distances(poses: &[Isometry3<f64>]) -> Vec<f64> {
     let mut d = Vec::with_capacity(poses.len());
@@ -97,7 +97,7 @@ pub fn path_distances(poses: &[Isometry3<f64>]) -> Vec<f64> {
     d
 }
 
-/// Segment lengths of the KITTI odometry benchmark [m] (Geiger et al. 2012, devkit `lengths`).
+/// Segment lengths of the KITTI odometry benchmark \[m\] (Geiger et al. 2012, devkit `lengths`).
 pub const KITTI_SEGMENT_LENGTHS_M: [f64; 8] =
     [100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0];
 /// Frames between segment start points in the KITTI devkit (`step_size`, 1 s at 10 Hz).
@@ -108,7 +108,7 @@ pub const SHORT_PATH_SEGMENT_FRACTIONS: [f64; 8] = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6
 /// Frames between segment start points for short paths: every frame (indoor logs are short).
 pub const SHORT_PATH_STEP_FRAMES: usize = 1;
 
-/// Segment lengths [m] and start-point step [frames] for a ground-truth path of
+/// Segment lengths \[m\] and start-point step \[frames\] for a ground-truth path of
 /// `path_length_m` metres: the KITTI lengths shorter than the path (step
 /// [`KITTI_STEP_FRAMES`]) when the path is longer than 100 m, else
 /// [`SHORT_PATH_SEGMENT_FRACTIONS`] of the path (step [`SHORT_PATH_STEP_FRAMES`]). Empty for a
@@ -136,13 +136,13 @@ pub fn drift_segment_lengths(path_length_m: f64) -> (Vec<f64>, usize) {
 /// Drift over the segments of one length.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct SegmentDrift {
-    /// Nominal segment length [m].
+    /// Nominal segment length \[m\].
     pub length_m: f64,
     /// Segments of this length that fit in the path.
     pub segments: usize,
     /// Mean translational error per nominal length [%].
     pub trans_drift_pct: f64,
-    /// Mean rotational error per nominal length [deg/m].
+    /// Mean rotational error per nominal length \[deg/m\].
     pub rot_drift_deg_per_m: f64,
 }
 
@@ -155,7 +155,7 @@ pub struct Drift {
     pub segments: usize,
     /// Mean over all segments of translational error per nominal length [%].
     pub trans_drift_pct: f64,
-    /// Mean over all segments of rotational error per nominal length [deg/m].
+    /// Mean over all segments of rotational error per nominal length \[deg/m\].
     pub rot_drift_deg_per_m: f64,
 }
 

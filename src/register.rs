@@ -66,11 +66,11 @@ pub struct ReferenceErrors {
     pub topic: String,
     /// Frames with a reference pose at the same stamp.
     pub frames: usize,
-    /// ATE RMSE after rigid alignment [m].
+    /// ATE RMSE after rigid alignment \[m\].
     pub ate_rmse_m: f64,
-    /// Mean RPE translation per frame [m].
+    /// Mean RPE translation per frame \[m\].
     pub rpe_trans_mean_m: f64,
-    /// Mean RPE rotation per frame [deg].
+    /// Mean RPE rotation per frame \[deg\].
     pub rpe_rot_mean_deg: f64,
 }
 

@@ -31,7 +31,7 @@ pub const DEFAULT_ESTIMATE_TOPIC: &str = "/mireg/pose";
 pub const DEFAULT_STATS_TOPIC: &str = "/mireg/stats";
 /// Reference topic used by `mireg evaluate` when the log has it.
 pub const DEFAULT_GROUND_TRUTH_TOPIC: &str = "/ground_truth/pose";
-/// Default association tolerance [ns] (10 ms, `evo`'s default `--t_max_diff`).
+/// Default association tolerance \[ns\] (10 ms, `evo`'s default `--t_max_diff`).
 pub const DEFAULT_MAX_DT_NS: i64 = 10_000_000;
 /// Largest allowed deviation of a TUM quaternion's norm from 1 (unitless); TUM files are often
 /// written with four decimals. Accepted quaternions are renormalised.
@@ -44,7 +44,7 @@ pub const OUTPUT_STREAM: &str = "(output stream)";
 /// A sequence of poses `world_from_frame` with optional stamps.
 ///
 /// Invariant: `stamps_ns` is empty (a format without stamps: poses are identified by index) or
-/// has one stamp [ns] per pose.
+/// has one stamp \[ns\] per pose.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Trajectory {
     /// Stamp of each pose [ns since the epoch]; empty when the source has no stamps.
@@ -388,7 +388,7 @@ pub fn check_pose_topic(path: &Path, channels: &[ChannelInfo], topic: &str) -> R
     Ok(())
 }
 
-/// Calls `f(topic index, log time [ns], payload)` for every message on one of `topics`, in file
+/// Calls `f(topic index, log time \[ns\], payload)` for every message on one of `topics`, in file
 /// order, in one pass (once per index when a topic is listed twice).
 fn for_each_message_on(
     path: &Path,
@@ -467,7 +467,7 @@ pub fn read_mcap_pose_topic(path: &Path, topic: &str) -> Result<Trajectory> {
 pub struct FrameFlag {
     /// Frame index in the registered cloud topic (0 = the first cloud).
     pub frame: u64,
-    /// The cloud's header stamp [ns] (equal to the pose's stamp on `/mireg/pose`).
+    /// The cloud's header stamp \[ns\] (equal to the pose's stamp on `/mireg/pose`).
     pub stamp_ns: i64,
     /// False when global registration failed and the pose came from a fallback.
     pub success: bool,
@@ -522,7 +522,7 @@ pub struct Association {
     pub method: AssociationMethod,
     /// `(estimate index, reference index)` per pair.
     pub pairs: Vec<(usize, usize)>,
-    /// Largest |stamp difference| over the pairs [ns] (0 for index association).
+    /// Largest |stamp difference| over the pairs \[ns\] (0 for index association).
     pub max_dt_ns: i64,
 }
 
@@ -597,17 +597,17 @@ pub fn associate(
 pub struct FrameErrors {
     /// Frame index: from the statistics when available, else the estimate's index.
     pub frame: u64,
-    /// Estimate stamp [ns], when stamped.
+    /// Estimate stamp \[ns\], when stamped.
     pub stamp_ns: Option<i64>,
     /// Registration succeeded (from the statistics; `None` without them).
     pub success: Option<bool>,
     /// Failure reason (from the statistics).
     pub failure_reason: Option<String>,
-    /// RPE translation against the previous associated frame [m] (`None` for the first).
+    /// RPE translation against the previous associated frame \[m\] (`None` for the first).
     pub rpe_trans_m: Option<f64>,
-    /// RPE rotation against the previous associated frame [deg] (`None` for the first).
+    /// RPE rotation against the previous associated frame \[deg\] (`None` for the first).
     pub rpe_rot_deg: Option<f64>,
-    /// Position error after SE(3) alignment of the whole trajectory [m].
+    /// Position error after SE(3) alignment of the whole trajectory \[m\].
     pub ate_err_m: f64,
 }
 
@@ -620,21 +620,21 @@ pub struct Evaluation {
     pub estimate_poses: usize,
     /// Poses in the reference.
     pub reference_poses: usize,
-    /// Largest stamp difference of a pair [ns].
+    /// Largest stamp difference of a pair \[ns\].
     pub max_pair_dt_ns: i64,
     /// Per associated frame.
     pub rows: Vec<FrameErrors>,
     /// Associated frames flagged as failed; `None` without statistics.
     pub failed_frames: Option<usize>,
-    /// ATE: RMSE of position errors after SE(3) Umeyama alignment [m].
+    /// ATE: RMSE of position errors after SE(3) Umeyama alignment \[m\].
     pub ate_rmse_m: f64,
-    /// Mean RPE translation per frame [m].
+    /// Mean RPE translation per frame \[m\].
     pub rpe_trans_mean_m: f64,
-    /// RMSE of RPE translation per frame [m].
+    /// RMSE of RPE translation per frame \[m\].
     pub rpe_trans_rmse_m: f64,
-    /// Mean RPE rotation per frame [deg].
+    /// Mean RPE rotation per frame \[deg\].
     pub rpe_rot_mean_deg: f64,
-    /// Length of the reference path over the associated frames [m].
+    /// Length of the reference path over the associated frames \[m\].
     pub path_length_m: f64,
     /// KITTI-style drift ([`crate::evaluate::path_drift`]), when a segment fits.
     pub drift: Option<Drift>,
