@@ -16,8 +16,8 @@
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
-use crate::geometry::KdTree;
 use crate::geometry::normals::check_search_params;
+use crate::geometry::{KdTree, Neighbourhoods};
 use crate::{Error, Result};
 
 /// Number of histogram bins: 11 for each of the three angular features.
@@ -74,6 +74,25 @@ pub fn compute_fpfh_with_tree(
         )));
     }
     let nbhd = tree.hybrid_neighbourhoods(points, radius_m, max_nn);
+    compute_fpfh_from_neighbourhoods(points, normals, &nbhd)
+}
+
+/// [`compute_fpfh_with_tree`] from the hybrid neighbourhoods of every point
+/// ([`KdTree::hybrid_neighbourhoods`] with the FPFH radius and cap), e.g. shared with normal
+/// estimation.
+pub fn compute_fpfh_from_neighbourhoods(
+    points: &[Point3<f64>],
+    normals: &[Vector3<f64>],
+    nbhd: &Neighbourhoods,
+) -> Result<Vec<Fpfh>> {
+    if normals.len() != points.len() || nbhd.len() != points.len() {
+        return Err(Error::InvalidInput(format!(
+            "{} points, {} normals and {} neighbourhoods: lengths must agree",
+            points.len(),
+            normals.len(),
+            nbhd.len()
+        )));
+    }
 
     // Simplified histograms, flat: N × 33.
     let mut spfh = vec![0.0f64; points.len() * FPFH_BINS];
