@@ -286,7 +286,7 @@ pub fn prepare_frame(points: &[Point3<f64>], config: &PairConfig) -> Result<Prep
             let n =
                 estimate_normals_with_tree(&dense, &dense_tree, radius, c.normal_max_nn, origin)?;
             timings.normals += t.elapsed().as_secs_f64();
-            IcpTarget::new(&dense, &n)?
+            IcpTarget::with_tree(&dense, &n, dense_tree)?
         } else if icp_voxel == 0.0 {
             let full: Vec<Point3<f64>> = points
                 .iter()
@@ -302,9 +302,9 @@ pub fn prepare_frame(points: &[Point3<f64>], config: &PairConfig) -> Result<Prep
                 origin,
             )?;
             timings.normals += t.elapsed().as_secs_f64();
-            IcpTarget::new(&full, &n)?
+            IcpTarget::with_tree(&full, &n, full_tree)?
         } else {
-            IcpTarget::new(&down, &normals)?
+            IcpTarget::with_tree(&down, &normals, tree)?
         };
         Some(icp)
     } else {
