@@ -13,9 +13,9 @@ use crate::correspondence::matching::{MatchConfig, match_features_with};
 use crate::correspondence::ranking::{
     CountOrder, Ranking, rank_by_distance, rank_by_neighbour_count, rank_by_ratio,
 };
-use crate::features::fpfh::{Fpfh, compute_fpfh_with_tree};
+use crate::features::fpfh::{Fpfh, compute_fpfh_from_neighbourhoods, compute_fpfh_with_tree};
 use crate::geometry::kdtree::KdTree;
-use crate::geometry::normals::estimate_normals_with_tree;
+use crate::geometry::normals::{estimate_normals_from_neighbourhoods, estimate_normals_with_tree};
 use crate::geometry::voxel::voxel_downsample;
 use crate::ransac::consensus::{Consensus, ConsensusConfig, Scoring, Termination};
 use crate::ransac::levy::{DEFAULT_SCALE, DEFAULT_WINDOW};
@@ -243,23 +243,36 @@ pub fn prepare_frame(points: &[Point3<f64>], config: &PairConfig) -> Result<Prep
     }
     let t = Instant::now();
     let tree = KdTree::new(&down)?;
-    let normals = estimate_normals_with_tree(
-        &down,
-        &tree,
-        c.normal_radius_m.unwrap(),
-        c.normal_max_nn,
-        origin,
-    )?;
-    timings.normals = t.elapsed().as_secs_f64();
-    let t = Instant::now();
-    let features = compute_fpfh_with_tree(
-        &down,
-        &normals,
-        &tree,
-        c.feature_radius_m.unwrap(),
-        c.feature_max_nn,
-    )?;
-    timings.features = t.elapsed().as_secs_f64();
+    let (normal_radius, feature_radius) = (c.normal_radius_m.unwrap(), c.feature_radius_m.unwrap());
+    let (normals, features) =
+        if feature_radius >= normal_radius && c.feature_max_nn >= c.normal_max_nn {
+            // One kd-tree pass serves both: the normals' neighbourhoods are prefixes of the FPFH
+            // ones (timed as features).
+            let nbhd = tree.hybrid_neighbourhoods(&down, feature_radius, c.feature_max_nn);
+            timings.features = t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            let normals = estimate_normals_from_neighbourhoods(
+                &down,
+                &nbhd,
+                normal_radius,
+                c.normal_max_nn,
+                origin,
+            )?;
+            timings.normals = t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            let features = compute_fpfh_from_neighbourhoods(&down, &normals, &nbhd)?;
+            timings.features += t.elapsed().as_secs_f64();
+            (normals, features)
+        } else {
+            let normals =
+                estimate_normals_with_tree(&down, &tree, normal_radius, c.normal_max_nn, origin)?;
+            timings.normals = t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            let features =
+                compute_fpfh_with_tree(&down, &normals, &tree, feature_radius, c.feature_max_nn)?;
+            timings.features = t.elapsed().as_secs_f64();
+            (normals, features)
+        };
 
     let icp = if c.icp {
         let t = Instant::now();
@@ -273,7 +286,7 @@ pub fn prepare_frame(points: &[Point3<f64>], config: &PairConfig) -> Result<Prep
             let n =
                 estimate_normals_with_tree(&dense, &dense_tree, radius, c.normal_max_nn, origin)?;
             timings.normals += t.elapsed().as_secs_f64();
-            IcpTarget::new(&dense, &n)?
+            IcpTarget::with_tree(&dense, &n, dense_tree)?
         } else if icp_voxel == 0.0 {
             let full: Vec<Point3<f64>> = points
                 .iter()
@@ -289,9 +302,9 @@ pub fn prepare_frame(points: &[Point3<f64>], config: &PairConfig) -> Result<Prep
                 origin,
             )?;
             timings.normals += t.elapsed().as_secs_f64();
-            IcpTarget::new(&full, &n)?
+            IcpTarget::with_tree(&full, &n, full_tree)?
         } else {
-            IcpTarget::new(&down, &normals)?
+            IcpTarget::with_tree(&down, &normals, tree)?
         };
         Some(icp)
     } else {

@@ -248,13 +248,25 @@ fn to_blocks(descriptors: &[Fpfh]) -> Vec<Block> {
         .collect()
 }
 
+/// Dimensions accumulated before a tile may be abandoned (the θ block of FPFH).
+const PRUNE_DIMS: usize = 11;
+
 /// Squared distances from `TILE` queries to the `LANES` descriptors of `block`, each accumulated
 /// over dimensions 0..33 in order with `mul_add` (the same as a sequential scalar loop, whatever
-/// the vector width).
+/// the vector width), abandoned after [`PRUNE_DIMS`] dimensions (`None`) when no pair can still
+/// matter: squared distances only grow with more dimensions, so a pair whose partial sum is
+/// already ≥ its query's current second-nearest distance `second_sq[k]` and > `radius_sq` would
+/// be ignored by [`Scan::offer_lanes`] anyway. Results are therefore bit-identical to the full
+/// computation; on real FPFH clouds most tiles are abandoned once good neighbours are known.
 #[inline(always)]
-fn tile_distances(queries: &[Fpfh; TILE], block: &Block) -> [[f32; LANES]; TILE] {
+fn tile_distances_pruned(
+    queries: &[Fpfh; TILE],
+    block: &Block,
+    second_sq: &[f32; TILE],
+    radius_sq: f32,
+) -> Option<[[f32; LANES]; TILE]> {
     let mut acc = [[0.0f32; LANES]; TILE];
-    for (dim, t) in block.iter().enumerate() {
+    for (dim, t) in block.iter().enumerate().take(PRUNE_DIMS) {
         for k in 0..TILE {
             let q = queries[k][dim];
             for l in 0..LANES {
@@ -263,7 +275,25 @@ fn tile_distances(queries: &[Fpfh; TILE], block: &Block) -> [[f32; LANES]; TILE]
             }
         }
     }
-    acc
+    let mut alive = false;
+    for k in 0..TILE {
+        for l in 0..LANES {
+            alive |= (acc[k][l] < second_sq[k]) | (acc[k][l] <= radius_sq);
+        }
+    }
+    if !alive {
+        return None;
+    }
+    for (dim, t) in block.iter().enumerate().skip(PRUNE_DIMS) {
+        for k in 0..TILE {
+            let q = queries[k][dim];
+            for l in 0..LANES {
+                let x = q - t[l];
+                acc[k][l] = x.mul_add(x, acc[k][l]);
+            }
+        }
+    }
+    Some(acc)
 }
 
 #[inline(always)]
@@ -280,7 +310,10 @@ fn scan_generic(queries: &[Fpfh], blocks: &[Block], radius_sq: f32, out: &mut [S
             local[..states.len()].copy_from_slice(states);
             for (b, block) in chunk.iter().enumerate() {
                 let base = ((first_block + b) * LANES) as u32;
-                let d = tile_distances(&tile, block);
+                let second_sq = std::array::from_fn(|k| local[k].second_sq);
+                let Some(d) = tile_distances_pruned(&tile, block, &second_sq, radius_sq) else {
+                    continue;
+                };
                 for k in 0..TILE {
                     local[k].offer_lanes(base, &d[k], radius_sq);
                 }

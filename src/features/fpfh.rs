@@ -16,8 +16,8 @@
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
-use crate::geometry::KdTree;
 use crate::geometry::normals::check_search_params;
+use crate::geometry::{KdTree, Neighbourhoods};
 use crate::{Error, Result};
 
 /// Number of histogram bins: 11 for each of the three angular features.
@@ -74,9 +74,29 @@ pub fn compute_fpfh_with_tree(
         )));
     }
     let nbhd = tree.hybrid_neighbourhoods(points, radius_m, max_nn);
+    compute_fpfh_from_neighbourhoods(points, normals, &nbhd)
+}
+
+/// [`compute_fpfh_with_tree`] from the hybrid neighbourhoods of every point
+/// ([`KdTree::hybrid_neighbourhoods`] with the FPFH radius and cap), e.g. shared with normal
+/// estimation.
+pub fn compute_fpfh_from_neighbourhoods(
+    points: &[Point3<f64>],
+    normals: &[Vector3<f64>],
+    nbhd: &Neighbourhoods,
+) -> Result<Vec<Fpfh>> {
+    if normals.len() != points.len() || nbhd.len() != points.len() {
+        return Err(Error::InvalidInput(format!(
+            "{} points, {} normals and {} neighbourhoods: lengths must agree",
+            points.len(),
+            normals.len(),
+            nbhd.len()
+        )));
+    }
 
     // Simplified histograms, flat: N × 33.
     let mut spfh = vec![0.0f64; points.len() * FPFH_BINS];
+    let edges = theta_edges();
     spfh.par_chunks_mut(FPFH_BINS)
         .enumerate()
         .for_each(|(i, hist)| {
@@ -90,7 +110,7 @@ pub fn compute_fpfh_with_tree(
             for &j in &idx[1..] {
                 let j = j as usize;
                 let f = pair_features(&points[i], &normals[i], &points[j], &normals[j]);
-                hist[angle_bin(f.theta)] += incr;
+                hist[theta_bin(f.theta_y, f.theta_x, &edges)] += incr;
                 hist[BINS_PER_FEATURE + unit_bin(f.alpha)] += incr;
                 hist[2 * BINS_PER_FEATURE + unit_bin(f.phi)] += incr;
             }
@@ -141,12 +161,53 @@ pub fn compute_fpfh_with_tree(
 /// The Darboux-frame pair features of Rusu et al. 2009, Sec. II, in Open3D's conventions.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct PairFeatures {
-    /// θ = atan2(w · n_t, u · n_t) ∈ [−π, π].
-    theta: f64,
+    /// θ = atan2(`theta_y`, `theta_x`) ∈ [−π, π] with `theta_y` = w · n_t ...
+    theta_y: f64,
+    /// ... and `theta_x` = u · n_t (binned without evaluating the arctangent: [`theta_bin`]).
+    theta_x: f64,
     /// α = v · n_t ∈ [−1, 1].
     alpha: f64,
     /// φ = u · (p_t − p_s) / d ∈ [−1, 1].
     phi: f64,
+}
+
+impl PairFeatures {
+    /// θ = atan2(w · n_t, u · n_t) ∈ [−π, π].
+    #[cfg(test)]
+    fn theta(&self) -> f64 {
+        self.theta_y.atan2(self.theta_x)
+    }
+}
+
+/// Sines and cosines of the 10 inner bin edges θ_k = −π + 2πk/11 (k = 1..=10) of [`angle_bin`].
+fn theta_edges() -> [(f64, f64); BINS_PER_FEATURE - 1] {
+    std::array::from_fn(|k| {
+        let edge = -std::f64::consts::PI
+            + 2.0 * std::f64::consts::PI * (k + 1) as f64 / BINS_PER_FEATURE as f64;
+        (edge.sin(), edge.cos())
+    })
+}
+
+/// `angle_bin(atan2(y, x))` without the arctangent (a libm call that was 15% of FPFH): with θ
+/// and the edge θ_k in the same half-plane, θ ≥ θ_k ⇔ sin(θ − θ_k) ≥ 0 ⇔ y·cos θ_k − x·sin θ_k
+/// ≥ 0, so the bin is the count of edges passed. Equals the arctangent path except within
+/// rounding of an edge. `edges` from [`theta_edges`].
+fn theta_bin(y: f64, x: f64, edges: &[(f64, f64); BINS_PER_FEATURE - 1]) -> usize {
+    if y == 0.0 && x == 0.0 {
+        // atan2's signed-zero conventions (0, ±π).
+        return angle_bin(y.atan2(x));
+    }
+    // Lower half-plane (sign of y, as atan2): θ ∈ [−π, 0] spans bins 0..=5, edges 1..=5;
+    // upper: θ ∈ [0, π], bins 5..=10, edges 6..=10.
+    let (mut bin, half) = if y.is_sign_negative() {
+        (0, &edges[..5])
+    } else {
+        (5, &edges[5..])
+    };
+    for &(sin, cos) in half {
+        bin += usize::from(y * cos - x * sin >= 0.0);
+    }
+    bin
 }
 
 /// Pair features of (p1, n1) and (p2, n2). The source is the point whose normal makes the smaller
@@ -163,7 +224,8 @@ fn pair_features(
     n2: &Vector3<f64>,
 ) -> PairFeatures {
     const ZERO: PairFeatures = PairFeatures {
-        theta: 0.0,
+        theta_y: 0.0,
+        theta_x: 0.0,
         alpha: 0.0,
         phi: 0.0,
     };
@@ -188,7 +250,8 @@ fn pair_features(
     let v = v / v_norm;
     let w = ns.cross(&v);
     PairFeatures {
-        theta: w.dot(nt).atan2(ns.dot(nt)),
+        theta_y: w.dot(nt),
+        theta_x: ns.dot(nt),
         alpha: v.dot(nt),
         phi,
     }
@@ -298,7 +361,7 @@ mod tests {
             &Point3::new(1.0, 0.0, 0.0),
             &Vector3::z(),
         );
-        assert_eq!((f.theta, f.alpha, f.phi), (0.0, 0.0, 0.0));
+        assert_eq!((f.theta(), f.alpha, f.phi), (0.0, 0.0, 0.0));
         // Source normal at 45° to the line, target normal tilted about the line:
         // n1 = (1,0,1)/√2, line = +x => φ = cos 45°; n2 = z: α = v·n2 with v = d × n1 ∝ (0,-1,0)... = 0.
         let n1 = Vector3::new(1.0, 0.0, 1.0).normalize();
@@ -307,15 +370,16 @@ mod tests {
         assert!(f.alpha.abs() < 1e-15);
         // u = n1, w = u × v with v = (0,-1,0): w = (1/√2)(1,0,1)×(0,-1,0) = (1/√2)(1,0,-1);
         // θ = atan2(w·z, u·z) = atan2(-1/√2, 1/√2) = -π/4.
-        assert!((f.theta + std::f64::consts::FRAC_PI_4).abs() < 1e-15);
+        assert!((f.theta() + std::f64::consts::FRAC_PI_4).abs() < 1e-15);
         // Swapped roles: the second normal makes the smaller angle with the line.
         let g = pair_features(&Point3::new(2.0, 0.0, 0.0), &Vector3::z(), &o, &n1);
-        assert!((g.phi - f.phi).abs() < 1e-15 && (g.theta - f.theta).abs() < 1e-15);
+        assert!((g.phi - f.phi).abs() < 1e-15 && (g.theta() - f.theta()).abs() < 1e-15);
         // Coincident points: all zero.
         assert_eq!(
             pair_features(&o, &n1, &o, &Vector3::z()),
             PairFeatures {
-                theta: 0.0,
+                theta_y: 0.0,
+                theta_x: 0.0,
                 alpha: 0.0,
                 phi: 0.0
             }
@@ -351,5 +415,38 @@ mod tests {
             compute_fpfh(&points, &normals[1..], 0.3, 50),
             Err(Error::InvalidInput(_))
         ));
+    }
+
+    #[test]
+    fn theta_bin_equals_binned_arctangent() {
+        let edges = theta_edges();
+        let mut rng = Pcg64::seed_from_u64(77);
+        for _ in 0..200_000 {
+            let (y, x): (f64, f64) = (rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
+            assert_eq!(
+                theta_bin(y, x, &edges),
+                angle_bin(y.atan2(x)),
+                "y {y} x {x}"
+            );
+        }
+        // Axes and signed zeros, as atan2.
+        for y in [0.0, -0.0, 1.0, -1.0, 1e-300, -1e-300] {
+            for x in [0.0, -0.0, 1.0, -1.0, 1e-300, -1e-300] {
+                assert_eq!(
+                    theta_bin(y, x, &edges),
+                    angle_bin(y.atan2(x)),
+                    "y {y} x {x}"
+                );
+            }
+        }
+        // Points just either side of every edge (well beyond rounding).
+        for k in 1..BINS_PER_FEATURE {
+            let edge = -std::f64::consts::PI
+                + 2.0 * std::f64::consts::PI * k as f64 / BINS_PER_FEATURE as f64;
+            for t in [edge - 1e-9, edge + 1e-9] {
+                let (y, x) = (t.sin(), t.cos());
+                assert_eq!(theta_bin(y, x, &edges), angle_bin(y.atan2(x)), "θ {t}");
+            }
+        }
     }
 }

@@ -88,6 +88,11 @@ impl KdTree {
         })
     }
 
+    /// The kiddo tree (`None` for an empty cloud), e.g. to hand it on to ICP without rebuilding.
+    pub(crate) fn into_inner(self) -> Option<ImmutableKdTree<f64, 3>> {
+        self.tree
+    }
+
     /// Number of points in the tree.
     pub fn len(&self) -> usize {
         self.len

@@ -6,5 +6,7 @@ pub mod normals;
 pub mod voxel;
 
 pub use kdtree::{KdTree, Neighbour, Neighbourhoods};
-pub use normals::{estimate_normals, estimate_normals_with_tree};
+pub use normals::{
+    estimate_normals, estimate_normals_from_neighbourhoods, estimate_normals_with_tree,
+};
 pub use voxel::voxel_downsample;

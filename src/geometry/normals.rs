@@ -4,7 +4,7 @@
 use nalgebra::{Matrix3, Point3, Vector3};
 use rayon::prelude::*;
 
-use super::kdtree::KdTree;
+use super::kdtree::{KdTree, Neighbourhoods};
 use crate::{Error, Result};
 
 /// Normal given to a point whose neighbourhood cannot define a plane (fewer than
@@ -69,6 +69,46 @@ pub fn estimate_normals_with_tree(
                 FALLBACK_NORMAL
             } else {
                 let cov = covariance(points, nn.iter().map(|n| n.index));
+                smallest_eigenvector(&cov).unwrap_or(FALLBACK_NORMAL)
+            };
+            match towards_sensor {
+                Some(o) if normal.dot(&(o - p)) < 0.0 => -normal,
+                _ => normal,
+            }
+        })
+        .collect())
+}
+
+/// [`estimate_normals_with_tree`] from precomputed neighbourhoods `nbhd` of every point (e.g. the
+/// FPFH ones) searched with a radius ≥ `radius_m` and a cap ≥ `max_nn`: each normal's
+/// neighbourhood is the prefix of the sorted larger one strictly within `radius_m`, at most
+/// `max_nn` long, which is exactly what the direct search returns. Saves one kd-tree pass.
+pub fn estimate_normals_from_neighbourhoods(
+    points: &[Point3<f64>],
+    nbhd: &Neighbourhoods,
+    radius_m: f64,
+    max_nn: usize,
+    towards_sensor: Option<Point3<f64>>,
+) -> Result<Vec<Vector3<f64>>> {
+    check_search_params(radius_m, max_nn)?;
+    if nbhd.len() != points.len() {
+        return Err(Error::InvalidInput(format!(
+            "{} neighbourhoods for {} points",
+            nbhd.len(),
+            points.len()
+        )));
+    }
+    let radius_sq = radius_m * radius_m;
+    Ok(points
+        .par_iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let (idx, d2) = nbhd.get(i);
+            let n = d2.partition_point(|&d| d < radius_sq).min(max_nn);
+            let normal = if n < MIN_NEIGHBOURS {
+                FALLBACK_NORMAL
+            } else {
+                let cov = covariance(points, idx[..n].iter().map(|&j| j as usize));
                 smallest_eigenvector(&cov).unwrap_or(FALLBACK_NORMAL)
             };
             match towards_sensor {
@@ -370,5 +410,33 @@ mod tests {
                 .install(|| estimate_normals(&cloud, 0.05, 30, None).unwrap())
         };
         assert_eq!(run(1), run(3));
+    }
+
+    #[test]
+    fn normals_from_shared_neighbourhoods_equal_direct_search() {
+        // A noisy surface patch plus scattered points: full, partial and tiny neighbourhoods.
+        let mut rng = Pcg64::seed_from_u64(41);
+        let points: Vec<Point3<f64>> = (0..3000)
+            .map(|k| {
+                let (x, y): (f64, f64) = (rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
+                let z = if k % 10 == 0 {
+                    rng.random_range(-1.0..1.0)
+                } else {
+                    0.2 * (3.0 * x).sin() * y + rng.random_range(-0.005..0.005)
+                };
+                Point3::new(x, y, z)
+            })
+            .collect();
+        let tree = KdTree::new(&points).unwrap();
+        let origin = Some(Point3::new(0.0, 0.0, 5.0));
+        for (radius, max_nn) in [(0.08, 30), (0.05, 30), (0.1, 8)] {
+            let direct =
+                estimate_normals_with_tree(&points, &tree, radius, max_nn, origin).unwrap();
+            let nbhd = tree.hybrid_neighbourhoods(&points, 2.5 * radius, 100);
+            let shared =
+                estimate_normals_from_neighbourhoods(&points, &nbhd, radius, max_nn, origin)
+                    .unwrap();
+            assert_eq!(direct, shared, "radius {radius}, max_nn {max_nn}");
+        }
     }
 }

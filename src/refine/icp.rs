@@ -229,6 +229,46 @@ impl IcpTarget {
         Ok(target)
     }
 
+    /// [`IcpTarget::new`] reusing `tree`, which must have been built over exactly `points` (e.g.
+    /// for normal estimation): saves rebuilding the same tree.
+    pub fn with_tree(
+        points: &[Point3<f64>],
+        normals: &[Vector3<f64>],
+        tree: crate::geometry::KdTree,
+    ) -> Result<Self> {
+        if tree.len() != points.len() {
+            return Err(Error::InvalidInput(format!(
+                "kd-tree holds {} points but {} were given",
+                tree.len(),
+                points.len()
+            )));
+        }
+        if normals.len() != points.len() {
+            return Err(Error::InvalidInput(format!(
+                "target has {} points but {} normals",
+                points.len(),
+                normals.len()
+            )));
+        }
+        if let Some(i) = normals
+            .iter()
+            .position(|n| !n.iter().all(|c| c.is_finite()))
+        {
+            return Err(Error::InvalidInput(format!(
+                "target normal {i} is not finite"
+            )));
+        }
+        // KdTree::new has checked the points (finite, at most u32::MAX).
+        let Some(tree) = tree.into_inner() else {
+            return Err(Error::InvalidInput("target cloud is empty".into()));
+        };
+        Ok(Self {
+            points: points.to_vec(),
+            normals: Some(normals.to_vec()),
+            tree,
+        })
+    }
+
     /// Builds the kd-tree over `points` without normals: enough for [`evaluate_registration`],
     /// not for ICP. Fails on an empty cloud or non-finite coordinates.
     pub fn points_only(points: &[Point3<f64>]) -> Result<Self> {
