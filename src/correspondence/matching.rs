@@ -276,9 +276,9 @@ fn tile_distances_pruned(
         }
     }
     let mut alive = false;
-    for k in 0..TILE {
-        for l in 0..LANES {
-            alive |= (acc[k][l] < second_sq[k]) | (acc[k][l] <= radius_sq);
+    for (row, &bound) in acc.iter().zip(second_sq) {
+        for &d in row {
+            alive |= (d < bound) | (d <= radius_sq);
         }
     }
     if !alive {
