@@ -66,7 +66,7 @@ impl Default for SamplerConfig {
 pub enum RankingConfig {
     /// The paper's metric: target descriptors within `radius` of the source descriptor.
     NeighbourCount {
-        /// Descriptor radius τ_d [FPFH units]. Authors: 12.
+        /// Descriptor radius τ_d \[FPFH units\]. Authors: 12.
         radius: f32,
         /// Sort direction. Authors: most first.
         order: CountOrder,
@@ -83,13 +83,13 @@ pub enum RankingConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PairConfig {
-    /// Voxel size of the feature cloud [m]. Default 0.05.
+    /// Voxel size of the feature cloud \[m\]. Default 0.05.
     pub voxel_size_m: f64,
-    /// Normal search radius [m]. Default 2 · voxel.
+    /// Normal search radius \[m\]. Default 2 · voxel.
     pub normal_radius_m: Option<f64>,
     /// At most this many neighbours per normal. Default 30.
     pub normal_max_nn: usize,
-    /// FPFH search radius [m]. Default 5 · voxel.
+    /// FPFH search radius \[m\]. Default 5 · voxel.
     pub feature_radius_m: Option<f64>,
     /// At most this many neighbours per FPFH. Default 100.
     pub feature_max_nn: usize,
@@ -99,7 +99,7 @@ pub struct PairConfig {
     pub ranking: RankingConfig,
     /// Default: Lévy μ = −50, c = 1, window 100.
     pub sampler: SamplerConfig,
-    /// RANSAC inlier threshold [m]. Default 1.5 · voxel.
+    /// RANSAC inlier threshold \[m\]. Default 1.5 · voxel.
     pub inlier_threshold_m: Option<f64>,
     /// Edge-length pre-rejection similarity (0 disables). Default 0.9.
     pub edge_similarity: f64,
@@ -113,9 +113,9 @@ pub struct PairConfig {
     pub scoring: Scoring,
     /// Run point-to-plane ICP after RANSAC. Default true.
     pub icp: bool,
-    /// Voxel size of the (denser) ICP clouds [m]; 0 uses the full clouds. Default voxel / 2.
+    /// Voxel size of the (denser) ICP clouds \[m\]; 0 uses the full clouds. Default voxel / 2.
     pub icp_voxel_size_m: Option<f64>,
-    /// ICP max correspondence distance [m]. Default 1 · voxel.
+    /// ICP max correspondence distance \[m\]. Default 1 · voxel.
     pub icp_max_distance_m: Option<f64>,
     /// ICP iterations. Default 30.
     pub icp_max_iterations: usize,
@@ -401,7 +401,7 @@ pub struct PairResult {
     pub converged: bool,
     /// Fraction of source points (ICP cloud) within the ICP distance of the target after alignment.
     pub fitness: f64,
-    /// RMSE of those inlier distances [m].
+    /// RMSE of those inlier distances \[m\].
     pub inlier_rmse_m: f64,
     /// ICP iterations run (0 without ICP).
     pub icp_iterations: usize,
@@ -594,7 +594,7 @@ pub fn register_pair(
     Ok(result)
 }
 
-/// Rotation error [deg] and translation error [m] of `estimate` against `truth`: the angle of
+/// Rotation error \[deg\] and translation error \[m\] of `estimate` against `truth`: the angle of
 /// `R_truthᵀ·R_est` and `‖t_est − t_truth‖`.
 pub fn pose_error(truth: &Isometry3<f64>, estimate: &Isometry3<f64>) -> (f64, f64) {
     let r = truth.rotation.inverse() * estimate.rotation;

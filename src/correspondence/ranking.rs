@@ -37,7 +37,7 @@ pub enum CountOrder {
 }
 
 /// The authors' default descriptor radius τ_d for the neighbour-count metric, on Open3D/PCL-scale
-/// FPFH (33 bins, each 11-bin block summing to 100) [descriptor units].
+/// FPFH (33 bins, each 11-bin block summing to 100) \[descriptor units\].
 pub const PAPER_DESCRIPTOR_RADIUS: f64 = 12.0;
 
 fn rank(scores: Vec<f64>, higher_first: bool) -> Ranking {

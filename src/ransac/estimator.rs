@@ -7,7 +7,7 @@ use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaterni
 pub struct Score {
     /// Correspondences with squared residual below the squared threshold.
     pub inliers: u32,
-    /// Truncated-quadratic (MSAC, Torr & Zisserman 2000) cost `Σ min(r², τ²)` [residual units²].
+    /// Truncated-quadratic (MSAC, Torr & Zisserman 2000) cost `Σ min(r², τ²)` \[residual units²\].
     pub cost: f64,
 }
 
@@ -31,7 +31,7 @@ pub trait Estimator: Sync {
     /// Fits a model to a minimal (or larger) sample; `None` for a degenerate sample.
     fn estimate(&self, sample: &[usize]) -> Option<Self::Model>;
 
-    /// Squared residual of item `i` under `model` [residual units²].
+    /// Squared residual of item `i` under `model` \[residual units²\].
     fn residual_sq(&self, model: &Self::Model, i: usize) -> f64;
 
     /// Scores `model` over all items with squared inlier threshold `threshold_sq`. Override for speed.

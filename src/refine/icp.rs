@@ -34,18 +34,18 @@ pub enum RobustKernel {
     L2,
     /// Huber: weight 1 for `|r| ≤ scale_m`, `scale_m / |r|` beyond.
     Huber {
-        /// Residual at which the loss turns linear [m].
+        /// Residual at which the loss turns linear \[m\].
         scale_m: f64,
     },
     /// Tukey biweight: weight `(1 − (r/scale_m)²)²` for `|r| ≤ scale_m`, 0 beyond.
     Tukey {
-        /// Residual beyond which a correspondence is ignored [m].
+        /// Residual beyond which a correspondence is ignored \[m\].
         scale_m: f64,
     },
 }
 
 impl RobustKernel {
-    /// IRLS weight of a residual `residual_m` [m].
+    /// IRLS weight of a residual `residual_m` \[m\].
     pub fn weight(&self, residual_m: f64) -> f64 {
         let r = residual_m.abs();
         match *self {
@@ -88,7 +88,7 @@ impl RobustKernel {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct IcpConfig {
     /// Source/target pairs farther apart than this (point-to-point, after moving the source) are
-    /// not correspondences [m]. No default: it depends on the data (Open3D requires it too).
+    /// not correspondences \[m\]. No default: it depends on the data (Open3D requires it too).
     pub max_correspondence_distance_m: f64,
     /// Maximum number of transformation updates. Default: [`DEFAULT_MAX_ITERATIONS`] (`30`).
     pub max_iterations: usize,
@@ -96,7 +96,7 @@ pub struct IcpConfig {
     /// [`Self::relative_rmse`]). Dimensionless. Default: [`DEFAULT_RELATIVE_FITNESS`] (`1e-6`).
     pub relative_fitness: f64,
     /// Stop when the inlier RMSE changes by less than this between iterations (together with
-    /// [`Self::relative_fitness`]). Despite Open3D's name this is an absolute change [m].
+    /// [`Self::relative_fitness`]). Despite Open3D's name this is an absolute change \[m\].
     /// Default: [`DEFAULT_RELATIVE_RMSE_M`] (`1e-6` m).
     pub relative_rmse: f64,
     /// Weighting of residuals. Default: [`RobustKernel::L2`].
@@ -104,7 +104,7 @@ pub struct IcpConfig {
 }
 
 impl IcpConfig {
-    /// Open3D's defaults with the given correspondence distance [m].
+    /// Open3D's defaults with the given correspondence distance \[m\].
     pub fn new(max_correspondence_distance_m: f64) -> Self {
         Self {
             max_correspondence_distance_m,
@@ -129,7 +129,7 @@ impl IcpConfig {
         self
     }
 
-    /// Sets [`Self::relative_rmse`] [m]. Default: `1e-6`.
+    /// Sets [`Self::relative_rmse`] \[m\]. Default: `1e-6`.
     #[must_use]
     pub fn relative_rmse(mut self, relative_rmse_m: f64) -> Self {
         self.relative_rmse = relative_rmse_m;
@@ -170,7 +170,7 @@ pub struct IcpResult {
     /// `fitness`).
     pub fitness: f64,
     /// Root mean square point-to-point distance over the inlier correspondences at
-    /// `target_from_source` [m]; 0 when there are none (Open3D's `inlier_rmse`).
+    /// `target_from_source` \[m\]; 0 when there are none (Open3D's `inlier_rmse`).
     pub inlier_rmse_m: f64,
     /// Number of transformation updates applied.
     pub iterations: usize,
@@ -183,7 +183,7 @@ pub struct IcpResult {
 pub struct RegistrationEvaluation {
     /// Inlier correspondences / source points, in [0, 1].
     pub fitness: f64,
-    /// RMSE of point-to-point distances over inliers [m]; 0 when there are none.
+    /// RMSE of point-to-point distances over inliers \[m\]; 0 when there are none.
     pub inlier_rmse_m: f64,
     /// Number of source points whose nearest target point is closer than the threshold.
     pub num_inliers: usize,
@@ -306,8 +306,8 @@ impl IcpTarget {
         self.normals.as_deref()
     }
 
-    /// Index of and squared distance [m²] to the nearest target point if it is within
-    /// `max_squared` [m²] (inclusive; the caller applies Open3D's strict bound). Which of several
+    /// Index of and squared distance \[m²\] to the nearest target point if it is within
+    /// `max_squared` \[m²\] (inclusive; the caller applies Open3D's strict bound). Which of several
     /// equidistant points is returned is kiddo's choice.
     fn nearest(&self, p: &Point3<f64>, max_squared: f64) -> Option<(usize, f64)> {
         let one = std::num::NonZeroUsize::MIN;
@@ -328,7 +328,7 @@ struct PassSums {
     jtj_upper: [f64; 21],
     /// `Σ w J r`.
     jtr: [f64; 6],
-    /// `Σ |p − q|²` over inliers [m²].
+    /// `Σ |p − q|²` over inliers \[m²\].
     squared_distance_sum: f64,
     num_inliers: usize,
 }
@@ -473,8 +473,8 @@ fn update_from_vector(x: &Vector6<f64>) -> Isometry3<f64> {
 
 /// Fitness and inlier RMSE of `target_from_source`, exactly as Open3D's `evaluate_registration`:
 /// each source point moved into the target frame is paired with its nearest target point; pairs
-/// closer than `max_correspondence_distance_m` [m] (strictly) are inliers; fitness = inliers /
-/// source points, RMSE = sqrt(mean squared point-to-point distance over inliers) [m].
+/// closer than `max_correspondence_distance_m` \[m\] (strictly) are inliers; fitness = inliers /
+/// source points, RMSE = sqrt(mean squared point-to-point distance over inliers) \[m\].
 pub fn evaluate_registration(
     source: &[Point3<f64>],
     target: &IcpTarget,
@@ -626,7 +626,7 @@ mod tests {
         )
     }
 
-    /// (rotation error [deg], translation error [m]) of `estimate` against `truth`.
+    /// (rotation error \[deg\], translation error \[m\]) of `estimate` against `truth`.
     fn pose_error(estimate: &Isometry3<f64>, truth: &Isometry3<f64>) -> (f64, f64) {
         let delta = truth.inverse() * estimate;
         (
