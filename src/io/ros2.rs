@@ -32,11 +32,44 @@ pub const POSE_STAMPED_SCHEMA_NAME: &str = "geometry_msgs/msg/PoseStamped";
 /// Schema name of `tf2_msgs/msg/TFMessage`.
 pub const TF_MESSAGE_SCHEMA_NAME: &str = "tf2_msgs/msg/TFMessage";
 
+/// The dependency sections every stamped message's schema ends with: `std_msgs/Header` and
+/// `builtin_interfaces/Time`, in the rosbag2 layout (a line of 80 `=`, `MSG: pkg/Type`, the text).
+macro_rules! header_and_time_sections {
+    () => {
+        "
+================================================================================
+MSG: std_msgs/Header
+builtin_interfaces/Time stamp
+string frame_id
+
+================================================================================
+MSG: builtin_interfaces/Time
+int32 sec
+uint32 nanosec
+"
+    };
+}
+
+/// The `geometry_msgs/Quaternion` dependency section (ROS 2 defaults: `w` is 1).
+macro_rules! quaternion_section {
+    () => {
+        "
+================================================================================
+MSG: geometry_msgs/Quaternion
+float64 x 0
+float64 y 0
+float64 z 0
+float64 w 1
+"
+    };
+}
+
 /// Complete `ros2msg` definition of `sensor_msgs/msg/PointCloud2` (ROS 2 `common_interfaces`,
 /// comments stripped), with its dependencies `sensor_msgs/PointField`, `std_msgs/Header` and
 /// `builtin_interfaces/Time` in the order rosbag2 writes them (each message's dependencies sorted
 /// by name, depth first, each preceded by a line of 80 `=` and a `MSG: pkg/Type` line).
-pub const POINT_CLOUD2_SCHEMA: &str = "\
+pub const POINT_CLOUD2_SCHEMA: &str = concat!(
+    "\
 std_msgs/Header header
 uint32 height
 uint32 width
@@ -61,23 +94,16 @@ string name
 uint32 offset
 uint8 datatype
 uint32 count
-
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-";
+",
+    header_and_time_sections!()
+);
 
 /// Complete `ros2msg` definition of `geometry_msgs/msg/PoseStamped` with `geometry_msgs/Pose`,
 /// `geometry_msgs/Point`, `geometry_msgs/Quaternion`, `std_msgs/Header` and
 /// `builtin_interfaces/Time` (rosbag2 order; see [`POINT_CLOUD2_SCHEMA`]). ROS 2's Quaternion
 /// carries default values (`w` defaults to 1).
-pub const POSE_STAMPED_SCHEMA: &str = "\
+pub const POSE_STAMPED_SCHEMA: &str = concat!(
+    "\
 std_msgs/Header header
 Pose pose
 
@@ -91,30 +117,18 @@ MSG: geometry_msgs/Point
 float64 x
 float64 y
 float64 z
-
-================================================================================
-MSG: geometry_msgs/Quaternion
-float64 x 0
-float64 y 0
-float64 z 0
-float64 w 1
-
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-";
+",
+    quaternion_section!(),
+    "",
+    header_and_time_sections!()
+);
 
 /// Complete `ros2msg` definition of `tf2_msgs/msg/TFMessage` with
 /// `geometry_msgs/TransformStamped`, `geometry_msgs/Transform`, `geometry_msgs/Quaternion`,
 /// `geometry_msgs/Vector3`, `std_msgs/Header` and `builtin_interfaces/Time` (rosbag2 order; see
 /// [`POINT_CLOUD2_SCHEMA`]).
-pub const TF_MESSAGE_SCHEMA: &str = "\
+pub const TF_MESSAGE_SCHEMA: &str = concat!(
+    "\
 geometry_msgs/TransformStamped[] transforms
 
 ================================================================================
@@ -127,30 +141,17 @@ Transform transform
 MSG: geometry_msgs/Transform
 Vector3 translation
 Quaternion rotation
-
-================================================================================
-MSG: geometry_msgs/Quaternion
-float64 x 0
-float64 y 0
-float64 z 0
-float64 w 1
-
+",
+    quaternion_section!(),
+    "
 ================================================================================
 MSG: geometry_msgs/Vector3
 float64 x
 float64 y
 float64 z
-
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-";
+",
+    header_and_time_sections!()
+);
 
 /// `sensor_msgs/msg/PointField` datatype constants (`INT8 = 1` … `FLOAT64 = 8`).
 pub mod datatype {
