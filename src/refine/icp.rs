@@ -205,25 +205,31 @@ impl std::fmt::Debug for IcpTarget {
     }
 }
 
+/// One unit normal per point, all finite.
+fn check_normals(points: &[Point3<f64>], normals: &[Vector3<f64>]) -> Result<()> {
+    if normals.len() != points.len() {
+        return Err(Error::InvalidInput(format!(
+            "target has {} points but {} normals",
+            points.len(),
+            normals.len()
+        )));
+    }
+    if let Some(i) = normals
+        .iter()
+        .position(|n| !n.iter().all(|c| c.is_finite()))
+    {
+        return Err(Error::InvalidInput(format!(
+            "target normal {i} is not finite"
+        )));
+    }
+    Ok(())
+}
+
 impl IcpTarget {
     /// Builds the kd-tree over `points` and keeps unit `normals` (one per point) for
     /// point-to-plane ICP. Fails on an empty cloud, a length mismatch or non-finite values.
     pub fn new(points: &[Point3<f64>], normals: &[Vector3<f64>]) -> Result<Self> {
-        if normals.len() != points.len() {
-            return Err(Error::InvalidInput(format!(
-                "target has {} points but {} normals",
-                points.len(),
-                normals.len()
-            )));
-        }
-        if let Some(i) = normals
-            .iter()
-            .position(|n| !n.iter().all(|c| c.is_finite()))
-        {
-            return Err(Error::InvalidInput(format!(
-                "target normal {i} is not finite"
-            )));
-        }
+        check_normals(points, normals)?;
         let mut target = Self::points_only(points)?;
         target.normals = Some(normals.to_vec());
         Ok(target)
@@ -243,21 +249,7 @@ impl IcpTarget {
                 points.len()
             )));
         }
-        if normals.len() != points.len() {
-            return Err(Error::InvalidInput(format!(
-                "target has {} points but {} normals",
-                points.len(),
-                normals.len()
-            )));
-        }
-        if let Some(i) = normals
-            .iter()
-            .position(|n| !n.iter().all(|c| c.is_finite()))
-        {
-            return Err(Error::InvalidInput(format!(
-                "target normal {i} is not finite"
-            )));
-        }
+        check_normals(points, normals)?;
         // KdTree::new has checked the points (finite, at most u32::MAX).
         let Some(tree) = tree.into_inner() else {
             return Err(Error::InvalidInput("target cloud is empty".into()));
