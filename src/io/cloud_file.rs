@@ -16,6 +16,7 @@ use std::path::Path;
 use nalgebra::Point3;
 
 use super::format_err;
+use super::scalar::Scalar;
 use crate::{Error, Result};
 
 mod kitti;
@@ -81,60 +82,10 @@ enum Endian {
     Big,
 }
 
-/// A numeric scalar type shared by the PLY and PCD readers.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Scalar {
-    I8,
-    U8,
-    I16,
-    U16,
-    I32,
-    U32,
-    I64,
-    U64,
-    F32,
-    F64,
-}
-
 impl Scalar {
-    /// Size in bytes.
-    fn size(self) -> usize {
-        match self {
-            Scalar::I8 | Scalar::U8 => 1,
-            Scalar::I16 | Scalar::U16 => 2,
-            Scalar::I32 | Scalar::U32 | Scalar::F32 => 4,
-            Scalar::I64 | Scalar::U64 | Scalar::F64 => 8,
-        }
-    }
-
-    fn is_float(self) -> bool {
-        matches!(self, Scalar::F32 | Scalar::F64)
-    }
-
     /// Decodes one value from exactly `self.size()` bytes.
     fn decode(self, b: &[u8], endian: Endian) -> f64 {
-        macro_rules! get {
-            ($t:ty, $n:literal) => {{
-                let mut a = [0u8; $n];
-                a.copy_from_slice(&b[..$n]);
-                match endian {
-                    Endian::Little => <$t>::from_le_bytes(a),
-                    Endian::Big => <$t>::from_be_bytes(a),
-                }
-            }};
-        }
-        match self {
-            Scalar::I8 => f64::from(b[0] as i8),
-            Scalar::U8 => f64::from(b[0]),
-            Scalar::I16 => f64::from(get!(i16, 2)),
-            Scalar::U16 => f64::from(get!(u16, 2)),
-            Scalar::I32 => f64::from(get!(i32, 4)),
-            Scalar::U32 => f64::from(get!(u32, 4)),
-            Scalar::I64 => get!(i64, 8) as f64,
-            Scalar::U64 => get!(u64, 8) as f64,
-            Scalar::F32 => f64::from(get!(f32, 4)),
-            Scalar::F64 => get!(f64, 8),
-        }
+        self.read(b, endian == Endian::Big)
     }
 
     /// Parses one ASCII value of this type (integers must be integers in range).

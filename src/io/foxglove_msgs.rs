@@ -19,9 +19,10 @@ use nalgebra::Isometry3;
 use prost::Message;
 
 use super::ros2::{
-    DecodeError, Header, PackedField, PackedLayout, PointCloud, Scalar, Time, check_field_fits,
-    extract, isometry_from_parts,
+    DecodeError, Header, PackedField, PackedLayout, PointCloud, Time, check_field_fits, extract,
+    isometry_from_parts,
 };
+use super::scalar::Scalar;
 
 /// MCAP message encoding of every message in this module.
 pub const MESSAGE_ENCODING: &str = "protobuf";

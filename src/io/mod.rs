@@ -9,6 +9,7 @@ pub mod foxglove_msgs;
 pub mod mcap_log;
 pub mod pose_file;
 pub mod ros2;
+mod scalar;
 
 use std::path::Path;
 

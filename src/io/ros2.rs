@@ -20,6 +20,8 @@
 
 use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion};
 
+use super::scalar::Scalar;
+
 /// MCAP message encoding of every message in this module.
 pub const MESSAGE_ENCODING: &str = "cdr";
 /// MCAP schema encoding of the `*_SCHEMA` texts in this module.
@@ -611,19 +613,6 @@ pub(crate) fn isometry_from_parts(
 // Packed point extraction (shared with the foxglove.PointCloud decoder)
 // ---------------------------------------------------------------------------------------------
 
-/// A numeric type of a packed point field.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Scalar {
-    I8,
-    U8,
-    I16,
-    U16,
-    I32,
-    U32,
-    F32,
-    F64,
-}
-
 impl Scalar {
     /// From a `sensor_msgs/PointField` datatype constant.
     fn from_ros(datatype: u8) -> Option<Self> {
@@ -638,38 +627,6 @@ impl Scalar {
             datatype::FLOAT64 => Self::F64,
             _ => return None,
         })
-    }
-
-    /// Size in bytes.
-    pub(crate) fn size(self) -> usize {
-        match self {
-            Self::I8 | Self::U8 => 1,
-            Self::I16 | Self::U16 => 2,
-            Self::I32 | Self::U32 | Self::F32 => 4,
-            Self::F64 => 8,
-        }
-    }
-
-    /// Reads one value from the start of `b` (which holds at least [`Scalar::size`] bytes).
-    fn read(self, b: &[u8], big_endian: bool) -> f64 {
-        fn arr<const N: usize>(b: &[u8], big_endian: bool) -> [u8; N] {
-            let mut a = [0u8; N];
-            a.copy_from_slice(&b[..N]);
-            if big_endian {
-                a.reverse();
-            }
-            a
-        }
-        match self {
-            Self::I8 => f64::from(i8::from_le_bytes(arr(b, big_endian))),
-            Self::U8 => f64::from(b[0]),
-            Self::I16 => f64::from(i16::from_le_bytes(arr(b, big_endian))),
-            Self::U16 => f64::from(u16::from_le_bytes(arr(b, big_endian))),
-            Self::I32 => f64::from(i32::from_le_bytes(arr(b, big_endian))),
-            Self::U32 => f64::from(u32::from_le_bytes(arr(b, big_endian))),
-            Self::F32 => f64::from(f32::from_le_bytes(arr(b, big_endian))),
-            Self::F64 => f64::from_le_bytes(arr(b, big_endian)),
-        }
     }
 }
 
