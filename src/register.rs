@@ -6,7 +6,7 @@
 //! `k + 1` while a *register* thread registers frame `k`. Memory is bounded by one chunk plus the
 //! queue capacity, whatever the log length.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 use std::time::Instant;
@@ -15,11 +15,11 @@ use mcap::records::Record;
 use nalgebra::Isometry3;
 use serde_json::json;
 
-use crate::evaluate::{ate_rmse, relative_pose_errors};
 use crate::io::mcap_log::{ChannelInfo, OutputLog, for_each_record, list_channels};
 use crate::io::{foxglove_msgs, ros2};
 use crate::odometry::{FrameEstimate, Odometry, OdometryConfig};
 use crate::pipeline::{PreparedFrame, prepare_frame};
+use crate::trajectory::{Trajectory, evaluate};
 use crate::{Error, Result};
 
 /// Frames in flight between stages (each queue). Bounds memory.
@@ -445,7 +445,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     };
 
     let mut estimates: Vec<(i64, Isometry3<f64>, bool, usize)> = Vec::new(); // (stamp, pose, success, inliers)
-    let mut reference: HashMap<i64, Isometry3<f64>> = HashMap::new();
+    let mut reference: Vec<(i64, Isometry3<f64>)> = Vec::new();
     let mut copied = 0u64;
     let config = &opts.config;
 
@@ -567,7 +567,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                     } else if reference_channels.contains(&header.channel_id)
                         && let Ok((h, pose)) = ros2::decode_pose_stamped(data)
                     {
-                        reference.insert(h.stamp.to_ns(), pose);
+                        reference.push((h.stamp.to_ns(), pose));
                     }
                 }
                 _ => {}
@@ -630,7 +630,8 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     } else {
         registered.iter().sum::<usize>() as f64 / registered.len() as f64
     };
-    let reference = reference_topic.and_then(|t| reference_errors(&t, &estimates, &reference));
+    let reference = reference_topic
+        .and_then(|t| reference_errors(&t, &estimates, std::mem::take(&mut reference)));
     let elapsed_s = start.elapsed().as_secs_f64();
     Ok(RegisterSummary {
         output: opts.output.clone(),
@@ -646,25 +647,24 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     })
 }
 
+/// The run's trajectory against the reference poses at the same stamps
+/// ([`crate::trajectory::evaluate`] with exact stamp association); `None` with fewer than 2 pairs.
 fn reference_errors(
     topic: &str,
     estimates: &[(i64, Isometry3<f64>, bool, usize)],
-    reference: &HashMap<i64, Isometry3<f64>>,
+    reference: Vec<(i64, Isometry3<f64>)>,
 ) -> Option<ReferenceErrors> {
-    let (est, gt): (Vec<_>, Vec<_>) = estimates
-        .iter()
-        .filter_map(|(stamp, pose, _, _)| reference.get(stamp).map(|g| (*pose, *g)))
-        .unzip();
-    if est.len() < 2 {
-        return None;
-    }
-    let rpe = relative_pose_errors(&est, &gt);
-    let n = rpe.len() as f64;
+    let estimate = Trajectory::stamped(
+        estimates.iter().map(|e| e.0).collect(),
+        estimates.iter().map(|e| e.1).collect(),
+    );
+    let (stamps, poses) = reference.into_iter().unzip();
+    let e = evaluate(&estimate, &Trajectory::stamped(stamps, poses), None, 0).ok()?;
     Some(ReferenceErrors {
         topic: topic.to_string(),
-        frames: est.len(),
-        ate_rmse_m: ate_rmse(&est, &gt),
-        rpe_trans_mean_m: rpe.iter().map(|r| r.0).sum::<f64>() / n,
-        rpe_rot_mean_deg: rpe.iter().map(|r| r.1).sum::<f64>() / n,
+        frames: e.rows.len(),
+        ate_rmse_m: e.ate_rmse_m,
+        rpe_trans_mean_m: e.rpe_trans_mean_m,
+        rpe_rot_mean_deg: e.rpe_rot_mean_deg,
     })
 }
