@@ -205,6 +205,8 @@ pub fn run_consensus<S: Sampler, E: Estimator>(
     let mut limit = config.max_hypotheses as f64;
     let mut batch: Vec<Outcome<E::Model>> = Vec::with_capacity(BATCH_SIZE);
     let mut inlier_buf: Vec<usize> = Vec::new();
+    // The inliers of `best`, kept from when it became best (swapped with `inlier_buf`).
+    let mut best_inliers: Vec<usize> = Vec::new();
     let mut h0 = 0u64;
     'outer: while (h0 as f64) < limit {
         let h1 = (h0 + BATCH_SIZE as u64).min(config.max_hypotheses);
@@ -247,35 +249,49 @@ pub fn run_consensus<S: Sampler, E: Estimator>(
             out.best_found_at = Some(h);
             // NOTE: the paper does not say how MI-RANSAC stops; uniform RANSAC's rule would ignore the
             // ranking. `qˢ` treats the s draws as independent, a close approximation for s ≪ n.
+            collect_inliers(estimator, &model, threshold_sq, &mut inlier_buf);
             let q = match sampler.draw_probability(0) {
-                Some(_) => (0..n)
-                    .filter(|&i| estimator.residual_sq(&model, i) < threshold_sq)
-                    .map(|i| sampler.draw_probability(i).unwrap_or(0.0))
+                Some(_) => inlier_buf
+                    .iter()
+                    .map(|&i| sampler.draw_probability(i).unwrap_or(0.0))
                     .sum::<f64>(),
                 None => score.inliers as f64 / n as f64,
             };
             limit = limit.min(required_hypotheses(config.confidence, q.min(1.0), s));
             if let Some(p) = &prosac {
-                let flags: Vec<bool> = (0..n)
-                    .map(|i| estimator.residual_sq(&model, i) < threshold_sq)
-                    .collect();
+                let mut flags = vec![false; n];
+                for &i in &inlier_buf {
+                    flags[i] = true;
+                }
                 if let Some(k) = p.required_hypotheses(&flags) {
                     limit = limit.min(k.ceil().max(1.0));
                 }
             }
+            std::mem::swap(&mut best_inliers, &mut inlier_buf);
             best = Some((score, model));
         }
         h0 = h1;
     }
     out.converged = best.is_some() && out.hypotheses < config.max_hypotheses;
     if let Some((_, model)) = best {
-        out.inliers = (0..n)
-            .filter(|&i| estimator.residual_sq(&model, i) < threshold_sq)
-            .collect();
+        out.inliers = best_inliers;
         out.num_inliers = out.inliers.len();
         out.model = Some(model);
     }
     out
+}
+
+/// Indices whose squared residual under `model` is below `threshold_sq`, ascending, into `out`.
+fn collect_inliers<E: Estimator>(
+    estimator: &E,
+    model: &E::Model,
+    threshold_sq: f64,
+    out: &mut Vec<usize>,
+) {
+    out.clear();
+    out.extend(
+        (0..estimator.num_items()).filter(|&i| estimator.residual_sq(model, i) < threshold_sq),
+    );
 }
 
 /// LO step: refit on the inliers while the score strictly improves (at most `lo_iterations` times).
@@ -288,10 +304,7 @@ fn local_optimisation<E: Estimator>(
     inliers: &mut Vec<usize>,
 ) -> (Score, E::Model) {
     for _ in 0..config.lo_iterations {
-        inliers.clear();
-        inliers.extend(
-            (0..estimator.num_items()).filter(|&i| estimator.residual_sq(&model, i) < threshold_sq),
-        );
+        collect_inliers(estimator, &model, threshold_sq, inliers);
         let Some(refit) = estimator.refit(inliers) else {
             break;
         };
