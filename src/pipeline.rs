@@ -278,41 +278,33 @@ pub fn prepare_frame(points: &[Point3<f64>], config: &PairConfig) -> Result<Prep
             (normals, features)
         };
 
-    let icp = if c.icp {
+    let icp_voxel = c.icp_voxel_size_m.unwrap();
+    let icp = if !c.icp {
+        None
+    } else if icp_voxel == 0.0 || (icp_voxel > 0.0 && icp_voxel != c.voxel_size_m) {
+        // A separate ICP cloud: the finite input points (0) or a finer voxel grid, with normals
+        // over the same neighbourhood scaled to its resolution.
         let t = Instant::now();
-        let icp_voxel = c.icp_voxel_size_m.unwrap();
-        let icp = if icp_voxel > 0.0 && icp_voxel != c.voxel_size_m {
-            let dense = voxel_downsample(points, icp_voxel)?;
-            timings.downsample += t.elapsed().as_secs_f64();
-            let t = Instant::now();
-            let dense_tree = KdTree::new(&dense)?;
-            let radius = c.normal_radius_m.unwrap() * icp_voxel / c.voxel_size_m;
-            let n =
-                estimate_normals_with_tree(&dense, &dense_tree, radius, c.normal_max_nn, origin)?;
-            timings.normals += t.elapsed().as_secs_f64();
-            IcpTarget::with_tree(&dense, &n, dense_tree)?
-        } else if icp_voxel == 0.0 {
-            let full: Vec<Point3<f64>> = points
+        let (cloud, radius) = if icp_voxel == 0.0 {
+            let finite = points
                 .iter()
                 .copied()
-                .filter(|p| p.coords.iter().all(|x| x.is_finite()))
-                .collect();
-            let full_tree = KdTree::new(&full)?;
-            let n = estimate_normals_with_tree(
-                &full,
-                &full_tree,
-                c.normal_radius_m.unwrap(),
-                c.normal_max_nn,
-                origin,
-            )?;
-            timings.normals += t.elapsed().as_secs_f64();
-            IcpTarget::with_tree(&full, &n, full_tree)?
+                .filter(|p| p.coords.iter().all(|x| x.is_finite()));
+            (finite.collect::<Vec<_>>(), normal_radius)
         } else {
-            IcpTarget::with_tree(&down, &normals, tree)?
+            (
+                voxel_downsample(points, icp_voxel)?,
+                normal_radius * icp_voxel / c.voxel_size_m,
+            )
         };
-        Some(icp)
+        timings.downsample += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let cloud_tree = KdTree::new(&cloud)?;
+        let n = estimate_normals_with_tree(&cloud, &cloud_tree, radius, c.normal_max_nn, origin)?;
+        timings.normals += t.elapsed().as_secs_f64();
+        Some(IcpTarget::with_tree(&cloud, &n, cloud_tree)?)
     } else {
-        None
+        Some(IcpTarget::with_tree(&down, &normals, tree)?)
     };
     Ok(PreparedFrame {
         num_points: points.len(),
