@@ -109,18 +109,13 @@ impl KdTree {
             return Vec::new();
         };
         let q = [query.x, query.y, query.z];
-        let mut out: Vec<Neighbour> = tree
-            .query(&q)
-            .nearest_n::<SquaredEuclidean<f64>>(k)
-            .execute()
-            .into_iter()
-            .map(|r| Neighbour {
-                index: r.item as usize,
-                distance_sq: r.distance,
-            })
-            .collect();
-        sort_neighbours(&mut out);
-        out
+        sorted_neighbours(
+            tree.query(&q)
+                .nearest_n::<SquaredEuclidean<f64>>(k)
+                .execute()
+                .into_iter()
+                .map(|r| (r.item, r.distance)),
+        )
     }
 
     /// Points strictly closer than `radius_m` to `query`, nearest first, at most `max_nn` of them
@@ -136,20 +131,15 @@ impl KdTree {
             return Vec::new();
         };
         let q = [query.x, query.y, query.z];
-        let mut out: Vec<Neighbour> = tree
-            .query(&q)
-            .nearest_n::<SquaredEuclidean<f64>>(max_nn)
-            .within(radius_m * radius_m)
-            .exclusive_boundaries()
-            .execute()
-            .into_iter()
-            .map(|r| Neighbour {
-                index: r.item as usize,
-                distance_sq: r.distance,
-            })
-            .collect();
-        sort_neighbours(&mut out);
-        out
+        sorted_neighbours(
+            tree.query(&q)
+                .nearest_n::<SquaredEuclidean<f64>>(max_nn)
+                .within(radius_m * radius_m)
+                .exclusive_boundaries()
+                .execute()
+                .into_iter()
+                .map(|r| (r.item, r.distance)),
+        )
     }
 
     /// [`Self::within_radius`] for every point of `queries`, in parallel, stored flat.
@@ -196,6 +186,18 @@ impl KdTree {
 }
 
 /// Sorts by squared distance, ties by index, so the order never depends on tree internals.
+/// kiddo's `(item, squared distance)` results as [`Neighbour`]s in (distance, index) order.
+fn sorted_neighbours(results: impl Iterator<Item = (u32, f64)>) -> Vec<Neighbour> {
+    let mut out: Vec<Neighbour> = results
+        .map(|(item, distance_sq)| Neighbour {
+            index: item as usize,
+            distance_sq,
+        })
+        .collect();
+    sort_neighbours(&mut out);
+    out
+}
+
 fn sort_neighbours(nn: &mut [Neighbour]) {
     // kiddo already sorts by distance; only exact ties can be out of index order.
     let ordered = |a: &Neighbour, b: &Neighbour| {
