@@ -162,7 +162,7 @@ impl RegistrationFlags {
         {
             *radius = d;
         }
-        let (mut mu, mut levy_c, mut window, mut repl) = match c.sampler {
+        let (mut mu, mut levy_c, window, mut repl) = match c.sampler {
             SamplerConfig::Levy {
                 mu,
                 c,
@@ -174,7 +174,6 @@ impl RegistrationFlags {
         mu = self.mu.unwrap_or(mu);
         levy_c = self.levy_c.unwrap_or(levy_c);
         repl |= self.with_replacement;
-        window = window.max(f64::MIN_POSITIVE);
         let levy = SamplerConfig::Levy {
             mu,
             c: levy_c,
