@@ -2,6 +2,11 @@
 //!
 //! `cargo run --release --example match_bench -- [sizes...]` (default sizes: 5000 20000; each
 //! size N matches N source against N target descriptors).
+//!
+//! `cargo run --release --example match_bench -- --real SRC TGT VOXEL_M [REPEATS]` prepares two
+//! real clouds with the default `PairConfig` at that voxel, then times brute-force matching
+//! (nearest + second, as the pipeline's default ratio ranking uses) and prints a checksum of the
+//! result, so kernel changes can be checked for bit-identical output.
 
 use std::time::Instant;
 
@@ -44,7 +49,64 @@ fn time<F: FnMut() -> Matches>(mut f: F) -> (f64, Matches) {
     (best, out)
 }
 
+fn real(args: &[String]) {
+    let [src, tgt, voxel, rest @ ..] = args else {
+        panic!("usage: match_bench --real SRC TGT VOXEL_M [REPEATS]");
+    };
+    let repeats: usize = rest.first().map_or(10, |r| r.parse().expect("repeats"));
+    let config = mireg::pipeline::PairConfig {
+        voxel_size_m: voxel.parse().expect("voxel"),
+        ..Default::default()
+    }
+    .resolved()
+    .expect("config");
+    let prepare = |p: &str| {
+        let points = mireg::io::cloud_file::read_points(std::path::Path::new(p)).expect("cloud");
+        mireg::pipeline::prepare_frame(&points, &config).expect("prepare")
+    };
+    let (s, t) = (prepare(src), prepare(tgt));
+    if let Ok(dir) = std::env::var("DUMP") {
+        let raw = |f: &[Fpfh]| {
+            f.iter()
+                .flatten()
+                .flat_map(|x| x.to_le_bytes())
+                .collect::<Vec<u8>>()
+        };
+        std::fs::write(format!("{dir}/src.f32"), raw(&s.features)).unwrap();
+        std::fs::write(format!("{dir}/tgt.f32"), raw(&t.features)).unwrap();
+    }
+    let mut times = Vec::new();
+    let mut out = Matches::default();
+    for _ in 0..repeats {
+        let start = Instant::now();
+        out = match_features_with(&s.features, &t.features, &MatchConfig::default());
+        times.push(start.elapsed().as_secs_f64());
+    }
+    times.sort_by(f64::total_cmp);
+    let checksum = out
+        .target_index
+        .iter()
+        .zip(&out.distance)
+        .zip(&out.second_distance)
+        .fold(0u64, |h, ((&j, &d), &e)| {
+            let h = h.rotate_left(5) ^ u64::from(j);
+            let h = h.rotate_left(5) ^ u64::from(d.to_bits());
+            h.rotate_left(5) ^ u64::from(e.to_bits())
+        });
+    println!(
+        "{} x {} real descriptors: min {:.1} ms, median {:.1} ms over {repeats}; checksum {checksum:016x}",
+        s.features.len(),
+        t.features.len(),
+        times[0] * 1e3,
+        times[repeats / 2] * 1e3
+    );
+}
+
 fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    if args.first().map(String::as_str) == Some("--real") {
+        return real(&args[1..]);
+    }
     let sizes: Vec<usize> = std::env::args()
         .skip(1)
         .map(|a| a.parse().expect("size"))
