@@ -14,6 +14,7 @@ use crate::correspondence::ranking::{
     CountOrder, Ranking, rank_by_distance, rank_by_neighbour_count, rank_by_ratio,
 };
 use crate::features::fpfh::{Fpfh, compute_fpfh_from_neighbourhoods, compute_fpfh_with_tree};
+use crate::geometry::grid;
 use crate::geometry::kdtree::KdTree;
 use crate::geometry::normals::{estimate_normals_from_neighbourhoods, estimate_normals_with_tree};
 use crate::geometry::voxel::voxel_downsample;
@@ -252,7 +253,10 @@ pub fn prepare_frame(points: &[Point3<f64>], config: &PairConfig) -> Result<Prep
         if feature_radius >= normal_radius && c.feature_max_nn >= c.normal_max_nn {
             // One kd-tree pass serves both: the normals' neighbourhoods are prefixes of the FPFH
             // ones (timed as features).
-            let nbhd = tree.hybrid_neighbourhoods(&down, feature_radius, c.feature_max_nn);
+            let nbhd = match grid::self_neighbourhoods(&down, feature_radius, c.feature_max_nn)? {
+                Some(nbhd) => nbhd,
+                None => tree.hybrid_neighbourhoods(&down, feature_radius, c.feature_max_nn),
+            };
             timings.features = t.elapsed().as_secs_f64();
             let t = Instant::now();
             let normals = estimate_normals_from_neighbourhoods(

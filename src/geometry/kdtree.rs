@@ -166,9 +166,17 @@ impl KdTree {
                 (counts, indices, distances_sq)
             })
             .collect();
+        Neighbourhoods::from_chunks(chunks)
+    }
+}
+
+impl Neighbourhoods {
+    /// Concatenates per-chunk (counts, indices, squared distances) of consecutive queries.
+    pub(crate) fn from_chunks(chunks: Vec<(Vec<usize>, Vec<u32>, Vec<f64>)>) -> Neighbourhoods {
+        let queries: usize = chunks.iter().map(|c| c.0.len()).sum();
         let total: usize = chunks.iter().map(|c| c.1.len()).sum();
         let mut out = Neighbourhoods {
-            offsets: Vec::with_capacity(queries.len() + 1),
+            offsets: Vec::with_capacity(queries + 1),
             indices: Vec::with_capacity(total),
             distances_sq: Vec::with_capacity(total),
         };

@@ -302,14 +302,12 @@ impl IcpTarget {
     /// `max_squared` \[m²\] (inclusive; the caller applies Open3D's strict bound). Which of several
     /// equidistant points is returned is kiddo's choice.
     fn nearest(&self, p: &Point3<f64>, max_squared: f64) -> Option<(usize, f64)> {
-        let one = std::num::NonZeroUsize::MIN;
         let nn = self
             .tree
             .query(&[p.x, p.y, p.z])
-            .nearest_n::<SquaredEuclidean<f64>>(one)
-            .within::<SquaredEuclidean<f64>>(max_squared)
+            .nearest_one::<SquaredEuclidean<f64>>()
             .execute();
-        nn.first().map(|n| (n.item as usize, n.distance))
+        (nn.distance <= max_squared).then_some((nn.item as usize, nn.distance))
     }
 }
 

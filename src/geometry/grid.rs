@@ -1,0 +1,286 @@
+//! Hybrid (radius + count) neighbourhoods of every point of a cloud among the same points, through
+//! a uniform grid whose cell edge is the search radius: each point's candidates are the points of
+//! its own and the 26 surrounding cells, which hold, in sorted cell order, in 9 contiguous runs.
+//!
+//! Same semantics as [`KdTree::hybrid_neighbourhoods`](super::KdTree::hybrid_neighbourhoods) on a
+//! tree over the same points (strict radius, nearest first, ties by index, at most `max_nn`),
+//! with one rule made explicit: when equal distances straddle the `max_nn` cut, the lowest indices
+//! are kept. On the voxel-downsampled clouds this serves, a cell lookup per query replaces a tree
+//! descent with a bounded result heap (figures in docs/BENCHMARKS.md).
+
+use nalgebra::Point3;
+use rayon::prelude::*;
+
+use super::Neighbourhoods;
+use crate::{Error, Result};
+
+/// Queries per rayon task.
+const QUERY_CHUNK: usize = 256;
+
+/// Largest number of cells along an axis; beyond it (a radius tiny against the cloud's extent)
+/// the caller should use the kd-tree.
+const MAX_CELLS_PER_AXIS: f64 = (1u64 << 40) as f64;
+
+/// Neighbourhoods of every point of `points` among `points`: the points strictly closer than
+/// `radius_m` (m), nearest first (ties by index), at most `max_nn` of them; each point is its own
+/// first neighbour. Returns `Ok(None)` when the cloud's extent exceeds 2⁴⁰ cells of the radius
+/// (use [`KdTree::hybrid_neighbourhoods`](super::KdTree::hybrid_neighbourhoods) then).
+///
+/// Errors: [`Error::InvalidInput`] on a non-finite coordinate, `radius_m` not finite and
+/// positive, `max_nn == 0`, or more than `u32::MAX` points.
+pub fn self_neighbourhoods(
+    points: &[Point3<f64>],
+    radius_m: f64,
+    max_nn: usize,
+) -> Result<Option<Neighbourhoods>> {
+    if !(radius_m.is_finite() && radius_m > 0.0) || max_nn == 0 {
+        return Err(Error::InvalidInput(format!(
+            "neighbourhood search needs a finite radius > 0 and max_nn > 0, got {radius_m} and {max_nn}"
+        )));
+    }
+    if points.len() > u32::MAX as usize {
+        return Err(Error::InvalidInput(format!(
+            "at most {} points, got {}",
+            u32::MAX,
+            points.len()
+        )));
+    }
+    if let Some(i) = points
+        .iter()
+        .position(|p| !p.coords.iter().all(|c| c.is_finite()))
+    {
+        return Err(Error::InvalidInput(format!(
+            "point {i} has a non-finite coordinate: {:?}",
+            points[i]
+        )));
+    }
+    let Some(grid) = Grid::new(points, radius_m) else {
+        return Ok(None);
+    };
+    let radius_sq = radius_m * radius_m;
+    let chunks: Vec<(Vec<usize>, Vec<u32>, Vec<f64>)> = points
+        .par_chunks(QUERY_CHUNK)
+        .enumerate()
+        .map(|(c, chunk)| {
+            let mut counts = Vec::with_capacity(chunk.len());
+            let mut indices = Vec::with_capacity(chunk.len() * max_nn.min(64));
+            let mut distances_sq = Vec::with_capacity(indices.capacity());
+            let mut found: Vec<(f64, u32)> = Vec::new();
+            for (k, q) in chunk.iter().enumerate() {
+                found.clear();
+                let cell = grid.cell_of_point[c * QUERY_CHUNK + k] as usize;
+                for &(start, end) in &grid.runs[cell] {
+                    let range = start as usize..end as usize;
+                    for (p, &j) in grid.sorted_xyz[range.clone()]
+                        .iter()
+                        .zip(&grid.sorted_index[range])
+                    {
+                        // kiddo's squared Euclidean distance, term by term.
+                        let (dx, dy, dz) = (q.x - p[0], q.y - p[1], q.z - p[2]);
+                        let d = dx * dx + dy * dy + dz * dz;
+                        if d < radius_sq {
+                            found.push((d, j));
+                        }
+                    }
+                }
+                let by_distance =
+                    |a: &(f64, u32), b: &(f64, u32)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
+                if found.len() > max_nn {
+                    found.select_nth_unstable_by(max_nn, by_distance);
+                    found.truncate(max_nn);
+                }
+                found.sort_unstable_by(by_distance);
+                counts.push(found.len());
+                for &(d, j) in &found {
+                    indices.push(j);
+                    distances_sq.push(d);
+                }
+            }
+            (counts, indices, distances_sq)
+        })
+        .collect();
+    Ok(Some(Neighbourhoods::from_chunks(chunks)))
+}
+
+/// Points sorted by cell, and for each occupied cell the 9 runs of sorted points covering its
+/// 3 × 3 × 3 block of cells.
+struct Grid {
+    /// Index into `runs` of each input point's cell.
+    cell_of_point: Vec<u32>,
+    /// Per occupied cell: for each (dx, dy) ∈ {−1, 0, 1}², the range of sorted points in cells
+    /// (x + dx, y + dy, z − 1 ..= z + 1).
+    runs: Vec<[(u32, u32); 9]>,
+    /// Coordinates in cell order.
+    sorted_xyz: Vec<[f64; 3]>,
+    /// Original index of each sorted point.
+    sorted_index: Vec<u32>,
+}
+
+impl Grid {
+    /// `None` if the extent exceeds [`MAX_CELLS_PER_AXIS`] cells.
+    fn new(points: &[Point3<f64>], radius_m: f64) -> Option<Grid> {
+        // A cell edge a little above the radius keeps every in-radius pair within one cell of
+        // each other despite the rounding of (p − min) / edge.
+        let edge = radius_m * (1.0 + 1e-6);
+        let mut min = [f64::INFINITY; 3];
+        let mut max = [f64::NEG_INFINITY; 3];
+        for p in points {
+            for a in 0..3 {
+                min[a] = min[a].min(p[a]);
+                max[a] = max[a].max(p[a]);
+            }
+        }
+        if (0..3).any(|a| (max[a] - min[a]) / edge > MAX_CELLS_PER_AXIS) {
+            return None;
+        }
+        let cell = |p: &Point3<f64>| -> [i64; 3] {
+            std::array::from_fn(|a| ((p[a] - min[a]) / edge).floor() as i64)
+        };
+        let mut keyed: Vec<([i64; 3], u32)> = points
+            .iter()
+            .enumerate()
+            .map(|(i, p)| (cell(p), i as u32))
+            .collect();
+        keyed.sort_unstable();
+        let mut cell_keys: Vec<[i64; 3]> = Vec::new();
+        let mut cell_starts: Vec<u32> = Vec::new();
+        let mut cell_of_point = vec![0u32; points.len()];
+        for (s, &(key, i)) in keyed.iter().enumerate() {
+            if cell_keys.last() != Some(&key) {
+                cell_keys.push(key);
+                cell_starts.push(s as u32);
+            }
+            cell_of_point[i as usize] = (cell_keys.len() - 1) as u32;
+        }
+        cell_starts.push(keyed.len() as u32);
+        let runs = cell_keys
+            .iter()
+            .map(|&[x, y, z]| {
+                std::array::from_fn(|k| {
+                    let (dx, dy) = (k as i64 / 3 - 1, k as i64 % 3 - 1);
+                    let first = cell_keys.partition_point(|c| *c < [x + dx, y + dy, z - 1]);
+                    let end = cell_keys.partition_point(|c| *c <= [x + dx, y + dy, z + 1]);
+                    (cell_starts[first], cell_starts[end.max(first)])
+                })
+            })
+            .collect();
+        Some(Grid {
+            cell_of_point,
+            runs,
+            sorted_xyz: keyed
+                .iter()
+                .map(|&(_, i)| {
+                    let p = &points[i as usize];
+                    [p.x, p.y, p.z]
+                })
+                .collect(),
+            sorted_index: keyed.iter().map(|&(_, i)| i).collect(),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::KdTree;
+    use rand::{RngExt, SeedableRng};
+    use rand_pcg::Pcg64;
+
+    /// Brute force: all points strictly within the radius, by (distance², index), first max_nn.
+    fn oracle(points: &[Point3<f64>], q: usize, radius: f64, max_nn: usize) -> Vec<(u32, f64)> {
+        let mut all: Vec<(f64, u32)> = points
+            .iter()
+            .enumerate()
+            .map(|(j, p)| {
+                let d = points[q] - p;
+                (d.x * d.x + d.y * d.y + d.z * d.z, j as u32)
+            })
+            .filter(|&(d, _)| d < radius * radius)
+            .collect();
+        all.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        all.truncate(max_nn);
+        all.into_iter().map(|(d, j)| (j, d)).collect()
+    }
+
+    fn check(points: &[Point3<f64>], radius: f64, max_nn: usize) {
+        let nbhd = self_neighbourhoods(points, radius, max_nn)
+            .unwrap()
+            .unwrap();
+        assert_eq!(nbhd.len(), points.len());
+        for i in 0..points.len() {
+            let (idx, d2) = nbhd.get(i);
+            let got: Vec<(u32, f64)> = idx.iter().copied().zip(d2.iter().copied()).collect();
+            assert_eq!(got, oracle(points, i, radius, max_nn), "point {i}");
+        }
+    }
+
+    #[test]
+    fn equals_brute_force_on_random_clouds_and_surfaces() {
+        let mut rng = Pcg64::seed_from_u64(11);
+        let cube: Vec<Point3<f64>> = (0..1500)
+            .map(|_| Point3::from(std::array::from_fn(|_| rng.random_range(-1.0..1.0))))
+            .collect();
+        // A plane and a sphere far from the origin (large coordinates, many cells empty).
+        let mut surfaces: Vec<Point3<f64>> = (0..800)
+            .map(|_| {
+                Point3::new(
+                    rng.random_range(-3.0..3.0),
+                    rng.random_range(-3.0..3.0),
+                    0.0,
+                )
+            })
+            .collect();
+        surfaces.extend((0..800).map(|_| {
+            let v = nalgebra::Vector3::from_fn(|_, _| rng.random_range(-1.0..1.0)).normalize();
+            Point3::new(1000.0, -2000.0, 50.0) + v * 2.0
+        }));
+        for (radius, max_nn) in [(0.1, 30), (0.25, 10), (0.6, 100), (5.0, 7)] {
+            check(&cube, radius, max_nn);
+            check(&surfaces, radius, max_nn);
+        }
+    }
+
+    /// An integer lattice at spacing = radius puts many points exactly on the radius (excluded)
+    /// and many equal distances across the max_nn cut (lowest indices kept).
+    #[test]
+    fn lattice_boundaries_and_ties() {
+        let mut points = Vec::new();
+        for x in 0..6 {
+            for y in 0..6 {
+                for z in 0..4 {
+                    points.push(Point3::new(x as f64 * 0.5, y as f64 * 0.5, z as f64 * 0.5));
+                }
+            }
+        }
+        for (radius, max_nn) in [(0.5, 50), (0.5000001, 3), (0.75, 5), (1.0, 100)] {
+            check(&points, radius, max_nn);
+        }
+    }
+
+    #[test]
+    fn agrees_with_kd_tree_when_no_tie_straddles_the_cut() {
+        let mut rng = Pcg64::seed_from_u64(5);
+        let points: Vec<Point3<f64>> = (0..2000)
+            .map(|_| Point3::from(std::array::from_fn(|_| rng.random_range(-1.0..1.0))))
+            .collect();
+        let tree = KdTree::new(&points).unwrap();
+        let a = tree.hybrid_neighbourhoods(&points, 0.2, 30);
+        let b = self_neighbourhoods(&points, 0.2, 30).unwrap().unwrap();
+        for i in 0..points.len() {
+            assert_eq!(a.get(i), b.get(i), "point {i}");
+        }
+    }
+
+    #[test]
+    fn bad_inputs() {
+        let p = [Point3::new(0.0, 0.0, 0.0), Point3::new(f64::NAN, 0.0, 0.0)];
+        assert!(self_neighbourhoods(&p, 1.0, 5).is_err());
+        assert!(self_neighbourhoods(&p[..1], 0.0, 5).is_err());
+        assert!(self_neighbourhoods(&p[..1], 1.0, 0).is_err());
+        assert!(self_neighbourhoods(&p[..1], f64::INFINITY, 5).is_err());
+        let empty = self_neighbourhoods(&[], 1.0, 5).unwrap().unwrap();
+        assert!(empty.is_empty());
+        let far = [Point3::new(0.0, 0.0, 0.0), Point3::new(1e300, 0.0, 0.0)];
+        assert!(self_neighbourhoods(&far, 1e-9, 5).unwrap().is_none());
+    }
+}
