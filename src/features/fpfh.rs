@@ -94,15 +94,80 @@ pub fn compute_fpfh_from_neighbourhoods(
         )));
     }
 
-    // Simplified histograms, flat: N × 33.
-    let mut spfh = vec![0.0f64; points.len() * FPFH_BINS];
+    // Simplified histograms, flat: N rows of SPFH_STRIDE = the 33 bins, then the sums of the
+    // three 11-bin blocks (so the weighted sum of the FPFH pass accumulates them alongside).
+    let mut spfh = vec![0.0f64; points.len() * SPFH_STRIDE];
     let edges = theta_edges();
-    spfh.par_chunks_mut(FPFH_BINS)
+    spfh.par_chunks_mut(SPFH_STRIDE * ROWS_PER_TASK)
         .enumerate()
-        .for_each(|(i, hist)| {
-            let (idx, _) = nbhd.get(i);
+        .for_each(|(c, hists)| {
+            let rows = SpfhRows {
+                first: c * ROWS_PER_TASK,
+                points,
+                normals,
+                nbhd,
+                edges: &edges,
+            };
+            #[cfg(target_arch = "x86_64")]
+            if avx2_fma() {
+                // SAFETY: the CPU supports AVX2 and FMA (checked).
+                return unsafe { rows.run_avx2(hists) };
+            }
+            rows.run(hists);
+        });
+
+    let mut out = vec![[0.0f32; FPFH_BINS]; points.len()];
+    out.par_chunks_mut(ROWS_PER_TASK)
+        .enumerate()
+        .for_each(|(c, out)| {
+            let rows = FpfhRows {
+                first: c * ROWS_PER_TASK,
+                spfh: &spfh,
+                nbhd,
+            };
+            #[cfg(target_arch = "x86_64")]
+            if avx2_fma() {
+                // SAFETY: the CPU supports AVX2 and FMA (checked).
+                return unsafe { rows.run_avx2(out) };
+            }
+            rows.run(out);
+        });
+    Ok(out)
+}
+
+/// Points per rayon task in both passes.
+const ROWS_PER_TASK: usize = 64;
+
+/// Length of an SPFH row: 33 bins and the 3 block sums (36 = 9 vectors of 4 f64; must stay a
+/// multiple of 4).
+const SPFH_STRIDE: usize = FPFH_BINS + 3;
+
+/// Whether the CPU has AVX2 and FMA. The `run_avx2` passes compile the same arithmetic as `run`
+/// (Rust never contracts `a + b * c` into a fused multiply-add), so their results are
+/// bit-identical; AVX2 only widens the vectorised loops.
+#[cfg(target_arch = "x86_64")]
+fn avx2_fma() -> bool {
+    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+}
+
+/// The SPFH pass over consecutive points starting at `first`.
+struct SpfhRows<'a> {
+    first: usize,
+    points: &'a [Point3<f64>],
+    normals: &'a [Vector3<f64>],
+    nbhd: &'a Neighbourhoods,
+    edges: &'a [(f64, f64); BINS_PER_FEATURE - 1],
+}
+
+impl SpfhRows<'_> {
+    #[inline(always)]
+    fn run(&self, hists: &mut [f64]) {
+        let (points, normals) = (self.points, self.normals);
+        for (k, hist) in hists.chunks_exact_mut(SPFH_STRIDE).enumerate() {
+            let i = self.first + k;
+            let (idx, _) = self.nbhd.get(i);
             if idx.len() < 2 {
-                return;
+                continue;
             }
             // The first entry is the query point itself (distance 0, nearest first); Open3D skips
             // the first entry whatever it is, and so do we.
@@ -110,52 +175,101 @@ pub fn compute_fpfh_from_neighbourhoods(
             for &j in &idx[1..] {
                 let j = j as usize;
                 let f = pair_features(&points[i], &normals[i], &points[j], &normals[j]);
-                hist[theta_bin(f.theta_y, f.theta_x, &edges)] += incr;
+                hist[theta_bin(f.theta_y, f.theta_x, self.edges)] += incr;
                 hist[BINS_PER_FEATURE + unit_bin(f.alpha)] += incr;
                 hist[2 * BINS_PER_FEATURE + unit_bin(f.phi)] += incr;
             }
-        });
-
-    let spfh_block_sums: Vec<f64> = spfh
-        .chunks_exact(BINS_PER_FEATURE)
-        .map(|block| block.iter().sum())
-        .collect();
-
-    Ok((0..points.len())
-        .into_par_iter()
-        .map(|i| {
-            let mut out = [0.0f32; FPFH_BINS];
-            let (idx, d2) = nbhd.get(i);
-            if idx.len() < 2 {
-                return out;
+            for b in 0..3 {
+                hist[FPFH_BINS + b] = hist[b * BINS_PER_FEATURE..(b + 1) * BINS_PER_FEATURE]
+                    .iter()
+                    .sum();
             }
-            let mut acc = [0.0f64; FPFH_BINS];
-            let mut block_sum = [0.0f64; 3];
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn run_avx2(&self, hists: &mut [f64]) {
+        self.run(hists)
+    }
+}
+
+/// The weighted-sum pass over consecutive points starting at `first`.
+struct FpfhRows<'a> {
+    first: usize,
+    /// SPFH rows of [`SPFH_STRIDE`] values.
+    spfh: &'a [f64],
+    nbhd: &'a Neighbourhoods,
+}
+
+impl FpfhRows<'_> {
+    /// SPFH row of point `j`.
+    #[inline(always)]
+    fn row(&self, j: usize) -> &[f64; SPFH_STRIDE] {
+        self.spfh[j * SPFH_STRIDE..(j + 1) * SPFH_STRIDE]
+            .try_into()
+            .expect("SPFH row")
+    }
+
+    /// Runs the pass with `accumulate(acc, row, w)` doing `acc[b] += row[b] * w` for every `b`
+    /// (a separate multiply and add, so every implementation rounds identically).
+    #[inline(always)]
+    fn run_with(
+        &self,
+        out: &mut [Fpfh],
+        accumulate: impl Fn(&mut [f64; SPFH_STRIDE], &[f64; SPFH_STRIDE], f64),
+    ) {
+        for (k, out) in out.iter_mut().enumerate() {
+            let i = self.first + k;
+            let (idx, d2) = self.nbhd.get(i);
+            if idx.len() < 2 {
+                continue;
+            }
+            // Bins and block sums.
+            let mut acc = [0.0f64; SPFH_STRIDE];
             for (&j, &dist_sq) in idx[1..].iter().zip(&d2[1..]) {
                 if dist_sq == 0.0 {
                     continue;
                 }
                 // NOTE: Open3D divides each bin by the squared distance; multiplying by the
                 // reciprocal and summing the block totals once differ from it by rounding only.
-                let inv = 1.0 / dist_sq;
-                let j = j as usize;
-                let neighbour = &spfh[j * FPFH_BINS..(j + 1) * FPFH_BINS];
-                for (a, s) in acc.iter_mut().zip(neighbour) {
-                    *a += s * inv;
-                }
-                for (b, sum) in block_sum.iter_mut().enumerate() {
-                    *sum += spfh_block_sums[3 * j + b] * inv;
-                }
+                accumulate(&mut acc, self.row(j as usize), 1.0 / dist_sq);
             }
-            let own = &spfh[i * FPFH_BINS..(i + 1) * FPFH_BINS];
+            let own = self.row(i);
             for b in 0..FPFH_BINS {
-                let s = block_sum[b / BINS_PER_FEATURE];
+                let s = acc[FPFH_BINS + b / BINS_PER_FEATURE];
                 let scale = if s != 0.0 { BLOCK_MASS / s } else { 0.0 };
                 out[b] = (acc[b] * scale + own[b]) as f32;
             }
-            out
+        }
+    }
+
+    fn run(&self, out: &mut [Fpfh]) {
+        self.run_with(out, |acc, row, w| {
+            for (a, &r) in acc.iter_mut().zip(row) {
+                *a += r * w;
+            }
         })
-        .collect())
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn run_avx2(&self, out: &mut [Fpfh]) {
+        use std::arch::x86_64::{
+            _mm256_add_pd, _mm256_loadu_pd, _mm256_mul_pd, _mm256_set1_pd, _mm256_storeu_pd,
+        };
+        self.run_with(out, |acc, row, w| {
+            let w = _mm256_set1_pd(w);
+            for (a, r) in acc.chunks_exact_mut(4).zip(row.chunks_exact(4)) {
+                // SAFETY: both chunks hold exactly 4 f64 (SPFH_STRIDE is a multiple of 4).
+                unsafe {
+                    let product = _mm256_mul_pd(_mm256_loadu_pd(r.as_ptr()), w);
+                    let sum = _mm256_add_pd(_mm256_loadu_pd(a.as_ptr()), product);
+                    _mm256_storeu_pd(a.as_mut_ptr(), sum);
+                }
+            }
+        })
+    }
 }
 
 /// The Darboux-frame pair features of Rusu et al. 2009, Sec. II, in Open3D's conventions.
