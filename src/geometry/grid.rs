@@ -62,44 +62,86 @@ pub fn self_neighbourhoods(
         .par_chunks(QUERY_CHUNK)
         .enumerate()
         .map(|(c, chunk)| {
+            let mut search = CellSearch::default();
             let mut counts = Vec::with_capacity(chunk.len());
             let mut indices = Vec::with_capacity(chunk.len() * max_nn.min(64));
             let mut distances_sq = Vec::with_capacity(indices.capacity());
-            let mut found: Vec<(f64, u32)> = Vec::new();
             for (k, q) in chunk.iter().enumerate() {
-                found.clear();
-                let cell = grid.cell_of_point[c * QUERY_CHUNK + k] as usize;
-                for &(start, end) in &grid.runs[cell] {
-                    let range = start as usize..end as usize;
-                    for (p, &j) in grid.sorted_xyz[range.clone()]
-                        .iter()
-                        .zip(&grid.sorted_index[range])
-                    {
-                        // kiddo's squared Euclidean distance, term by term.
-                        let (dx, dy, dz) = (q.x - p[0], q.y - p[1], q.z - p[2]);
-                        let d = dx * dx + dy * dy + dz * dz;
-                        if d < radius_sq {
-                            found.push((d, j));
-                        }
-                    }
-                }
-                let by_distance =
-                    |a: &(f64, u32), b: &(f64, u32)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
-                if found.len() > max_nn {
-                    found.select_nth_unstable_by(max_nn, by_distance);
-                    found.truncate(max_nn);
-                }
-                found.sort_unstable_by(by_distance);
+                let cell = grid.cell_of_point[c * QUERY_CHUNK + k];
+                let found = search.query(&grid, cell, q, radius_sq, max_nn);
                 counts.push(found.len());
-                for &(d, j) in &found {
+                for &(d, j) in found {
                     indices.push(j);
-                    distances_sq.push(d);
+                    distances_sq.push(f64::from_bits(d));
                 }
             }
             (counts, indices, distances_sq)
         })
         .collect();
     Ok(Some(Neighbourhoods::from_chunks(chunks)))
+}
+
+/// Reusable buffers of one worker: the candidates of the last cell searched (consecutive queries,
+/// sorted by voxel, often share a cell) and the neighbours found.
+#[derive(Default)]
+struct CellSearch {
+    cell: Option<u32>,
+    x: Vec<f64>,
+    y: Vec<f64>,
+    z: Vec<f64>,
+    index: Vec<u32>,
+    distance_sq: Vec<f64>,
+    /// (squared distance as bits — monotone for non-negative values —, index).
+    found: Vec<(u64, u32)>,
+}
+
+impl CellSearch {
+    /// Neighbours of `q` (in cell `cell`) strictly within `radius_sq`, nearest first (ties by
+    /// index), at most `max_nn`.
+    fn query(
+        &mut self,
+        grid: &Grid,
+        cell: u32,
+        q: &Point3<f64>,
+        radius_sq: f64,
+        max_nn: usize,
+    ) -> &[(u64, u32)] {
+        if self.cell != Some(cell) {
+            self.cell = Some(cell);
+            for v in [&mut self.x, &mut self.y, &mut self.z] {
+                v.clear();
+            }
+            self.index.clear();
+            for &(start, end) in &grid.runs[cell as usize] {
+                let range = start as usize..end as usize;
+                for p in &grid.sorted_xyz[range.clone()] {
+                    self.x.push(p[0]);
+                    self.y.push(p[1]);
+                    self.z.push(p[2]);
+                }
+                self.index.extend_from_slice(&grid.sorted_index[range]);
+            }
+        }
+        self.distance_sq.clear();
+        self.distance_sq
+            .extend(self.x.iter().zip(&self.y).zip(&self.z).map(|((x, y), z)| {
+                // kiddo's squared Euclidean distance, term by term.
+                let (dx, dy, dz) = (q.x - x, q.y - y, q.z - z);
+                dx * dx + dy * dy + dz * dz
+            }));
+        self.found.clear();
+        for (&d, &j) in self.distance_sq.iter().zip(&self.index) {
+            if d < radius_sq {
+                self.found.push((d.to_bits(), j));
+            }
+        }
+        if self.found.len() > max_nn {
+            self.found.select_nth_unstable(max_nn);
+            self.found.truncate(max_nn);
+        }
+        self.found.sort_unstable();
+        &self.found
+    }
 }
 
 /// Points sorted by cell, and for each occupied cell the 9 runs of sorted points covering its
