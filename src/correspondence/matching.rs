@@ -228,7 +228,8 @@ const WORK_QUERIES: usize = 64;
 
 /// `LANES` database descriptors, dimension-major. Unused lanes hold +∞.
 type Block = [[f32; LANES]; FPFH_DIM];
-/// The same descriptors projected onto the principal axes, dimension-major. Unused lanes hold +∞.
+/// The same descriptors projected onto the principal axes, dimension-major. Unused lanes hold 0
+/// (with an infinite squared norm).
 type LowBlock = [[f32; LANES]; PCA_DIMS];
 
 /// A searchable set of descriptors.
@@ -239,6 +240,10 @@ struct Database {
     axes: [[f64; FPFH_DIM]; PCA_DIMS],
     /// Projected descriptors per block, blocks sorted along the first axis.
     low: Vec<LowBlock>,
+    /// Squared norms of the projected descriptors (+∞ for unused lanes).
+    low_norm_sq: Vec<[f32; LANES]>,
+    /// Largest finite squared norm in each block (for the rounding margin).
+    low_norm_sq_max: Vec<f32>,
     /// Original descriptors per block (same order).
     full: Vec<Block>,
     /// Original index of each lane (`u32::MAX` for unused lanes).
@@ -316,7 +321,9 @@ impl Database {
         let mut db = Database {
             mean,
             axes,
-            low: vec![[[f32::INFINITY; LANES]; PCA_DIMS]; blocks],
+            low: vec![[[0.0; LANES]; PCA_DIMS]; blocks],
+            low_norm_sq: vec![[f32::INFINITY; LANES]; blocks],
+            low_norm_sq_max: vec![0.0; blocks],
             full: vec![[[f32::INFINITY; LANES]; FPFH_DIM]; blocks],
             index: vec![[u32::MAX; LANES]; blocks],
             first_axis_range: Vec::with_capacity(blocks),
@@ -332,6 +339,9 @@ impl Database {
                 for (dim, &v) in d.iter().enumerate() {
                     db.full[b][dim][l] = v;
                 }
+                let norm_sq = squared_norm(c);
+                db.low_norm_sq[b][l] = norm_sq;
+                db.low_norm_sq_max[b] = db.low_norm_sq_max[b].max(norm_sq);
                 db.index[b][l] = i;
             }
             let first = coords[members[0] as usize][0];
@@ -342,12 +352,26 @@ impl Database {
     }
 }
 
+/// Squared norm of stored projected coordinates, summed in f64 and rounded once.
+#[inline]
+fn squared_norm(c: &[f32; PCA_DIMS]) -> f32 {
+    c.iter().map(|&x| f64::from(x) * f64::from(x)).sum::<f64>() as f32
+}
+
+/// Rounding slack of the projected squared distance computed as ‖a‖² + ‖b‖² − 2·a·b, relative to
+/// ‖a‖² + ‖b‖²: each norm is rounded once, the dot product accumulates `PCA_DIMS` fused
+/// multiply-adds (error ≤ PCA_DIMS·u·‖a‖‖b‖ ≤ PCA_DIMS·u·(‖a‖² + ‖b‖²)/2), and the sum and
+/// difference round twice more, so the error is below (PCA_DIMS + 5)·u·(‖a‖² + ‖b‖²); twice that
+/// is used.
+const DOT_SLACK: f32 = (2 * PCA_DIMS + 10) as f32 * f32::EPSILON / 2.0;
+
 /// Squared lower-bound threshold for a query whose results can only change through pairs at
 /// squared distance ≤ `bound_sq`, where stored coordinates carry an absolute rounding error of at
 /// most `eta` each. A pair whose computed projected squared distance exceeds the returned value
 /// has a computed full squared distance > `bound_sq`:
-/// - the f32 sum of `PCA_DIMS` squared differences is within a factor (1 + 10u) of the exact
-///   one on the stored coordinates (u = 2⁻²⁴), covered by the final factor 1 + 1e-5;
+/// - the computed projected squared distance is within an absolute [`DOT_SLACK`] term (added by
+///   the caller) of the exact one on the stored coordinates (u = 2⁻²⁴), and the final factor
+///   1 + 1e-5 covers the rounding of this function;
 /// - the stored coordinates of both descriptors are within `eta` of the exact projections, so
 ///   the exact projected distance is at least the stored one minus 2·eta·√PCA_DIMS;
 /// - the projection onto orthonormal axes never lengthens a vector;
@@ -371,6 +395,7 @@ fn search_one(db: &Database, query: &Fpfh, low_query: &[f32; PCA_DIMS], radius_s
         .max(low_query.iter().fold(0.0f32, |m, c| m.max(c.abs())))
         * f32::EPSILON)
         .max(f32::MIN_POSITIVE);
+    let low_norm_sq = squared_norm(low_query);
     let mut scan = Scan::EMPTY;
     let mut threshold = f32::INFINITY;
     let blocks = db.low.len();
@@ -391,6 +416,7 @@ fn search_one(db: &Database, query: &Fpfh, low_query: &[f32; PCA_DIMS], radius_s
                     up,
                     query,
                     low_query,
+                    low_norm_sq,
                     radius_sq,
                     &mut scan,
                     &mut threshold,
@@ -410,6 +436,7 @@ fn search_one(db: &Database, query: &Fpfh, low_query: &[f32; PCA_DIMS], radius_s
                     down - 1,
                     query,
                     low_query,
+                    low_norm_sq,
                     radius_sq,
                     &mut scan,
                     &mut threshold,
@@ -433,21 +460,23 @@ fn visit(
     b: usize,
     query: &Fpfh,
     low_query: &[f32; PCA_DIMS],
+    low_norm_sq: f32,
     radius_sq: f32,
     scan: &mut Scan,
     threshold: &mut f32,
     eta: f32,
 ) {
-    let mut low = [0.0f32; LANES];
-    for (k, row) in db.low[b].iter().enumerate() {
+    // ‖a − b‖² = ‖a‖² + ‖b‖² − 2·a·b: one fused multiply-add per dimension and lane.
+    let mut dot = [0.0f32; LANES];
+    for (&q, row) in low_query.iter().zip(&db.low[b]) {
         for l in 0..LANES {
-            let x = low_query[k] - row[l];
-            low[l] = x.mul_add(x, low[l]);
+            dot[l] = q.mul_add(row[l], dot[l]);
         }
     }
+    let limit = *threshold + DOT_SLACK * (low_norm_sq + db.low_norm_sq_max[b]);
     let mut alive = false;
-    for &d in &low {
-        alive |= d <= *threshold;
+    for (&d, &norm_sq) in dot.iter().zip(&db.low_norm_sq[b]) {
+        alive |= (low_norm_sq + norm_sq) - 2.0 * d <= limit;
     }
     if !alive {
         return;
