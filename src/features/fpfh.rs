@@ -275,9 +275,10 @@ impl FpfhRows<'_> {
 /// The Darboux-frame pair features of Rusu et al. 2009, Sec. II, in Open3D's conventions.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct PairFeatures {
-    /// θ = atan2(`theta_y`, `theta_x`) ∈ [−π, π] with `theta_y` = w · n_t ...
+    /// θ = atan2(`theta_y`, `theta_x`) ∈ [−π, π] with `theta_y` = s·(w · n_t) ...
     theta_y: f64,
-    /// ... and `theta_x` = u · n_t (binned without evaluating the arctangent: [`theta_bin`]).
+    /// ... and `theta_x` = s·(u · n_t), for a common factor s > 0 (‖d × u‖, which saves the
+    /// normalisation of v; binned without evaluating the arctangent: [`theta_bin`]).
     theta_x: f64,
     /// α = v · n_t ∈ [−1, 1].
     alpha: f64,
@@ -348,6 +349,8 @@ fn pair_features(
     if dist == 0.0 {
         return ZERO;
     }
+    // Both cosines are divided before they are compared, as Open3D: on near-parallel normals
+    // (flat ground) the undivided products differ where the cosines tie.
     let cos1 = n1.dot(&d) / dist;
     let cos2 = n2.dot(&d) / dist;
     let (ns, nt, phi) = if cos1.abs() < cos2.abs() {
@@ -356,17 +359,17 @@ fn pair_features(
     } else {
         (n1, n2, cos1)
     };
+    // v = d × u unnormalised: θ only needs the signs of scaled sines, α one division.
     let v = d.cross(ns);
     let v_norm = v.norm();
     if v_norm == 0.0 {
         return ZERO;
     }
-    let v = v / v_norm;
     let w = ns.cross(&v);
     PairFeatures {
         theta_y: w.dot(nt),
-        theta_x: ns.dot(nt),
-        alpha: v.dot(nt),
+        theta_x: ns.dot(nt) * v_norm,
+        alpha: v.dot(nt) / v_norm,
         phi,
     }
 }
