@@ -21,9 +21,15 @@ pub const DEFAULT_CONFIDENCE: f64 = 0.999;
 pub const DEFAULT_MAX_HYPOTHESES: u64 = 100_000;
 /// Default number of local-optimisation refits after each new best model.
 pub const DEFAULT_LO_ITERATIONS: u32 = 10;
-/// Hypotheses evaluated per parallel batch. Fixed (not derived from the thread count) so results do
-/// not depend on it.
+/// Hypotheses evaluated in the first parallel batch; each further batch doubles, up to
+/// [`MAX_BATCH_SIZE`]. Small first batches waste little work when the loop stops early; large
+/// later ones keep the fork-join overhead (waking the worker threads, ~10 µs) small against ~100 ns
+/// per pre-rejected hypothesis — with a fixed 64 it was most of the loop's time on the KITTI and
+/// 3DMatch pairs. Every hypothesis is evaluated independently and the batch is reduced in index
+/// order, so results do not depend on the batch sizes or the thread count.
 pub const BATCH_SIZE: usize = 64;
+/// Largest parallel batch (see [`BATCH_SIZE`]).
+pub const MAX_BATCH_SIZE: usize = 4096;
 
 /// How candidate models are compared.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
@@ -204,12 +210,17 @@ pub fn run_consensus<S: Sampler, E: Estimator>(
     let mut best: Option<(Score, E::Model)> = None;
     let mut limit = config.max_hypotheses as f64;
     let mut batch: Vec<Outcome<E::Model>> = Vec::with_capacity(BATCH_SIZE);
+    let mut batch_size = BATCH_SIZE as u64;
     let mut inlier_buf: Vec<usize> = Vec::new();
     // The inliers of `best`, kept from when it became best (swapped with `inlier_buf`).
     let mut best_inliers: Vec<usize> = Vec::new();
     let mut h0 = 0u64;
     'outer: while (h0 as f64) < limit {
-        let h1 = (h0 + BATCH_SIZE as u64).min(config.max_hypotheses);
+        // Hypotheses at or beyond the current limit are never used: do not draw them.
+        let h1 = (h0 + batch_size)
+            .min(config.max_hypotheses)
+            .min(limit.ceil() as u64);
+        batch_size = (batch_size * 2).min(MAX_BATCH_SIZE as u64);
         (0..(h1 - h0) as usize)
             .into_par_iter()
             .map(|k| evaluate(h0 + k as u64))
