@@ -10,9 +10,10 @@ use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Seek};
 use std::path::{Path, PathBuf};
-use std::sync::mpsc::{Receiver, Sender, SyncSender, channel, sync_channel};
+use std::sync::mpsc::{Receiver, Sender, SyncSender, TrySendError, channel, sync_channel};
 
-use mcap::records::{Channel, MessageHeader, Metadata, Record, op};
+use binrw::BinRead;
+use mcap::records::{Channel, ChunkHeader, MessageHeader, Metadata, Record, op};
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader};
 use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader};
 
@@ -247,6 +248,21 @@ pub struct OutputLog {
     /// Schemas added by `add_channel` (name, encoding, bytes) and their ids, reused when equal.
     own_schemas: HashMap<(String, String, Vec<u8>), u16>,
     sequences: HashMap<u16, u32>,
+    writeback: Option<Writeback>,
+}
+
+/// A thread that syncs the output file's data once, started when the copy of the input is
+/// complete: the disk writes then overlap whatever comes before [`OutputLog::finish`] (e.g. the
+/// registration of the last frames), whose own sync only waits for the rest.
+struct Writeback(std::thread::JoinHandle<()>);
+
+impl Drop for OutputLog {
+    fn drop(&mut self) {
+        // Let an early sync end before the temporary file is deleted.
+        if let Some(Writeback(t)) = self.writeback.take() {
+            let _ = t.join();
+        }
+    }
 }
 
 impl std::fmt::Debug for OutputLog {
@@ -295,6 +311,7 @@ impl OutputLog {
             overwrite,
             own_schemas: HashMap::new(),
             sequences: HashMap::new(),
+            writeback: None,
         })
     }
 
@@ -424,6 +441,23 @@ impl OutputLog {
         self.w().message(&header, data)
     }
 
+    /// Starts pushing what was written so far to disk on another thread (once; see
+    /// [`finish`](Self::finish), which waits for it and syncs the rest).
+    pub fn start_writeback(&mut self) -> Result<()> {
+        if self.writeback.is_some() {
+            return Ok(());
+        }
+        let r = self.w().flush();
+        r?;
+        let file = self.w().get_ref().get_ref().try_clone();
+        let file = file.map_err(|e| io_err(&self.target, e))?;
+        // Only an early start of the disk writes: a failure shows in the final sync.
+        self.writeback = Some(Writeback(std::thread::spawn(move || {
+            let _ = file.sync_data();
+        })));
+        Ok(())
+    }
+
     /// Writes a metadata record.
     pub fn write_metadata(&mut self, name: &str, entries: BTreeMap<String, String>) -> Result<()> {
         self.w().metadata(&Metadata {
@@ -437,6 +471,9 @@ impl OutputLog {
     pub fn finish(mut self) -> Result<()> {
         let writer = self.writer.take().expect("writer present until finish");
         let buf = writer.finish()?;
+        if let Some(Writeback(t)) = self.writeback.take() {
+            let _ = t.join();
+        }
         let file = buf
             .into_inner()
             .map_err(|e| io_err(&self.target, e.into_error()))?;
@@ -461,10 +498,9 @@ impl OutputLog {
     }
 }
 
-/// Input chunks waiting for validation at most (each one chunk in memory).
-const VALIDATION_QUEUE: usize = 2;
-/// Chunk buffers kept for reuse.
-const BUFFER_POOL: usize = 4;
+/// Copied chunks waiting for validation at most (a queue entry is a position, not data; the
+/// bound keeps validation from falling far behind the copy).
+const VALIDATION_QUEUE: usize = 8;
 
 /// The input file, read record by record.
 struct Source<'a> {
@@ -506,8 +542,8 @@ impl Source<'_> {
         ))
     }
 
-    /// Reads a record body of `len` bytes into `buf` (replacing its content).
-    fn body(&mut self, opcode: u8, len: u64, buf: &mut Vec<u8>) -> Result<()> {
+    /// Fails unless a body of `len` bytes fits in the rest of the file.
+    fn check_len(&self, opcode: u8, len: u64) -> Result<()> {
         let left = self.size.saturating_sub(self.pos);
         if len > left {
             return Err(self.truncated(format!(
@@ -515,6 +551,12 @@ impl Source<'_> {
                 self.pos - 9
             )));
         }
+        Ok(())
+    }
+
+    /// Reads a record body of `len` bytes into `buf` (replacing its content).
+    fn body(&mut self, opcode: u8, len: u64, buf: &mut Vec<u8>) -> Result<()> {
+        self.check_len(opcode, len)?;
         buf.clear();
         buf.try_reserve_exact(len as usize)
             .map_err(|_| self.truncated(format!("record of {len} bytes")))?;
@@ -528,49 +570,120 @@ impl Source<'_> {
         }
         Ok(())
     }
+
+    /// Reads the header at the start of a chunk record body of `len` bytes: its bytes, parsed.
+    fn chunk_head(&mut self, len: u64) -> Result<(Vec<u8>, ChunkHeader)> {
+        const FIXED: u64 = 8 + 8 + 8 + 4; // start and end time, uncompressed size, CRC
+        let offset = self.pos - 9;
+        let bad = |what: &str| {
+            mcap_err(
+                self.path,
+                "reading MCAP records",
+                format!("chunk at offset {offset}: {what}"),
+            )
+        };
+        if len < FIXED + 4 + 8 {
+            return Err(bad("record shorter than a chunk header"));
+        }
+        let mut head = vec![0u8; (FIXED + 4) as usize];
+        self.read_exact(&mut head)?;
+        let name_len = u32::from_le_bytes(head[FIXED as usize..].try_into().expect("4 bytes"));
+        let head_len = FIXED + 4 + u64::from(name_len) + 8;
+        if head_len > len {
+            return Err(bad("compression name longer than the record"));
+        }
+        head.resize(head_len as usize, 0);
+        self.read_exact(&mut head[(FIXED + 4) as usize..])?;
+        let header = ChunkHeader::read_le(&mut std::io::Cursor::new(&head))
+            .map_err(|e| bad(&format!("bad chunk header: {e}")))?;
+        if header.compressed_size > len - head_len {
+            return Err(bad(&format!(
+                "compressed size {} exceeds the record",
+                header.compressed_size
+            )));
+        }
+        Ok((head, header))
+    }
 }
 
-/// A chunk to validate off the reading thread.
-struct Job {
+/// Where a copied chunk record is in the input and the output.
+#[derive(Debug, Clone, Copy)]
+struct ChunkAt {
+    /// Number of the chunk in the output.
     chunk: usize,
+    /// Offset of the record in the input.
     offset: u64,
-    body: Vec<u8>,
+    /// Length of the record's body.
+    len: u64,
+    /// Bytes at the start of the body written from memory (the rest was copied by the kernel).
+    head: u64,
+    /// Id of the copied bytes' CRC in the output's data-section CRC.
+    crc_id: usize,
 }
 
-/// A validated chunk (its buffer comes back for reuse).
+/// Reads chunk records of the input by position, decodes and checks them.
+struct ChunkChecker {
+    file: File,
+    buf: Vec<u8>,
+    decoder: ChunkDecoder,
+}
+
+impl ChunkChecker {
+    fn open(path: &Path) -> std::result::Result<Self, String> {
+        Ok(Self {
+            file: File::open(path).map_err(|e| e.to_string())?,
+            buf: Vec::new(),
+            decoder: ChunkDecoder::new()?,
+        })
+    }
+
+    /// Reads the chunk's body into `buf`; returns the CRC of its kernel-copied part.
+    fn load(&mut self, at: &ChunkAt) -> std::result::Result<u32, String> {
+        self.file
+            .seek(std::io::SeekFrom::Start(at.offset + 9))
+            .map_err(|e| e.to_string())?;
+        self.buf.clear();
+        self.buf
+            .try_reserve_exact(at.len as usize)
+            .map_err(|_| format!("record of {} bytes", at.len))?;
+        let n = (&mut self.file)
+            .take(at.len)
+            .read_to_end(&mut self.buf)
+            .map_err(|e| e.to_string())?;
+        if n as u64 != at.len {
+            return Err("the input ended inside the chunk".into());
+        }
+        Ok(crc32fast::hash(&self.buf[at.head as usize..]))
+    }
+}
+
+/// A chunk checked off the reading thread.
 struct Checked {
-    chunk: usize,
-    offset: u64,
-    contents: std::result::Result<ChunkContents, String>,
-    body: Vec<u8>,
+    at: ChunkAt,
+    result: std::result::Result<(ChunkContents, u32), String>,
 }
 
-fn validate_chunks(jobs: Receiver<Job>, done: Sender<Checked>) {
-    let mut decoder = ChunkDecoder::new();
-    for job in jobs {
-        let contents = match &mut decoder {
-            Ok(d) => ChunkContents::of_chunk(d, &job.body),
+fn validate_chunks(path: &Path, jobs: Receiver<ChunkAt>, done: Sender<Checked>) {
+    let mut checker = ChunkChecker::open(path);
+    for at in jobs {
+        let result = match &mut checker {
+            Ok(c) => c.load(&at).and_then(|crc| {
+                ChunkContents::of_chunk(&mut c.decoder, &c.buf).map(|contents| (contents, crc))
+            }),
             Err(e) => Err(e.clone()),
         };
-        let checked = Checked {
-            chunk: job.chunk,
-            offset: job.offset,
-            contents,
-            body: job.body,
-        };
-        if done.send(checked).is_err() {
+        if done.send(Checked { at, result }).is_err() {
             break;
         }
     }
 }
 
-/// A chunk read from the input with the message-index records that followed it.
+/// A copied chunk whose message-index records are being copied.
 struct Group {
-    offset: u64,
-    body: Vec<u8>,
-    header: mcap::records::ChunkHeader,
-    indexes: Vec<Vec<u8>>,
-    /// Channels the message indexes list.
+    at: ChunkAt,
+    /// Whether any message-index record followed it.
+    indexed: bool,
+    /// Channels its message indexes list.
     listed: BTreeSet<u16>,
 }
 
@@ -578,12 +691,11 @@ struct Group {
 struct PassThrough<'a> {
     input: &'a Path,
     wanted: &'a BTreeSet<u16>,
-    decoder: ChunkDecoder,
-    jobs: Option<SyncSender<Job>>,
+    checker: ChunkChecker,
+    jobs: Option<SyncSender<ChunkAt>>,
     done: Receiver<Checked>,
     sent: usize,
     received: usize,
-    pool: Vec<Vec<u8>>,
     messages: u64,
 }
 
@@ -659,14 +771,11 @@ impl PassThrough<'_> {
 
     fn checked(&mut self, log: &mut OutputLog, c: Checked) -> Result<()> {
         self.received += 1;
-        let contents = c
-            .contents
-            .map_err(|e| self.err(format!("chunk at offset {}: {e}", c.offset)))?;
-        self.account(log, c.offset, c.chunk, contents, true)?;
-        if self.pool.len() < BUFFER_POOL {
-            self.pool.push(c.body);
-        }
-        Ok(())
+        let (contents, crc) = c
+            .result
+            .map_err(|e| self.err(format!("chunk at offset {}: {e}", c.at.offset)))?;
+        log.w().copied_crc(c.at.crc_id, crc);
+        self.account(log, c.at.offset, c.at.chunk, contents, true)
     }
 
     /// Accounts for the chunks validated so far, without waiting.
@@ -677,57 +786,58 @@ impl PassThrough<'_> {
         Ok(())
     }
 
-    /// Copies a chunk and its message indexes. A chunk whose message indexes list a wanted
-    /// channel (or that has none) is decoded here and its wanted messages handed to
-    /// `on_message`; any other goes to the validating thread.
+    /// Once a copied chunk's message indexes are known: a chunk whose message indexes list a
+    /// wanted channel (or that has none) is read back and decoded here, its wanted messages handed
+    /// to `on_message`; any other is checked by the validating thread, or here when that thread
+    /// is behind.
     fn group(
         &mut self,
         log: &mut OutputLog,
         g: Group,
         on_message: &mut OnMessage<'_>,
     ) -> Result<()> {
-        let indexes: Vec<&[u8]> = g.indexes.iter().map(Vec::as_slice).collect();
-        let chunk = log.w().copy_chunk(&g.body, &g.header, &indexes)?;
-        let here = g.indexes.is_empty() || g.listed.iter().any(|c| self.wanted.contains(c));
+        let here = !g.indexed || g.listed.iter().any(|c| self.wanted.contains(c));
         if !here {
-            let job = Job {
-                chunk,
-                offset: g.offset,
-                body: g.body,
-            };
             let jobs = self
                 .jobs
                 .as_ref()
                 .expect("open until the end of the data section");
-            if jobs.send(job).is_err() {
-                return Err(self.err("chunk validation stopped unexpectedly".into()));
+            // When the validating thread is behind, this thread checks the chunk itself.
+            match jobs.try_send(g.at) {
+                Ok(()) => {
+                    self.sent += 1;
+                    return Ok(());
+                }
+                Err(TrySendError::Full(_)) => {}
+                Err(TrySendError::Disconnected(_)) => {
+                    return Err(self.err("chunk validation stopped unexpectedly".into()));
+                }
             }
-            self.sent += 1;
-            return Ok(());
         }
-        let (_, records) = self.decoder.decode(&g.body).map_err(|e| Error::Format {
-            path: self.input.to_path_buf(),
-            detail: format!("chunk at offset {}: {e}", g.offset),
-        })?;
-        let mut contents = ChunkContents::default();
+        let offset = g.at.offset;
         let in_chunk = |e: String| Error::Format {
             path: self.input.to_path_buf(),
-            detail: format!("chunk at offset {}: {e}", g.offset),
+            detail: format!("chunk at offset {offset}: {e}"),
         };
+        let crc = self.checker.load(&g.at).map_err(in_chunk)?;
+        log.w().copied_crc(g.at.crc_id, crc);
+        let (_, records) = self
+            .checker
+            .decoder
+            .decode(&self.checker.buf)
+            .map_err(in_chunk)?;
+        let mut contents = ChunkContents::default();
         for r in mcap_chunk::records(records) {
             let (opcode, body) = r.map_err(in_chunk)?;
             if let Some(id) = contents.add(opcode, body).map_err(in_chunk)?
+                && here
                 && self.wanted.contains(&id)
             {
                 let (header, data) = mcap_chunk::message(body).map_err(in_chunk)?;
                 on_message(log, &header, data)?;
             }
         }
-        self.account(log, g.offset, chunk, contents, false)?;
-        if self.pool.len() < BUFFER_POOL {
-            self.pool.push(g.body);
-        }
-        Ok(())
+        self.account(log, offset, g.at.chunk, contents, !here)
     }
 
     /// A record outside chunks.
@@ -814,16 +924,15 @@ impl PassThrough<'_> {
         on_message: &mut OnMessage<'_>,
     ) -> Result<()> {
         let mut small = Vec::new();
-        let mut pending: Option<Group> = None;
+        let mut open: Option<Group> = None;
         loop {
             let (opcode, len) = src.prefix()?;
             let offset = src.pos - 9;
             if opcode == op::MESSAGE_INDEX
-                && let Some(g) = pending.as_mut()
+                && let Some(g) = open.as_mut()
             {
-                let mut body = Vec::new();
-                src.body(opcode, len, &mut body)?;
-                match mcap::parse_record(opcode, &body) {
+                src.body(opcode, len, &mut small)?;
+                match mcap::parse_record(opcode, &small) {
                     Ok(Record::MessageIndex(i)) => g.listed.insert(i.channel_id),
                     _ => {
                         return Err(
@@ -831,23 +940,30 @@ impl PassThrough<'_> {
                         );
                     }
                 };
-                g.indexes.push(body);
+                g.indexed = true;
+                log.w().copied_message_index(&small)?;
                 continue;
             }
-            if let Some(g) = pending.take() {
+            if let Some(g) = open.take() {
                 self.group(log, g, on_message)?;
             }
             match opcode {
                 op::CHUNK => {
-                    let mut body = self.pool.pop().unwrap_or_default();
-                    src.body(opcode, len, &mut body)?;
-                    let header = mcap_chunk::chunk_header(&body)
-                        .map_err(|e| self.err(format!("chunk at offset {offset}: {e}")))?;
-                    pending = Some(Group {
-                        offset,
-                        body,
-                        header,
-                        indexes: Vec::new(),
+                    src.check_len(opcode, len)?;
+                    let (head, header) = src.chunk_head(len)?;
+                    let chunk = log.w().start_copied_chunk(len, &head, &header)?;
+                    let rest = len - head.len() as u64;
+                    let crc_id = log.w().copy_from(&mut src.reader, rest)?;
+                    src.pos += rest;
+                    open = Some(Group {
+                        at: ChunkAt {
+                            chunk,
+                            offset,
+                            len,
+                            head: head.len() as u64,
+                            crc_id,
+                        },
+                        indexed: false,
                         listed: BTreeSet::new(),
                     });
                 }
@@ -911,26 +1027,29 @@ pub fn pass_through(
         ));
     }
     src.body(opcode, len, &mut Vec::new())?;
-    let decoder = ChunkDecoder::new().map_err(|e| mcap_err(input, "reading MCAP records", e))?;
+    let checker =
+        ChunkChecker::open(input).map_err(|e| mcap_err(input, "reading MCAP records", e))?;
     std::thread::scope(|scope| {
         let (jobs, job_rx) = sync_channel(VALIDATION_QUEUE);
         let (done_tx, done) = channel();
-        scope.spawn(move || validate_chunks(job_rx, done_tx));
+        scope.spawn(move || validate_chunks(input, job_rx, done_tx));
         let mut p = PassThrough {
             input,
             wanted,
-            decoder,
+            checker,
             jobs: Some(jobs),
             done,
             sent: 0,
             received: 0,
-            pool: Vec::new(),
             messages: 0,
         };
         let read = p.run(&mut src, log, &mut on_message);
         // Closing the queue ends the validating thread once it has checked what it holds.
         drop(p.jobs.take());
         read?;
+        // Everything copied is in the page cache: let the disk writes start while the last
+        // chunks are checked and the caller finishes its work.
+        log.start_writeback()?;
         while let Ok(c) = p.done.recv() {
             p.checked(log, c)?;
         }

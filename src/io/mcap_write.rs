@@ -13,7 +13,7 @@
 //! MCAP specification; the records themselves are serialised with `mcap::records`' own encoders.
 
 use std::collections::BTreeMap;
-use std::io::{Cursor, Write};
+use std::io::{Cursor, Read, Write};
 use std::path::{Path, PathBuf};
 
 use binrw::BinWrite;
@@ -39,6 +39,14 @@ pub struct SchemaRecord {
     pub data: Vec<u8>,
 }
 
+/// A part of the data section's CRC.
+enum CrcPart {
+    /// Bytes written through the writer.
+    Written(crc32fast::Hasher),
+    /// `len` bytes copied from a reader, with their CRC once supplied.
+    Copied { len: u64, crc: Option<u32> },
+}
+
 /// A chunk of our own being filled.
 #[derive(Default)]
 struct OpenChunk {
@@ -57,8 +65,15 @@ pub struct McapWriter<W: Write> {
     path: PathBuf,
     /// Bytes written so far (the offset of the next record).
     pos: u64,
-    /// CRC of everything written so far in the current section (data, then summary).
+    /// CRC of what was written since the last part of `data_crc_parts` (in the data section),
+    /// or of the summary section so far.
     crc: crc32fast::Hasher,
+    /// The data section's CRC in parts: bytes written through this writer, and bytes copied from
+    /// a reader ([`copy_from`](Self::copy_from)), whose CRC the caller supplies later.
+    data_crc_parts: Vec<CrcPart>,
+    /// The copied chunk that message-index records may still follow, and the bytes of its body
+    /// still to be copied.
+    copied_chunk: Option<(usize, u64)>,
     schemas: BTreeMap<u16, SchemaRecord>,
     channels: BTreeMap<u16, Channel>,
     chunk_indexes: Vec<ChunkIndex>,
@@ -128,6 +143,8 @@ impl<W: Write> McapWriter<W> {
             path: path.to_path_buf(),
             pos: 0,
             crc: crc32fast::Hasher::new(),
+            data_crc_parts: Vec::new(),
+            copied_chunk: None,
             schemas: BTreeMap::new(),
             channels: BTreeMap::new(),
             chunk_indexes: Vec::new(),
@@ -174,16 +191,34 @@ impl<W: Write> McapWriter<W> {
 
     /// Writes a record whose body is the concatenation of `parts`; returns its offset.
     fn record(&mut self, opcode: u8, parts: &[&[u8]]) -> Result<u64> {
-        let start = self.pos;
         let len: usize = parts.iter().map(|p| p.len()).sum();
-        let mut prefix = [0u8; RECORD_PREFIX as usize];
-        prefix[0] = opcode;
-        prefix[1..].copy_from_slice(&(len as u64).to_le_bytes());
-        self.put(&prefix)?;
+        let start = self.record_prefix(opcode, len as u64)?;
         for p in parts {
             self.put(p)?;
         }
         Ok(start)
+    }
+
+    /// Writes a record's opcode and body length; returns its offset.
+    fn record_prefix(&mut self, opcode: u8, len: u64) -> Result<u64> {
+        self.end_copied_chunk(opcode)?;
+        let start = self.pos;
+        let mut prefix = [0u8; RECORD_PREFIX as usize];
+        prefix[0] = opcode;
+        prefix[1..].copy_from_slice(&len.to_le_bytes());
+        self.put(&prefix)?;
+        Ok(start)
+    }
+
+    /// Flushes the underlying writer.
+    pub fn flush(&mut self) -> Result<()> {
+        let r = self.out.flush();
+        self.io(r)
+    }
+
+    /// The underlying writer.
+    pub fn get_ref(&self) -> &W {
+        &self.out
     }
 
     /// Offset of the next record.
@@ -363,40 +398,107 @@ impl<W: Write> McapWriter<W> {
         Ok(())
     }
 
-    /// Copies a chunk record byte for byte: `body` is everything after its opcode and length
-    /// (`header` parsed from it), `message_indexes` the bodies of the message-index records that
-    /// followed it, copied after it. Returns the chunk's number, for
-    /// [`count_copied_messages`](Self::count_copied_messages).
-    pub fn copy_chunk(
-        &mut self,
-        body: &[u8],
-        header: &ChunkHeader,
-        message_indexes: &[&[u8]],
-    ) -> Result<usize> {
-        let chunk_start = self.record(op::CHUNK, &[body])?;
-        let chunk_length = self.pos - chunk_start;
-        let mut offsets = BTreeMap::new();
-        for index in message_indexes {
-            let Some(id) = index.get(..2) else {
-                return Err(
-                    self.format_err("message index record shorter than its channel id".to_string())
-                );
-            };
-            let channel_id = u16::from_le_bytes([id[0], id[1]]);
-            offsets.insert(channel_id, self.record(op::MESSAGE_INDEX, &[index])?);
+    /// A copied chunk is complete once its body has been copied; message-index records may
+    /// follow it until any other record is written.
+    fn end_copied_chunk(&mut self, next_opcode: u8) -> Result<()> {
+        match self.copied_chunk {
+            Some((_, left)) if left > 0 => Err(self.format_err(format!(
+                "chunk record left incomplete ({left} bytes of its body not copied)"
+            ))),
+            Some(_) if next_opcode != op::MESSAGE_INDEX => {
+                self.copied_chunk = None;
+                Ok(())
+            }
+            _ => Ok(()),
         }
+    }
+
+    /// Starts copying a chunk record byte for byte: `len` is its body length, `head` the first
+    /// bytes of its body (at least the chunk header, `header` parsed from them). The rest of the
+    /// body comes from [`copy_from`](Self::copy_from), and the message-index records that followed
+    /// the chunk from [`copied_message_index`](Self::copied_message_index). Returns the chunk's
+    /// number, for [`count_copied_messages`](Self::count_copied_messages).
+    pub fn start_copied_chunk(
+        &mut self,
+        len: u64,
+        head: &[u8],
+        header: &ChunkHeader,
+    ) -> Result<usize> {
+        let Some(rest) = len.checked_sub(head.len() as u64) else {
+            return Err(self.format_err("chunk record shorter than its header".into()));
+        };
+        let chunk_start = self.record_prefix(op::CHUNK, len)?;
+        self.put(head)?;
         self.chunk_indexes.push(ChunkIndex {
             message_start_time: header.message_start_time,
             message_end_time: header.message_end_time,
             chunk_start_offset: chunk_start,
-            chunk_length,
-            message_index_offsets: offsets,
-            message_index_length: self.pos - chunk_start - chunk_length,
+            chunk_length: RECORD_PREFIX + len,
+            message_index_offsets: BTreeMap::new(),
+            message_index_length: 0,
             compression: header.compression.clone(),
             compressed_size: header.compressed_size,
             uncompressed_size: header.uncompressed_size,
         });
-        Ok(self.chunk_indexes.len() - 1)
+        let chunk = self.chunk_indexes.len() - 1;
+        self.copied_chunk = Some((chunk, rest));
+        Ok(chunk)
+    }
+
+    /// Copies the next `n` bytes of `reader` (the rest of a chunk started with
+    /// [`start_copied_chunk`](Self::start_copied_chunk)) into the output. Between files,
+    /// `std::io::copy` lets the kernel copy them (`copy_file_range`), so they never pass through
+    /// this process; their CRC is therefore supplied later with
+    /// [`copied_crc`](Self::copied_crc), with the returned id.
+    pub fn copy_from<R: Read>(&mut self, reader: &mut R, n: u64) -> Result<usize> {
+        match &mut self.copied_chunk {
+            Some((_, left)) if *left >= n => *left -= n,
+            _ => {
+                return Err(
+                    self.format_err("copying more bytes than the open chunk record holds".into())
+                );
+            }
+        }
+        let copied = std::io::copy(&mut Read::take(reader, n), &mut self.out);
+        let copied = self.io(copied)?;
+        if copied != n {
+            return Err(self.format_err(format!(
+                "copying a chunk: the input ended after {copied} of {n} bytes"
+            )));
+        }
+        let written = std::mem::take(&mut self.crc);
+        self.data_crc_parts.push(CrcPart::Written(written));
+        self.data_crc_parts
+            .push(CrcPart::Copied { len: n, crc: None });
+        self.pos += n;
+        Ok(self.data_crc_parts.len() - 1)
+    }
+
+    /// Supplies the CRC of bytes copied by [`copy_from`](Self::copy_from) (its returned id). A
+    /// CRC never supplied makes the data section's CRC 0 ("not available").
+    pub fn copied_crc(&mut self, id: usize, crc32: u32) {
+        if let Some(CrcPart::Copied { crc, .. }) = self.data_crc_parts.get_mut(id) {
+            *crc = Some(crc32);
+        }
+    }
+
+    /// Copies a message-index record (`body`: everything after its opcode and length) that
+    /// followed the chunk being copied.
+    pub fn copied_message_index(&mut self, body: &[u8]) -> Result<()> {
+        let Some((chunk, 0)) = self.copied_chunk else {
+            return Err(
+                self.format_err("message index record without a copied chunk before it".into())
+            );
+        };
+        let Some(id) = body.get(..2) else {
+            return Err(self.format_err("message index record shorter than its channel id".into()));
+        };
+        let channel_id = u16::from_le_bytes([id[0], id[1]]);
+        let offset = self.record(op::MESSAGE_INDEX, &[body])?;
+        let index = &mut self.chunk_indexes[chunk];
+        index.message_index_offsets.insert(channel_id, offset);
+        index.message_index_length = self.pos - index.chunk_start_offset - index.chunk_length;
+        Ok(())
     }
 
     /// Adds the messages found in copied chunk `chunk` (per channel) to the statistics.
@@ -488,7 +590,20 @@ impl<W: Write> McapWriter<W> {
     /// returns the underlying writer (flushed).
     pub fn finish(mut self) -> Result<W> {
         self.flush_chunk()?;
-        let data_crc = std::mem::take(&mut self.crc).finalize();
+        self.end_copied_chunk(op::DATA_END)?;
+        let mut data_crc = crc32fast::Hasher::new();
+        let mut known = true;
+        for part in std::mem::take(&mut self.data_crc_parts) {
+            match part {
+                CrcPart::Written(h) => data_crc.combine(&h),
+                CrcPart::Copied { len, crc: Some(c) } => {
+                    data_crc.combine(&crc32fast::Hasher::new_with_initial_len(c, len))
+                }
+                CrcPart::Copied { crc: None, .. } => known = false,
+            }
+        }
+        data_crc.combine(&std::mem::take(&mut self.crc));
+        let data_crc = if known { data_crc.finalize() } else { 0 };
         let body = self.io(encode(&DataEnd {
             data_section_crc: data_crc,
         }))?;
