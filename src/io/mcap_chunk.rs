@@ -48,7 +48,7 @@ impl ChunkDecoder {
         let (header, data) = match mcap::parse_record(op::CHUNK, body) {
             Ok(Record::Chunk { header, data }) => match data {
                 std::borrow::Cow::Borrowed(d) => (header, d),
-                std::borrow::Cow::Owned(_) => unreachable!("parse_record borrows"),
+                std::borrow::Cow::Owned(_) => return Err("chunk data not borrowed".into()),
             },
             Ok(_) => return Err("not a chunk record".into()),
             Err(e) => return Err(format!("bad chunk record: {e}")),
@@ -135,7 +135,7 @@ pub fn message(body: &[u8]) -> Result<(MessageHeader, &[u8]), String> {
     match mcap::parse_record(op::MESSAGE, body) {
         Ok(Record::Message { header, data }) => match data {
             std::borrow::Cow::Borrowed(d) => Ok((header, d)),
-            std::borrow::Cow::Owned(_) => unreachable!("parse_record borrows"),
+            std::borrow::Cow::Owned(_) => Err("message data not borrowed".into()),
         },
         Ok(_) => Err("not a message record".into()),
         Err(e) => Err(format!("bad message record: {e}")),

@@ -4,7 +4,10 @@
 //!
 //! Guarantees (DESIGN §4): input schema and channel ids are kept (copied chunks refer to them) and
 //! ours get ids above every input id; the output goes to a temporary file beside the target that
-//! is renamed on success and deleted otherwise, so an error never leaves a half-written log.
+//! is synced and renamed on success and deleted otherwise, so an error never leaves a half-written
+//! log. Copied chunks are not re-encoded (the kernel copies their bytes), but each one is still
+//! decompressed once, off the copying thread, to check its CRC: a corrupt input is an error naming
+//! the file.
 
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::fs::File;
@@ -990,11 +993,14 @@ impl PassThrough<'_> {
 /// metadata, attachments, schemas and channels not yet defined) one by one. Declare the input's
 /// schemas and channels first ([`OutputLog::declare_input`]).
 ///
-/// Messages on `wanted` channels are handed to `on_message` in file order: chunks whose message
-/// indexes list such a channel (or that have no message index) are decompressed here for that;
-/// every other chunk is decompressed on a second thread only to check its CRC and count its
+/// Chunk bodies go from file to file with `std::io::copy` (`copy_file_range` on Linux, as `cp`
+/// does), then each chunk is read back by position to be checked. Messages on `wanted` channels
+/// are handed to `on_message` in file order: chunks whose message indexes list such a channel (or
+/// that have no message index) are decompressed here for that; every other chunk is decompressed
+/// on a second thread (or here, when that thread is behind) only to check its CRC and count its
 /// messages for the output's statistics. A corrupt or truncated input is an [`Error::Format`]
-/// naming `input` (and the chunk's offset). Returns the number of input messages.
+/// naming `input` (and the chunk's offset). Returns the number of input messages. Memory: one
+/// chunk per thread.
 pub fn pass_through(
     input: &Path,
     log: &mut OutputLog,
