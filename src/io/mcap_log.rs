@@ -5,7 +5,7 @@
 //! Guarantees (DESIGN §4): input schema and channel ids are kept (copied chunks refer to them) and
 //! ours get ids above every input id; the output goes to a temporary file beside the target that
 //! is synced and renamed on success and deleted otherwise, so an error never leaves a half-written
-//! log. Copied chunks are not re-encoded (the kernel copies their bytes), but each one is still
+//! log. Copied chunks are written as they were read, never re-encoded, but each one is still
 //! decompressed once, off the copying thread, to check its CRC: a corrupt input is an error naming
 //! the file.
 
@@ -501,9 +501,11 @@ impl OutputLog {
     }
 }
 
-/// Copied chunks waiting for validation at most (a queue entry is a position, not data; the
-/// bound keeps validation from falling far behind the copy).
-const VALIDATION_QUEUE: usize = 8;
+/// Copied chunks waiting for validation at most (each holds its chunk in memory; when the queue
+/// is full the reading thread checks the chunk itself).
+const VALIDATION_QUEUE: usize = 2;
+/// Chunk buffers kept for reuse.
+const BUFFER_POOL: usize = 4;
 
 /// The input file, read record by record.
 struct Source<'a> {
@@ -559,8 +561,13 @@ impl Source<'_> {
 
     /// Reads a record body of `len` bytes into `buf` (replacing its content).
     fn body(&mut self, opcode: u8, len: u64, buf: &mut Vec<u8>) -> Result<()> {
-        self.check_len(opcode, len)?;
         buf.clear();
+        self.append(opcode, len, buf)
+    }
+
+    /// Reads the next `len` bytes of a record's body onto the end of `buf`.
+    fn append(&mut self, opcode: u8, len: u64, buf: &mut Vec<u8>) -> Result<()> {
+        self.check_len(opcode, len)?;
         buf.try_reserve_exact(len as usize)
             .map_err(|_| self.truncated(format!("record of {len} bytes")))?;
         let n = (&mut self.reader)
@@ -616,66 +623,44 @@ struct ChunkAt {
     chunk: usize,
     /// Offset of the record in the input.
     offset: u64,
-    /// Length of the record's body.
-    len: u64,
-    /// Bytes at the start of the body written from memory (the rest was copied by the kernel).
-    head: u64,
-    /// Id of the copied bytes' CRC in the output's data-section CRC.
+    /// Bytes at the start of the body that were written through the writer's CRC (the header).
+    head: usize,
+    /// Id of the rest's CRC in the output's data-section CRC.
     crc_id: usize,
 }
 
-/// Reads chunk records of the input by position, decodes and checks them.
-struct ChunkChecker {
-    file: File,
-    buf: Vec<u8>,
-    decoder: ChunkDecoder,
+/// Decodes a copied chunk `body` (checking its CRC); returns what it holds and the CRC of the
+/// body after its first `head` bytes (for the output's data-section CRC).
+fn check_chunk(
+    decoder: &mut ChunkDecoder,
+    body: &[u8],
+    head: usize,
+) -> std::result::Result<(ChunkContents, u32), String> {
+    let crc = crc32fast::hash(body.get(head..).unwrap_or_default());
+    Ok((ChunkContents::of_chunk(decoder, body)?, crc))
 }
 
-impl ChunkChecker {
-    fn open(path: &Path) -> std::result::Result<Self, String> {
-        Ok(Self {
-            file: File::open(path).map_err(|e| e.to_string())?,
-            buf: Vec::new(),
-            decoder: ChunkDecoder::new()?,
-        })
-    }
-
-    /// Reads the chunk's body into `buf`; returns the CRC of its kernel-copied part.
-    fn load(&mut self, at: &ChunkAt) -> std::result::Result<u32, String> {
-        self.file
-            .seek(std::io::SeekFrom::Start(at.offset + 9))
-            .map_err(|e| e.to_string())?;
-        self.buf.clear();
-        self.buf
-            .try_reserve_exact(at.len as usize)
-            .map_err(|_| format!("record of {} bytes", at.len))?;
-        let n = (&mut self.file)
-            .take(at.len)
-            .read_to_end(&mut self.buf)
-            .map_err(|e| e.to_string())?;
-        if n as u64 != at.len {
-            return Err("the input ended inside the chunk".into());
-        }
-        Ok(crc32fast::hash(&self.buf[at.head as usize..]))
-    }
+/// A chunk to check off the reading thread: its position and its record body.
+struct Job {
+    at: ChunkAt,
+    body: Vec<u8>,
 }
 
-/// A chunk checked off the reading thread.
+/// A chunk checked off the reading thread (its buffer comes back for reuse).
 struct Checked {
     at: ChunkAt,
     result: std::result::Result<(ChunkContents, u32), String>,
+    body: Vec<u8>,
 }
 
-fn validate_chunks(path: &Path, jobs: Receiver<ChunkAt>, done: Sender<Checked>) {
-    let mut checker = ChunkChecker::open(path);
-    for at in jobs {
-        let result = match &mut checker {
-            Ok(c) => c.load(&at).and_then(|crc| {
-                ChunkContents::of_chunk(&mut c.decoder, &c.buf).map(|contents| (contents, crc))
-            }),
+fn validate_chunks(jobs: Receiver<Job>, done: Sender<Checked>) {
+    let mut decoder = ChunkDecoder::new();
+    for Job { at, body } in jobs {
+        let result = match &mut decoder {
+            Ok(d) => check_chunk(d, &body, at.head),
             Err(e) => Err(e.clone()),
         };
-        if done.send(Checked { at, result }).is_err() {
+        if done.send(Checked { at, result, body }).is_err() {
             break;
         }
     }
@@ -684,6 +669,8 @@ fn validate_chunks(path: &Path, jobs: Receiver<ChunkAt>, done: Sender<Checked>) 
 /// A copied chunk whose message-index records are being copied.
 struct Group {
     at: ChunkAt,
+    /// The chunk record's body.
+    body: Vec<u8>,
     /// Whether any message-index record followed it.
     indexed: bool,
     /// Channels its message indexes list.
@@ -694,11 +681,12 @@ struct Group {
 struct PassThrough<'a> {
     input: &'a Path,
     wanted: &'a BTreeSet<u16>,
-    checker: ChunkChecker,
-    jobs: Option<SyncSender<ChunkAt>>,
+    decoder: ChunkDecoder,
+    jobs: Option<SyncSender<Job>>,
     done: Receiver<Checked>,
     sent: usize,
     received: usize,
+    pool: Vec<Vec<u8>>,
     messages: u64,
 }
 
@@ -778,7 +766,15 @@ impl PassThrough<'_> {
             .result
             .map_err(|e| self.err(format!("chunk at offset {}: {e}", c.at.offset)))?;
         log.w().copied_crc(c.at.crc_id, crc);
-        self.account(log, c.at.offset, c.at.chunk, contents, true)
+        self.account(log, c.at.offset, c.at.chunk, contents, true)?;
+        self.recycle(c.body);
+        Ok(())
+    }
+
+    fn recycle(&mut self, buf: Vec<u8>) {
+        if self.pool.len() < BUFFER_POOL {
+            self.pool.push(buf);
+        }
     }
 
     /// Accounts for the chunks validated so far, without waiting.
@@ -790,9 +786,9 @@ impl PassThrough<'_> {
     }
 
     /// Once a copied chunk's message indexes are known: a chunk whose message indexes list a
-    /// wanted channel (or that has none) is read back and decoded here, its wanted messages handed
-    /// to `on_message`; any other is checked by the validating thread, or here when that thread
-    /// is behind.
+    /// wanted channel (or that has none) is decoded here, its wanted messages handed to
+    /// `on_message`; any other is checked by the validating thread, or here when that thread is
+    /// behind.
     fn group(
         &mut self,
         log: &mut OutputLog,
@@ -800,47 +796,54 @@ impl PassThrough<'_> {
         on_message: &mut OnMessage<'_>,
     ) -> Result<()> {
         let here = !g.indexed || g.listed.iter().any(|c| self.wanted.contains(c));
-        if !here {
+        let Group { at, body, .. } = g;
+        let body = if here {
+            body
+        } else {
             let jobs = self
                 .jobs
                 .as_ref()
                 .expect("open until the end of the data section");
-            // When the validating thread is behind, this thread checks the chunk itself.
-            match jobs.try_send(g.at) {
+            match jobs.try_send(Job { at, body }) {
                 Ok(()) => {
                     self.sent += 1;
                     return Ok(());
                 }
-                Err(TrySendError::Full(_)) => {}
+                Err(TrySendError::Full(job)) => job.body,
                 Err(TrySendError::Disconnected(_)) => {
                     return Err(self.err("chunk validation stopped unexpectedly".into()));
                 }
             }
-        }
-        let offset = g.at.offset;
+        };
+        let offset = at.offset;
         let in_chunk = |e: String| Error::Format {
             path: self.input.to_path_buf(),
             detail: format!("chunk at offset {offset}: {e}"),
         };
-        let crc = self.checker.load(&g.at).map_err(in_chunk)?;
-        log.w().copied_crc(g.at.crc_id, crc);
-        let (_, records) = self
-            .checker
-            .decoder
-            .decode(&self.checker.buf)
-            .map_err(in_chunk)?;
+        if !here {
+            let (contents, crc) =
+                check_chunk(&mut self.decoder, &body, at.head).map_err(in_chunk)?;
+            log.w().copied_crc(at.crc_id, crc);
+            self.account(log, offset, at.chunk, contents, true)?;
+            self.recycle(body);
+            return Ok(());
+        }
+        let crc = crc32fast::hash(&body[at.head..]);
+        log.w().copied_crc(at.crc_id, crc);
+        let (_, records) = self.decoder.decode(&body).map_err(in_chunk)?;
         let mut contents = ChunkContents::default();
         for r in mcap_chunk::records(records) {
-            let (opcode, body) = r.map_err(in_chunk)?;
-            if let Some(id) = contents.add(opcode, body).map_err(in_chunk)?
-                && here
+            let (opcode, record) = r.map_err(in_chunk)?;
+            if let Some(id) = contents.add(opcode, record).map_err(in_chunk)?
                 && self.wanted.contains(&id)
             {
-                let (header, data) = mcap_chunk::message(body).map_err(in_chunk)?;
+                let (header, data) = mcap_chunk::message(record).map_err(in_chunk)?;
                 on_message(log, &header, data)?;
             }
         }
-        self.account(log, offset, g.at.chunk, contents, !here)
+        self.account(log, offset, at.chunk, contents, false)?;
+        self.recycle(body);
+        Ok(())
     }
 
     /// A record outside chunks.
@@ -955,17 +958,20 @@ impl PassThrough<'_> {
                     src.check_len(opcode, len)?;
                     let (head, header) = src.chunk_head(len)?;
                     let chunk = log.w().start_copied_chunk(len, &head, &header)?;
-                    let rest = len - head.len() as u64;
-                    let crc_id = log.w().copy_from(&mut src.reader, rest)?;
-                    src.pos += rest;
+                    // The whole body in one buffer (header, then the rest read from the input).
+                    let mut body = self.pool.pop().unwrap_or_default();
+                    body.clear();
+                    body.extend_from_slice(&head);
+                    src.append(opcode, len - head.len() as u64, &mut body)?;
+                    let crc_id = log.w().write_copied(&body[head.len()..])?;
                     open = Some(Group {
                         at: ChunkAt {
                             chunk,
                             offset,
-                            len,
-                            head: head.len() as u64,
+                            head: head.len(),
                             crc_id,
                         },
+                        body,
                         indexed: false,
                         listed: BTreeSet::new(),
                     });
@@ -993,14 +999,13 @@ impl PassThrough<'_> {
 /// metadata, attachments, schemas and channels not yet defined) one by one. Declare the input's
 /// schemas and channels first ([`OutputLog::declare_input`]).
 ///
-/// Chunk bodies go from file to file with `std::io::copy` (`copy_file_range` on Linux, as `cp`
-/// does), then each chunk is read back by position to be checked. Messages on `wanted` channels
-/// are handed to `on_message` in file order: chunks whose message indexes list such a channel (or
-/// that have no message index) are decompressed here for that; every other chunk is decompressed
-/// on a second thread (or here, when that thread is behind) only to check its CRC and count its
-/// messages for the output's statistics. A corrupt or truncated input is an [`Error::Format`]
-/// naming `input` (and the chunk's offset). Returns the number of input messages. Memory: one
-/// chunk per thread.
+/// Each chunk record is read into a buffer and written out as it is. Messages on `wanted`
+/// channels are handed to `on_message` in file order: chunks whose message indexes list such a
+/// channel (or that have no message index) are decompressed here for that; every other chunk's
+/// buffer goes to a second thread (or is checked here, when that thread is behind), which
+/// decompresses it only to check its CRC and count its messages for the output's statistics. A
+/// corrupt or truncated input is an [`Error::Format`] naming `input` (and the chunk's offset).
+/// Returns the number of input messages. Memory: a few chunks (the validation queue is short).
 pub fn pass_through(
     input: &Path,
     log: &mut OutputLog,
@@ -1033,20 +1038,20 @@ pub fn pass_through(
         ));
     }
     src.body(opcode, len, &mut Vec::new())?;
-    let checker =
-        ChunkChecker::open(input).map_err(|e| mcap_err(input, "reading MCAP records", e))?;
+    let decoder = ChunkDecoder::new().map_err(|e| mcap_err(input, "reading MCAP records", e))?;
     std::thread::scope(|scope| {
         let (jobs, job_rx) = sync_channel(VALIDATION_QUEUE);
         let (done_tx, done) = channel();
-        scope.spawn(move || validate_chunks(input, job_rx, done_tx));
+        scope.spawn(move || validate_chunks(job_rx, done_tx));
         let mut p = PassThrough {
             input,
             wanted,
-            checker,
+            decoder,
             jobs: Some(jobs),
             done,
             sent: 0,
             received: 0,
+            pool: Vec::new(),
             messages: 0,
         };
         let read = p.run(&mut src, log, &mut on_message);

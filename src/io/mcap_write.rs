@@ -13,7 +13,7 @@
 //! MCAP specification; the records themselves are serialised with `mcap::records`' own encoders.
 
 use std::collections::BTreeMap;
-use std::io::{Cursor, Read, Write};
+use std::io::{Cursor, Write};
 use std::path::{Path, PathBuf};
 
 use binrw::BinWrite;
@@ -43,7 +43,7 @@ pub struct SchemaRecord {
 enum CrcPart {
     /// Bytes written through the writer.
     Written(crc32fast::Hasher),
-    /// `len` bytes copied from a reader, with their CRC once supplied.
+    /// `len` bytes of a copied chunk, with their CRC once supplied.
     Copied { len: u64, crc: Option<u32> },
 }
 
@@ -69,7 +69,7 @@ pub struct McapWriter<W: Write> {
     /// or of the summary section so far.
     crc: crc32fast::Hasher,
     /// The data section's CRC in parts: bytes written through this writer, and bytes copied from
-    /// a reader ([`copy_from`](Self::copy_from)), whose CRC the caller supplies later.
+    /// copied chunks ([`write_copied`](Self::write_copied)), whose CRC the caller supplies later.
     data_crc_parts: Vec<CrcPart>,
     /// The copied chunk that message-index records may still follow, and the bytes of its body
     /// still to be copied.
@@ -415,7 +415,7 @@ impl<W: Write> McapWriter<W> {
 
     /// Starts copying a chunk record byte for byte: `len` is its body length, `head` the first
     /// bytes of its body (at least the chunk header, `header` parsed from them). The rest of the
-    /// body comes from [`copy_from`](Self::copy_from), and the message-index records that followed
+    /// body comes from [`write_copied`](Self::write_copied), and the message-index records that followed
     /// the chunk from [`copied_message_index`](Self::copied_message_index). Returns the chunk's
     /// number, for [`count_copied_messages`](Self::count_copied_messages).
     pub fn start_copied_chunk(
@@ -445,12 +445,12 @@ impl<W: Write> McapWriter<W> {
         Ok(chunk)
     }
 
-    /// Copies the next `n` bytes of `reader` (the rest of a chunk started with
-    /// [`start_copied_chunk`](Self::start_copied_chunk)) into the output. Between files,
-    /// `std::io::copy` lets the kernel copy them (`copy_file_range`), so they never pass through
-    /// this process; their CRC is therefore supplied later with
-    /// [`copied_crc`](Self::copied_crc), with the returned id.
-    pub fn copy_from<R: Read>(&mut self, reader: &mut R, n: u64) -> Result<usize> {
+    /// Writes the next bytes of a chunk started with
+    /// [`start_copied_chunk`](Self::start_copied_chunk) (the rest of its body, as read from the
+    /// input). They are not hashed here: whoever checks the chunk computes their CRC, off this
+    /// thread, and supplies it with [`copied_crc`](Self::copied_crc) and the returned id.
+    pub fn write_copied(&mut self, bytes: &[u8]) -> Result<usize> {
+        let n = bytes.len() as u64;
         match &mut self.copied_chunk {
             Some((_, left)) if *left >= n => *left -= n,
             _ => {
@@ -459,13 +459,8 @@ impl<W: Write> McapWriter<W> {
                 );
             }
         }
-        let copied = std::io::copy(&mut Read::take(reader, n), &mut self.out);
-        let copied = self.io(copied)?;
-        if copied != n {
-            return Err(self.format_err(format!(
-                "copying a chunk: the input ended after {copied} of {n} bytes"
-            )));
-        }
+        let r = self.out.write_all(bytes);
+        self.io(r)?;
         let written = std::mem::take(&mut self.crc);
         self.data_crc_parts.push(CrcPart::Written(written));
         self.data_crc_parts
@@ -474,7 +469,7 @@ impl<W: Write> McapWriter<W> {
         Ok(self.data_crc_parts.len() - 1)
     }
 
-    /// Supplies the CRC of bytes copied by [`copy_from`](Self::copy_from) (its returned id). A
+    /// Supplies the CRC of bytes written by [`write_copied`](Self::write_copied) (its returned id). A
     /// CRC never supplied makes the data section's CRC 0 ("not available").
     pub fn copied_crc(&mut self, id: usize, crc32: u32) {
         if let Some(CrcPart::Copied { crc, .. }) = self.data_crc_parts.get_mut(id) {
