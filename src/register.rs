@@ -11,11 +11,10 @@ use std::path::{Path, PathBuf};
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 use std::time::Instant;
 
-use mcap::records::Record;
 use nalgebra::Isometry3;
 use serde_json::json;
 
-use crate::io::mcap_log::{ChannelInfo, OutputLog, for_each_record, list_channels};
+use crate::io::mcap_log::{ChannelInfo, InputCatalog, OutputLog, pass_through};
 use crate::io::{foxglove_msgs, ros2};
 use crate::odometry::{FrameEstimate, Odometry, OdometryConfig};
 use crate::pipeline::{PreparedFrame, prepare_frame};
@@ -408,7 +407,8 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         )));
     }
     let mut odometry = Odometry::new(opts.config.clone())?;
-    let channels = list_channels(input)?;
+    let catalog = InputCatalog::read(input)?;
+    let channels = catalog.channel_infos();
     let (topic, kind) = choose_topic(input, &channels, opts.topic.as_deref())?;
     let tf_topic = if channels.iter().any(|c| c.topic == "/tf") {
         "/mireg/tf"
@@ -429,7 +429,25 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         .sum::<u64>();
 
     let mut log = OutputLog::create(&opts.output, opts.force, "ros2")?;
+    // The input's schemas and channels keep their ids (its chunks are copied as they are); ours
+    // get ids above them.
+    log.declare_input(input, &catalog)?;
     let ch = Outputs::create(&mut log, kind, &tf_topic)?;
+    let cloud_channels: Vec<u16> = channels
+        .iter()
+        .filter(|c| c.topic == topic)
+        .map(|c| c.id)
+        .collect();
+    let reference_channels: Vec<u16> = channels
+        .iter()
+        .filter(|c| Some(&c.topic) == reference_topic.as_ref())
+        .map(|c| c.id)
+        .collect();
+    let wanted: std::collections::BTreeSet<u16> = cloud_channels
+        .iter()
+        .chain(&reference_channels)
+        .copied()
+        .collect();
 
     let progress = if opts.progress && std::io::IsTerminal::is_terminal(&std::io::stderr()) {
         let bar = indicatif::ProgressBar::new(total_frames);
@@ -534,49 +552,37 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         // chunks are not time-ordered).
         let mut pending: BTreeMap<(u64, u64), CloudMsg> = BTreeMap::new();
         let mut order = 0u64;
-        let mut cloud_channels: Vec<u16> = Vec::new();
-        let mut reference_channels: Vec<u16> = Vec::new();
         let mut cloud_tx = Some(cloud_tx);
-        let read = for_each_record(input, |record| {
-            log.copy(&record)?;
-            match &record {
-                Record::Channel(c) if c.topic == topic => cloud_channels.push(c.id),
-                Record::Channel(c) if Some(&c.topic) == reference_topic.as_ref() => {
-                    reference_channels.push(c.id)
-                }
-                Record::Message { header, data } => {
-                    copied += 1;
-                    if cloud_channels.contains(&header.channel_id) {
-                        pending.insert(
-                            (header.log_time, order),
-                            CloudMsg {
-                                log_time: header.log_time,
-                                publish_time: header.publish_time,
-                                data: data.to_vec(),
-                            },
-                        );
-                        order += 1;
-                        if pending.len() > REORDER_WINDOW {
-                            let (_, msg) = pending.pop_first().expect("non-empty");
-                            if cloud_tx.as_ref().expect("open").send(msg).is_err() {
-                                return Err(Error::InvalidInput(
-                                    "registration stopped early".into(),
-                                ));
-                            }
-                        }
-                    } else if reference_channels.contains(&header.channel_id)
-                        && let Ok((h, pose)) = ros2::decode_pose_stamped(data)
-                    {
-                        reference.push((h.stamp.to_ns(), pose));
+        // Input chunks are copied byte for byte; only messages on the cloud and reference
+        // channels come here, in file order.
+        let read = pass_through(input, &mut log, &wanted, |log, header, data| {
+            if cloud_channels.contains(&header.channel_id) {
+                pending.insert(
+                    (header.log_time, order),
+                    CloudMsg {
+                        log_time: header.log_time,
+                        publish_time: header.publish_time,
+                        data: data.to_vec(),
+                    },
+                );
+                order += 1;
+                if pending.len() > REORDER_WINDOW {
+                    let (_, msg) = pending.pop_first().expect("non-empty");
+                    if cloud_tx.as_ref().expect("open").send(msg).is_err() {
+                        return Err(Error::InvalidInput("registration stopped early".into()));
                     }
                 }
-                _ => {}
+            } else if reference_channels.contains(&header.channel_id)
+                && let Ok((h, pose)) = ros2::decode_pose_stamped(data)
+            {
+                reference.push((h.stamp.to_ns(), pose));
             }
             while let Ok(r) = out_rx.try_recv() {
-                handle_out(&mut log, r)?;
+                handle_out(log, r)?;
             }
             Ok(())
-        });
+        })
+        .map(|n| copied = n);
         if read.is_ok() {
             for (_, msg) in std::mem::take(&mut pending) {
                 if cloud_tx.as_ref().expect("open").send(msg).is_err() {

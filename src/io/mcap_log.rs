@@ -1,21 +1,27 @@
 //! MCAP input and output for `mireg register`: a streaming record reader whose memory is bounded
-//! by one chunk, a channel listing from the summary section, and an output writer that copies every
-//! input record, adds ours, and only appears at the target path once complete.
+//! by one chunk, a catalogue of the input's schemas and channels, an output log that copies input
+//! records and adds ours, and the pass-through that copies the input's chunks byte for byte.
 //!
-//! Pitfalls handled (DESIGN §4): input schema/channel ids are remapped to fresh ids (mixing
-//! `Writer::write` with `add_schema` panics on collisions), and since the writer's `Drop` finishes
-//! the file, output goes to a temporary file beside the target that is renamed on success and
-//! deleted otherwise.
+//! Guarantees (DESIGN §4): input schema and channel ids are kept (copied chunks refer to them) and
+//! ours get ids above every input id; the output goes to a temporary file beside the target that
+//! is synced and renamed on success and deleted otherwise, so an error never leaves a half-written
+//! log. Copied chunks are written as they were read, never re-encoded, but each one is still
+//! decompressed once, off the copying thread, to check its CRC: a corrupt input is an error naming
+//! the file.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::fs::File;
-use std::io::{BufReader, BufWriter, Read, Seek, Write};
+use std::io::{BufReader, BufWriter, Read, Seek};
 use std::path::{Path, PathBuf};
+use std::sync::mpsc::{Receiver, Sender, SyncSender, TrySendError, channel, sync_channel};
 
-use mcap::records::{MessageHeader, Metadata, Record};
+use binrw::BinRead;
+use mcap::records::{Channel, ChunkHeader, MessageHeader, Metadata, Record, op};
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader};
 use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader};
 
+use super::mcap_chunk::{self, ChunkContents, ChunkDecoder};
+use super::mcap_write::{McapWriter, SchemaRecord};
 use crate::{Error, Result};
 
 fn io_err(path: &Path, source: std::io::Error) -> Error {
@@ -49,62 +55,105 @@ pub struct ChannelInfo {
     pub message_count: Option<u64>,
 }
 
+/// Every schema and channel of an MCAP file, with their ids, known before its records are read:
+/// from the summary section when it lists the channels, else from one pass over the records.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct InputCatalog {
+    /// Schemas by id.
+    pub schemas: BTreeMap<u16, SchemaRecord>,
+    /// Channels by id.
+    pub channels: BTreeMap<u16, Channel>,
+    /// Messages per channel, when known (summary statistics, or the pass over the records).
+    pub message_counts: Option<BTreeMap<u16, u64>>,
+}
+
+impl InputCatalog {
+    /// The catalogue of `path`.
+    pub fn read(path: &Path) -> Result<Self> {
+        let mut cat = Self::default();
+        if let Some(summary) = read_summary(path)?.filter(|s| !s.channels.is_empty()) {
+            let schemas = summary
+                .schemas
+                .values()
+                .chain(summary.channels.values().filter_map(|c| c.schema.as_ref()));
+            for s in schemas {
+                cat.schemas.insert(
+                    s.id,
+                    SchemaRecord {
+                        name: s.name.clone(),
+                        encoding: s.encoding.clone(),
+                        data: s.data.to_vec(),
+                    },
+                );
+            }
+            for c in summary.channels.values() {
+                cat.channels.insert(
+                    c.id,
+                    Channel {
+                        id: c.id,
+                        schema_id: c.schema.as_ref().map_or(0, |s| s.id),
+                        topic: c.topic.clone(),
+                        message_encoding: c.message_encoding.clone(),
+                        metadata: c.metadata.clone(),
+                    },
+                );
+            }
+            cat.message_counts = summary.stats.map(|s| s.channel_message_counts);
+            return Ok(cat);
+        }
+        // No summary (e.g. a log cut short while recording): one pass over the records.
+        let mut counts: BTreeMap<u16, u64> = BTreeMap::new();
+        for_each_record(path, |record| {
+            match record {
+                Record::Schema { header, data } => {
+                    cat.schemas.entry(header.id).or_insert(SchemaRecord {
+                        name: header.name,
+                        encoding: header.encoding,
+                        data: data.into_owned(),
+                    });
+                }
+                Record::Channel(c) => {
+                    cat.channels.entry(c.id).or_insert(c);
+                }
+                Record::Message { header, .. } => {
+                    *counts.entry(header.channel_id).or_default() += 1
+                }
+                _ => {}
+            }
+            Ok(())
+        })?;
+        for &id in cat.channels.keys() {
+            counts.entry(id).or_default();
+        }
+        cat.message_counts = Some(counts);
+        Ok(cat)
+    }
+
+    /// The channels with their schemas' names and encodings, by id.
+    pub fn channel_infos(&self) -> Vec<ChannelInfo> {
+        self.channels
+            .values()
+            .map(|c| {
+                let schema = self.schemas.get(&c.schema_id);
+                ChannelInfo {
+                    id: c.id,
+                    topic: c.topic.clone(),
+                    schema_name: schema.map(|s| s.name.clone()).unwrap_or_default(),
+                    schema_encoding: schema.map(|s| s.encoding.clone()).unwrap_or_default(),
+                    message_encoding: c.message_encoding.clone(),
+                    message_count: self
+                        .message_counts
+                        .as_ref()
+                        .and_then(|m| m.get(&c.id).copied()),
+                }
+            })
+            .collect()
+    }
+}
+
 /// Channels of `path`, from its summary section when present, else by scanning the records.
 pub fn list_channels(path: &Path) -> Result<Vec<ChannelInfo>> {
-    if let Some(summary) = read_summary(path)?.filter(|s| !s.channels.is_empty()) {
-        let counts = summary.stats.as_ref().map(|s| &s.channel_message_counts);
-        let mut out: Vec<ChannelInfo> = summary
-            .channels
-            .values()
-            .map(|c| ChannelInfo {
-                id: c.id,
-                topic: c.topic.clone(),
-                schema_name: c
-                    .schema
-                    .as_ref()
-                    .map(|s| s.name.clone())
-                    .unwrap_or_default(),
-                schema_encoding: c
-                    .schema
-                    .as_ref()
-                    .map(|s| s.encoding.clone())
-                    .unwrap_or_default(),
-                message_encoding: c.message_encoding.clone(),
-                message_count: counts.and_then(|m| m.get(&c.id).copied()),
-            })
-            .collect();
-        out.sort_by_key(|c| c.id);
-        return Ok(out);
-    }
-    // No summary (e.g. a log cut short while recording): one pass over the records.
-    let mut schemas: HashMap<u16, (String, String)> = HashMap::new();
-    let mut out = Vec::new();
-    let mut counts: HashMap<u16, u64> = HashMap::new();
-    for_each_record(path, |record| {
-        match record {
-            Record::Schema { header, .. } => {
-                schemas.insert(header.id, (header.name, header.encoding));
-            }
-            Record::Channel(c) => {
-                let (name, enc) = schemas.get(&c.schema_id).cloned().unwrap_or_default();
-                out.push(ChannelInfo {
-                    id: c.id,
-                    topic: c.topic,
-                    schema_name: name,
-                    schema_encoding: enc,
-                    message_encoding: c.message_encoding,
-                    message_count: None,
-                });
-            }
-            Record::Message { header, .. } => *counts.entry(header.channel_id).or_default() += 1,
-            _ => {}
-        }
-        Ok(())
-    })?;
-    for c in &mut out {
-        c.message_count = Some(counts.get(&c.id).copied().unwrap_or(0));
-    }
-    Ok(out)
+    Ok(InputCatalog::read(path)?.channel_infos())
 }
 
 /// The summary section of `path`; `None` when the file has none or it cannot be read (a log
@@ -184,19 +233,39 @@ pub fn for_each_record(path: &Path, mut f: impl FnMut(Record<'_>) -> Result<()>)
     Ok(())
 }
 
-/// zstd level of the output chunks: 1 (fastest) keeps pass-through of large non-cloud channels
-/// (images, raw sensor data) near copy speed; logs are rarely archived by mireg itself.
+/// zstd level of our own output chunks: 1 (fastest). Input chunks are copied as they are.
 pub const OUTPUT_ZSTD_LEVEL: u32 = 1;
+/// Uncompressed bytes at which a chunk of our own is closed and written.
+pub const OUTPUT_CHUNK_SIZE: usize = 1 << 20;
 
 /// An MCAP being written to a temporary file beside `target`; [`OutputLog::finish`] renames it.
+///
+/// Schema and channel ids of copied records are kept; [`add_channel`](Self::add_channel) takes ids
+/// above every id defined so far, so declare the input's first
+/// ([`declare_input`](Self::declare_input)).
 pub struct OutputLog {
-    writer: Option<mcap::Writer<BufWriter<File>>>,
+    writer: Option<McapWriter<BufWriter<File>>>,
     temp: Option<tempfile::TempPath>,
     target: PathBuf,
     overwrite: bool,
-    schema_ids: HashMap<u16, u16>,
-    channel_ids: HashMap<u16, u16>,
+    /// Schemas added by `add_channel` (name, encoding, bytes) and their ids, reused when equal.
+    own_schemas: HashMap<(String, String, Vec<u8>), u16>,
     sequences: HashMap<u16, u32>,
+    writeback: Option<Writeback>,
+}
+
+/// A thread that syncs the output file's data once, started when the copy of the input is
+/// complete: the disk writes then overlap whatever comes before [`OutputLog::finish`] (e.g. the
+/// registration of the last frames), whose own sync only waits for the rest.
+struct Writeback(std::thread::JoinHandle<()>);
+
+impl Drop for OutputLog {
+    fn drop(&mut self) {
+        // Let an early sync end before the temporary file is deleted.
+        if let Some(Writeback(t)) = self.writeback.take() {
+            let _ = t.join();
+        }
+    }
 }
 
 impl std::fmt::Debug for OutputLog {
@@ -230,103 +299,76 @@ impl OutputLog {
             .tempfile_in(&dir)
             .map_err(|e| io_err(&dir, e))?;
         let (file, temp) = temp.into_parts();
-        let writer = mcap::WriteOptions::new()
-            .compression(Some(mcap::Compression::Zstd))
-            .compression_level(OUTPUT_ZSTD_LEVEL)
-            .profile(profile)
-            .library(format!("mireg {}", env!("CARGO_PKG_VERSION")))
-            .create(BufWriter::with_capacity(1 << 20, file))
-            .map_err(|e| mcap_err(target, "starting MCAP output", e))?;
+        let writer = McapWriter::new(
+            BufWriter::with_capacity(1 << 20, file),
+            target,
+            profile,
+            &format!("mireg {}", env!("CARGO_PKG_VERSION")),
+            OUTPUT_ZSTD_LEVEL as i32,
+            OUTPUT_CHUNK_SIZE,
+        )?;
         Ok(Self {
             writer: Some(writer),
             temp: Some(temp),
             target: target.to_path_buf(),
             overwrite,
-            schema_ids: HashMap::new(),
-            channel_ids: HashMap::new(),
+            own_schemas: HashMap::new(),
             sequences: HashMap::new(),
+            writeback: None,
         })
     }
 
-    fn w(&mut self) -> &mut mcap::Writer<BufWriter<File>> {
+    fn w(&mut self) -> &mut McapWriter<BufWriter<File>> {
         self.writer.as_mut().expect("writer present until finish")
     }
 
-    fn wrap<T>(&self, what: &str, r: mcap::McapResult<T>) -> Result<T> {
-        r.map_err(|e| mcap_err(&self.target, what, e))
-    }
-
-    /// Copies an input record into the output (schemas and channels get fresh ids; messages keep
-    /// their bytes, sequence, log and publish times). Other record kinds are ignored (the writer
-    /// makes its own chunks, indexes and summary).
-    pub fn copy(&mut self, record: &Record<'_>) -> Result<()> {
-        match record {
-            Record::Schema { header, data } => {
-                let r = self.w().add_schema(&header.name, &header.encoding, data);
-                let id = self.wrap("copying a schema", r)?;
-                self.schema_ids.insert(header.id, id);
+    /// Writes every schema and channel of the input (`input` names it in errors), with their ids.
+    pub fn declare_input(&mut self, input: &Path, catalog: &InputCatalog) -> Result<()> {
+        for (&id, s) in &catalog.schemas {
+            if id == 0 {
+                return Err(mcap_err(input, "schema with id 0", &s.name));
             }
-            Record::Channel(c) => {
-                let schema = if c.schema_id == 0 {
-                    0
-                } else {
-                    *self
-                        .schema_ids
-                        .get(&c.schema_id)
-                        .ok_or_else(|| Error::Format {
-                            path: self.target.clone(),
-                            detail: format!(
-                                "input channel {} ({}) names unknown schema {}",
-                                c.id, c.topic, c.schema_id
-                            ),
-                        })?
-                };
-                let r = self
-                    .w()
-                    .add_channel(schema, &c.topic, &c.message_encoding, &c.metadata);
-                let id = self.wrap("copying a channel", r)?;
-                self.channel_ids.insert(c.id, id);
+            self.w().define_schema(id, s.clone(), true)?;
+        }
+        for c in catalog.channels.values() {
+            if c.schema_id != 0 && !catalog.schemas.contains_key(&c.schema_id) {
+                return Err(Error::Format {
+                    path: input.to_path_buf(),
+                    detail: format!(
+                        "channel {} ({}) names schema {}, which is not defined",
+                        c.id, c.topic, c.schema_id
+                    ),
+                });
             }
-            Record::Message { header, data } => {
-                let channel_id =
-                    *self
-                        .channel_ids
-                        .get(&header.channel_id)
-                        .ok_or_else(|| Error::Format {
-                            path: self.target.clone(),
-                            detail: format!(
-                                "input message on unknown channel {}",
-                                header.channel_id
-                            ),
-                        })?;
-                let h = MessageHeader {
-                    channel_id,
-                    ..*header
-                };
-                let r = self.w().write_to_known_channel(&h, data);
-                self.wrap("copying a message", r)?;
-            }
-            Record::Metadata(m) => {
-                let r = self.w().write_metadata(m);
-                self.wrap("copying metadata", r)?;
-            }
-            Record::Attachment { header, data, .. } => {
-                let a = mcap::Attachment {
-                    log_time: header.log_time,
-                    create_time: header.create_time,
-                    name: header.name.clone(),
-                    media_type: header.media_type.clone(),
-                    data: std::borrow::Cow::Borrowed(data),
-                };
-                let r = self.w().attach(&a);
-                self.wrap("copying an attachment", r)?;
-            }
-            _ => {}
+            self.w().define_channel(c.clone(), true)?;
         }
         Ok(())
     }
 
-    /// Adds a new channel with its schema; returns the output channel id.
+    /// Copies an input record into the output, keeping schema and channel ids, message bytes,
+    /// sequence, log and publish times; messages go into our own chunks. Records the writer makes
+    /// itself (header, chunks, indexes, summary) are ignored.
+    pub fn copy(&mut self, record: &Record<'_>) -> Result<()> {
+        match record {
+            Record::Schema { header, data } => self.w().define_schema(
+                header.id,
+                SchemaRecord {
+                    name: header.name.clone(),
+                    encoding: header.encoding.clone(),
+                    data: data.to_vec(),
+                },
+                true,
+            ),
+            Record::Channel(c) => self.w().define_channel(c.clone(), true),
+            Record::Message { header, data } => self.w().message(header, data),
+            Record::Metadata(m) => self.w().metadata(m),
+            Record::Attachment { header, data, .. } => self.w().attachment(header, data),
+            _ => Ok(()),
+        }
+    }
+
+    /// Adds a new channel with its schema (reusing an equal schema added before), with ids above
+    /// every id defined so far; returns the output channel id.
     pub fn add_channel(
         &mut self,
         topic: &str,
@@ -335,12 +377,52 @@ impl OutputLog {
         schema: &[u8],
         message_encoding: &str,
     ) -> Result<u16> {
-        let r = self.w().add_schema(schema_name, schema_encoding, schema);
-        let schema_id = self.wrap("adding a schema", r)?;
-        let r = self
-            .w()
-            .add_channel(schema_id, topic, message_encoding, &BTreeMap::new());
-        self.wrap("adding a channel", r)
+        let key = (
+            schema_name.to_string(),
+            schema_encoding.to_string(),
+            schema.to_vec(),
+        );
+        let schema_id = match self.own_schemas.get(&key) {
+            Some(&id) => id,
+            None => {
+                let id = self.w().max_schema_id().checked_add(1).ok_or_else(|| {
+                    mcap_err(
+                        &self.target,
+                        "adding a schema",
+                        "all 65535 schema ids are taken",
+                    )
+                })?;
+                self.w().define_schema(
+                    id,
+                    SchemaRecord {
+                        name: key.0.clone(),
+                        encoding: key.1.clone(),
+                        data: key.2.clone(),
+                    },
+                    true,
+                )?;
+                self.own_schemas.insert(key, id);
+                id
+            }
+        };
+        let id = self.w().max_channel_id().checked_add(1).ok_or_else(|| {
+            mcap_err(
+                &self.target,
+                "adding a channel",
+                "all 65535 channel ids are taken",
+            )
+        })?;
+        self.w().define_channel(
+            Channel {
+                id,
+                schema_id,
+                topic: topic.to_string(),
+                message_encoding: message_encoding.to_string(),
+                metadata: BTreeMap::new(),
+            },
+            true,
+        )?;
+        Ok(id)
     }
 
     /// Writes one of our messages on an output channel from [`add_channel`](Self::add_channel).
@@ -359,26 +441,42 @@ impl OutputLog {
             log_time,
             publish_time,
         };
-        let r = self.w().write_to_known_channel(&header, data);
-        self.wrap("writing a message", r)
+        self.w().message(&header, data)
+    }
+
+    /// Starts pushing what was written so far to disk on another thread (once; see
+    /// [`finish`](Self::finish), which waits for it and syncs the rest).
+    pub fn start_writeback(&mut self) -> Result<()> {
+        if self.writeback.is_some() {
+            return Ok(());
+        }
+        let r = self.w().flush();
+        r?;
+        let file = self.w().get_ref().get_ref().try_clone();
+        let file = file.map_err(|e| io_err(&self.target, e))?;
+        // Only an early start of the disk writes: a failure shows in the final sync.
+        self.writeback = Some(Writeback(std::thread::spawn(move || {
+            let _ = file.sync_data();
+        })));
+        Ok(())
     }
 
     /// Writes a metadata record.
     pub fn write_metadata(&mut self, name: &str, entries: BTreeMap<String, String>) -> Result<()> {
-        let r = self.w().write_metadata(&Metadata {
+        self.w().metadata(&Metadata {
             name: name.into(),
             metadata: entries,
-        });
-        self.wrap("writing metadata", r)
+        })
     }
 
     /// Finishes the file, syncs it and renames it to the target. On any error nothing is left
     /// at the target path and the temporary file is removed.
     pub fn finish(mut self) -> Result<()> {
-        let mut writer = self.writer.take().expect("writer present until finish");
-        let r = writer.finish();
-        self.wrap("finishing MCAP output", r)?;
-        let buf = writer.into_inner();
+        let writer = self.writer.take().expect("writer present until finish");
+        let buf = writer.finish()?;
+        if let Some(Writeback(t)) = self.writeback.take() {
+            let _ = t.join();
+        }
         let file = buf
             .into_inner()
             .map_err(|e| io_err(&self.target, e.into_error()))?;
@@ -403,13 +501,575 @@ impl OutputLog {
     }
 }
 
-impl Drop for OutputLog {
-    fn drop(&mut self) {
-        // On an error path: let the writer finish into the temporary file, which the TempPath
-        // then deletes. Nothing reaches the target.
-        if let Some(mut w) = self.writer.take() {
-            let _ = w.finish();
-            let _ = w.into_inner().flush();
+/// Copied chunks waiting for validation at most (each holds its chunk in memory; when the queue
+/// is full the reading thread checks the chunk itself).
+const VALIDATION_QUEUE: usize = 2;
+/// Chunk buffers kept for reuse.
+const BUFFER_POOL: usize = 4;
+
+/// The input file, read record by record.
+struct Source<'a> {
+    reader: BufReader<File>,
+    pos: u64,
+    size: u64,
+    path: &'a Path,
+}
+
+impl Source<'_> {
+    fn truncated(&self, what: String) -> Error {
+        mcap_err(
+            self.path,
+            "reading MCAP records",
+            format!("{what} (truncated MCAP?)"),
+        )
+    }
+
+    fn read_exact(&mut self, buf: &mut [u8]) -> Result<()> {
+        match self.reader.read_exact(buf) {
+            Ok(()) => {
+                self.pos += buf.len() as u64;
+                Ok(())
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => {
+                Err(self.truncated("unexpected end of file".into()))
+            }
+            Err(e) => Err(io_err(self.path, e)),
         }
     }
+
+    /// The next record's opcode and body length.
+    fn prefix(&mut self) -> Result<(u8, u64)> {
+        let mut p = [0u8; 9];
+        self.read_exact(&mut p)?;
+        Ok((
+            p[0],
+            u64::from_le_bytes(p[1..].try_into().expect("8 bytes")),
+        ))
+    }
+
+    /// Fails unless a body of `len` bytes fits in the rest of the file.
+    fn check_len(&self, opcode: u8, len: u64) -> Result<()> {
+        let left = self.size.saturating_sub(self.pos);
+        if len > left {
+            return Err(self.truncated(format!(
+                "record at offset {} (opcode 0x{opcode:02x}) claims {len} bytes, {left} remain",
+                self.pos - 9
+            )));
+        }
+        Ok(())
+    }
+
+    /// Reads a record body of `len` bytes into `buf` (replacing its content).
+    fn body(&mut self, opcode: u8, len: u64, buf: &mut Vec<u8>) -> Result<()> {
+        buf.clear();
+        self.append(opcode, len, buf)
+    }
+
+    /// Reads the next `len` bytes of a record's body onto the end of `buf`.
+    fn append(&mut self, opcode: u8, len: u64, buf: &mut Vec<u8>) -> Result<()> {
+        self.check_len(opcode, len)?;
+        buf.try_reserve_exact(len as usize)
+            .map_err(|_| self.truncated(format!("record of {len} bytes")))?;
+        let n = (&mut self.reader)
+            .take(len)
+            .read_to_end(buf)
+            .map_err(|e| io_err(self.path, e))?;
+        self.pos += n as u64;
+        if n as u64 != len {
+            return Err(self.truncated("unexpected end of file".into()));
+        }
+        Ok(())
+    }
+
+    /// Reads the header at the start of a chunk record body of `len` bytes: its bytes, parsed.
+    fn chunk_head(&mut self, len: u64) -> Result<(Vec<u8>, ChunkHeader)> {
+        const FIXED: u64 = 8 + 8 + 8 + 4; // start and end time, uncompressed size, CRC
+        let offset = self.pos - 9;
+        let bad = |what: &str| {
+            mcap_err(
+                self.path,
+                "reading MCAP records",
+                format!("chunk at offset {offset}: {what}"),
+            )
+        };
+        if len < FIXED + 4 + 8 {
+            return Err(bad("record shorter than a chunk header"));
+        }
+        let mut head = vec![0u8; (FIXED + 4) as usize];
+        self.read_exact(&mut head)?;
+        let name_len = u32::from_le_bytes(head[FIXED as usize..].try_into().expect("4 bytes"));
+        let head_len = FIXED + 4 + u64::from(name_len) + 8;
+        if head_len > len {
+            return Err(bad("compression name longer than the record"));
+        }
+        head.resize(head_len as usize, 0);
+        self.read_exact(&mut head[(FIXED + 4) as usize..])?;
+        let header = ChunkHeader::read_le(&mut std::io::Cursor::new(&head))
+            .map_err(|e| bad(&format!("bad chunk header: {e}")))?;
+        if header.compressed_size > len - head_len {
+            return Err(bad(&format!(
+                "compressed size {} exceeds the record",
+                header.compressed_size
+            )));
+        }
+        Ok((head, header))
+    }
+}
+
+/// Where a copied chunk record is in the input and the output.
+#[derive(Debug, Clone, Copy)]
+struct ChunkAt {
+    /// Number of the chunk in the output.
+    chunk: usize,
+    /// Offset of the record in the input.
+    offset: u64,
+    /// Bytes at the start of the body that were written through the writer's CRC (the header).
+    head: usize,
+    /// Id of the rest's CRC in the output's data-section CRC.
+    crc_id: usize,
+}
+
+/// Decodes a copied chunk `body` (checking its CRC); returns what it holds and the CRC of the
+/// body after its first `head` bytes (for the output's data-section CRC).
+fn check_chunk(
+    decoder: &mut ChunkDecoder,
+    body: &[u8],
+    head: usize,
+) -> std::result::Result<(ChunkContents, u32), String> {
+    let crc = crc32fast::hash(body.get(head..).unwrap_or_default());
+    Ok((ChunkContents::of_chunk(decoder, body)?, crc))
+}
+
+/// A chunk to check off the reading thread: its position and its record body.
+struct Job {
+    at: ChunkAt,
+    body: Vec<u8>,
+}
+
+/// A chunk checked off the reading thread (its buffer comes back for reuse).
+struct Checked {
+    at: ChunkAt,
+    result: std::result::Result<(ChunkContents, u32), String>,
+    body: Vec<u8>,
+}
+
+fn validate_chunks(jobs: Receiver<Job>, done: Sender<Checked>) {
+    let mut decoder = ChunkDecoder::new();
+    for Job { at, body } in jobs {
+        let result = match &mut decoder {
+            Ok(d) => check_chunk(d, &body, at.head),
+            Err(e) => Err(e.clone()),
+        };
+        if done.send(Checked { at, result, body }).is_err() {
+            break;
+        }
+    }
+}
+
+/// A copied chunk whose message-index records are being copied.
+struct Group {
+    at: ChunkAt,
+    /// The chunk record's body.
+    body: Vec<u8>,
+    /// Whether any message-index record followed it.
+    indexed: bool,
+    /// Channels its message indexes list.
+    listed: BTreeSet<u16>,
+}
+
+/// State of one pass-through.
+struct PassThrough<'a> {
+    input: &'a Path,
+    wanted: &'a BTreeSet<u16>,
+    decoder: ChunkDecoder,
+    jobs: Option<SyncSender<Job>>,
+    done: Receiver<Checked>,
+    sent: usize,
+    received: usize,
+    pool: Vec<Vec<u8>>,
+    messages: u64,
+}
+
+type OnMessage<'f> = dyn FnMut(&mut OutputLog, &MessageHeader, &[u8]) -> Result<()> + 'f;
+
+impl PassThrough<'_> {
+    fn err(&self, detail: String) -> Error {
+        Error::Format {
+            path: self.input.to_path_buf(),
+            detail,
+        }
+    }
+
+    /// Checks the schemas and channels a copied chunk holds against those defined (adding new
+    /// ones to the summary), and counts its messages.
+    fn account(
+        &mut self,
+        log: &mut OutputLog,
+        offset: u64,
+        chunk: usize,
+        contents: ChunkContents,
+        checked_index: bool,
+    ) -> Result<()> {
+        let w = log.w();
+        for (id, s) in contents.schemas {
+            match w.schema(id) {
+                Some(known) if *known == s => {}
+                Some(_) => {
+                    return Err(self.err(format!(
+                        "chunk at offset {offset} redefines schema id {id} with other content"
+                    )));
+                }
+                None if id == 0 => {
+                    return Err(self.err(format!("chunk at offset {offset}: schema with id 0")));
+                }
+                None => w.define_schema(id, s, false)?,
+            }
+        }
+        for c in contents.channels {
+            match w.channel(c.id) {
+                Some(known) if *known == c => {}
+                Some(_) => {
+                    return Err(self.err(format!(
+                        "chunk at offset {offset} redefines channel id {} ({}) with other content",
+                        c.id, c.topic
+                    )));
+                }
+                None if c.schema_id != 0 && w.schema(c.schema_id).is_none() => {
+                    return Err(self.err(format!(
+                        "chunk at offset {offset}: channel {} ({}) names schema {}, which is not defined",
+                        c.id, c.topic, c.schema_id
+                    )));
+                }
+                None => w.define_channel(c, false)?,
+            }
+        }
+        for (&id, &n) in &contents.counts {
+            if w.channel(id).is_none() {
+                return Err(self.err(format!(
+                    "chunk at offset {offset} holds messages on channel {id}, which no channel record defines"
+                )));
+            }
+            if checked_index && n > 0 && self.wanted.contains(&id) {
+                return Err(self.err(format!(
+                    "chunk at offset {offset} holds messages on channel {id} that its message index records do not list"
+                )));
+            }
+        }
+        w.count_copied_messages(chunk, &contents.counts);
+        self.messages += contents.counts.values().sum::<u64>();
+        Ok(())
+    }
+
+    fn checked(&mut self, log: &mut OutputLog, c: Checked) -> Result<()> {
+        self.received += 1;
+        let (contents, crc) = c
+            .result
+            .map_err(|e| self.err(format!("chunk at offset {}: {e}", c.at.offset)))?;
+        log.w().copied_crc(c.at.crc_id, crc);
+        self.account(log, c.at.offset, c.at.chunk, contents, true)?;
+        self.recycle(c.body);
+        Ok(())
+    }
+
+    fn recycle(&mut self, buf: Vec<u8>) {
+        if self.pool.len() < BUFFER_POOL {
+            self.pool.push(buf);
+        }
+    }
+
+    /// Accounts for the chunks validated so far, without waiting.
+    fn poll(&mut self, log: &mut OutputLog) -> Result<()> {
+        while let Ok(c) = self.done.try_recv() {
+            self.checked(log, c)?;
+        }
+        Ok(())
+    }
+
+    /// Once a copied chunk's message indexes are known: a chunk whose message indexes list a
+    /// wanted channel (or that has none) is decoded here, its wanted messages handed to
+    /// `on_message`; any other is checked by the validating thread, or here when that thread is
+    /// behind.
+    fn group(
+        &mut self,
+        log: &mut OutputLog,
+        g: Group,
+        on_message: &mut OnMessage<'_>,
+    ) -> Result<()> {
+        let here = !g.indexed || g.listed.iter().any(|c| self.wanted.contains(c));
+        let Group { at, body, .. } = g;
+        let body = if here {
+            body
+        } else {
+            let jobs = self
+                .jobs
+                .as_ref()
+                .expect("open until the end of the data section");
+            match jobs.try_send(Job { at, body }) {
+                Ok(()) => {
+                    self.sent += 1;
+                    return Ok(());
+                }
+                Err(TrySendError::Full(job)) => job.body,
+                Err(TrySendError::Disconnected(_)) => {
+                    return Err(self.err("chunk validation stopped unexpectedly".into()));
+                }
+            }
+        };
+        let offset = at.offset;
+        let in_chunk = |e: String| Error::Format {
+            path: self.input.to_path_buf(),
+            detail: format!("chunk at offset {offset}: {e}"),
+        };
+        if !here {
+            let (contents, crc) =
+                check_chunk(&mut self.decoder, &body, at.head).map_err(in_chunk)?;
+            log.w().copied_crc(at.crc_id, crc);
+            self.account(log, offset, at.chunk, contents, true)?;
+            self.recycle(body);
+            return Ok(());
+        }
+        let crc = crc32fast::hash(&body[at.head..]);
+        log.w().copied_crc(at.crc_id, crc);
+        let (_, records) = self.decoder.decode(&body).map_err(in_chunk)?;
+        let mut contents = ChunkContents::default();
+        for r in mcap_chunk::records(records) {
+            let (opcode, record) = r.map_err(in_chunk)?;
+            if let Some(id) = contents.add(opcode, record).map_err(in_chunk)?
+                && self.wanted.contains(&id)
+            {
+                let (header, data) = mcap_chunk::message(record).map_err(in_chunk)?;
+                on_message(log, &header, data)?;
+            }
+        }
+        self.account(log, offset, at.chunk, contents, false)?;
+        self.recycle(body);
+        Ok(())
+    }
+
+    /// A record outside chunks.
+    fn top_level(
+        &mut self,
+        log: &mut OutputLog,
+        opcode: u8,
+        offset: u64,
+        body: &[u8],
+        on_message: &mut OnMessage<'_>,
+    ) -> Result<()> {
+        let record = mcap::parse_record(opcode, body).map_err(|e| {
+            self.err(format!(
+                "record at offset {offset} (opcode 0x{opcode:02x}): {e}"
+            ))
+        })?;
+        let w = log.w();
+        match record {
+            Record::Schema { header, data } => {
+                let s = SchemaRecord {
+                    name: header.name,
+                    encoding: header.encoding,
+                    data: data.into_owned(),
+                };
+                match w.schema(header.id) {
+                    Some(known) if *known == s => {}
+                    Some(_) => {
+                        return Err(self.err(format!(
+                            "schema id {} defined twice with different content (offset {offset})",
+                            header.id
+                        )));
+                    }
+                    None if header.id == 0 => {
+                        return Err(self.err(format!("schema with id 0 at offset {offset}")));
+                    }
+                    None => w.define_schema(header.id, s, true)?,
+                }
+            }
+            Record::Channel(c) => match w.channel(c.id) {
+                Some(known) if *known == c => {}
+                Some(_) => {
+                    return Err(self.err(format!(
+                        "channel id {} ({}) defined twice with different content (offset {offset})",
+                        c.id, c.topic
+                    )));
+                }
+                None if c.schema_id != 0 && w.schema(c.schema_id).is_none() => {
+                    return Err(self.err(format!(
+                        "channel {} ({}) at offset {offset} names schema {}, which is not defined",
+                        c.id, c.topic, c.schema_id
+                    )));
+                }
+                None => w.define_channel(c, true)?,
+            },
+            Record::Message { header, data } => {
+                if w.channel(header.channel_id).is_none() {
+                    return Err(self.err(format!(
+                        "message at offset {offset} on channel {}, which no channel record defines",
+                        header.channel_id
+                    )));
+                }
+                w.message(&header, &data)?;
+                self.messages += 1;
+                if self.wanted.contains(&header.channel_id) {
+                    on_message(log, &header, &data)?;
+                }
+            }
+            Record::Attachment { header, data, .. } => {
+                w.copy_attachment(body, &header, data.len() as u64)?
+            }
+            Record::Metadata(m) => w.copy_metadata(body, &m.name)?,
+            Record::Unknown { .. } => w.copy_record(opcode, body)?,
+            // The writer makes its own header, indexes and summary.
+            _ => {}
+        }
+        Ok(())
+    }
+
+    /// The data section, up to and including the data-end record.
+    fn run(
+        &mut self,
+        src: &mut Source<'_>,
+        log: &mut OutputLog,
+        on_message: &mut OnMessage<'_>,
+    ) -> Result<()> {
+        let mut small = Vec::new();
+        let mut open: Option<Group> = None;
+        loop {
+            let (opcode, len) = src.prefix()?;
+            let offset = src.pos - 9;
+            if opcode == op::MESSAGE_INDEX
+                && let Some(g) = open.as_mut()
+            {
+                src.body(opcode, len, &mut small)?;
+                match mcap::parse_record(opcode, &small) {
+                    Ok(Record::MessageIndex(i)) => g.listed.insert(i.channel_id),
+                    _ => {
+                        return Err(
+                            self.err(format!("bad message index record at offset {offset}"))
+                        );
+                    }
+                };
+                g.indexed = true;
+                log.w().copied_message_index(&small)?;
+                continue;
+            }
+            if let Some(g) = open.take() {
+                self.group(log, g, on_message)?;
+            }
+            match opcode {
+                op::CHUNK => {
+                    src.check_len(opcode, len)?;
+                    let (head, header) = src.chunk_head(len)?;
+                    let chunk = log.w().start_copied_chunk(len, &head, &header)?;
+                    // The whole body in one buffer (header, then the rest read from the input).
+                    let mut body = self.pool.pop().unwrap_or_default();
+                    body.clear();
+                    body.extend_from_slice(&head);
+                    src.append(opcode, len - head.len() as u64, &mut body)?;
+                    let crc_id = log.w().write_copied(&body[head.len()..])?;
+                    open = Some(Group {
+                        at: ChunkAt {
+                            chunk,
+                            offset,
+                            head: head.len(),
+                            crc_id,
+                        },
+                        body,
+                        indexed: false,
+                        listed: BTreeSet::new(),
+                    });
+                }
+                op::DATA_END => {
+                    src.body(opcode, len, &mut small)?;
+                    return Ok(());
+                }
+                op::FOOTER => {
+                    return Err(self
+                        .err("reading MCAP records: no data-end record (truncated MCAP?)".into()));
+                }
+                _ => {
+                    src.body(opcode, len, &mut small)?;
+                    self.top_level(log, opcode, offset, &small, on_message)?;
+                }
+            }
+            self.poll(log)?;
+        }
+    }
+}
+
+/// Copies the data section of `input` into `log`: chunk records and the message-index records
+/// after them byte for byte, other records (messages outside chunks into our own chunks,
+/// metadata, attachments, schemas and channels not yet defined) one by one. Declare the input's
+/// schemas and channels first ([`OutputLog::declare_input`]).
+///
+/// Each chunk record is read into a buffer and written out as it is. Messages on `wanted`
+/// channels are handed to `on_message` in file order: chunks whose message indexes list such a
+/// channel (or that have no message index) are decompressed here for that; every other chunk's
+/// buffer goes to a second thread (or is checked here, when that thread is behind), which
+/// decompresses it only to check its CRC and count its messages for the output's statistics. A
+/// corrupt or truncated input is an [`Error::Format`] naming `input` (and the chunk's offset).
+/// Returns the number of input messages. Memory: a few chunks (the validation queue is short).
+pub fn pass_through(
+    input: &Path,
+    log: &mut OutputLog,
+    wanted: &BTreeSet<u16>,
+    mut on_message: impl FnMut(&mut OutputLog, &MessageHeader, &[u8]) -> Result<()>,
+) -> Result<u64> {
+    let file = File::open(input).map_err(|e| io_err(input, e))?;
+    let size = file.metadata().map_err(|e| io_err(input, e))?.len();
+    let mut src = Source {
+        reader: BufReader::with_capacity(1 << 16, file),
+        pos: 0,
+        size,
+        path: input,
+    };
+    let mut magic = [0u8; 8];
+    src.read_exact(&mut magic)?;
+    if magic != mcap::MAGIC {
+        return Err(mcap_err(
+            input,
+            "reading MCAP records",
+            "not an MCAP file (bad magic)",
+        ));
+    }
+    let (opcode, len) = src.prefix()?;
+    if opcode != op::HEADER {
+        return Err(mcap_err(
+            input,
+            "reading MCAP records",
+            format!("the first record has opcode 0x{opcode:02x}, not a header"),
+        ));
+    }
+    src.body(opcode, len, &mut Vec::new())?;
+    let decoder = ChunkDecoder::new().map_err(|e| mcap_err(input, "reading MCAP records", e))?;
+    std::thread::scope(|scope| {
+        let (jobs, job_rx) = sync_channel(VALIDATION_QUEUE);
+        let (done_tx, done) = channel();
+        scope.spawn(move || validate_chunks(job_rx, done_tx));
+        let mut p = PassThrough {
+            input,
+            wanted,
+            decoder,
+            jobs: Some(jobs),
+            done,
+            sent: 0,
+            received: 0,
+            pool: Vec::new(),
+            messages: 0,
+        };
+        let read = p.run(&mut src, log, &mut on_message);
+        // Closing the queue ends the validating thread once it has checked what it holds.
+        drop(p.jobs.take());
+        read?;
+        // Everything copied is in the page cache: let the disk writes start while the last
+        // chunks are checked and the caller finishes its work.
+        log.start_writeback()?;
+        while let Ok(c) = p.done.recv() {
+            p.checked(log, c)?;
+        }
+        if p.received != p.sent {
+            return Err(p.err(format!(
+                "only {} of {} chunks were validated",
+                p.received, p.sent
+            )));
+        }
+        Ok(p.messages)
+    })
 }

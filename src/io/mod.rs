@@ -6,7 +6,9 @@
 
 pub mod cloud_file;
 pub mod foxglove_msgs;
+pub mod mcap_chunk;
 pub mod mcap_log;
+pub mod mcap_write;
 pub mod pose_file;
 pub mod ros2;
 mod scalar;
