@@ -15,6 +15,7 @@ use mcap::records::Record;
 use nalgebra::Isometry3;
 use serde_json::json;
 
+use crate::io::log_order::{ChunkTimes, Reorder};
 use crate::io::mcap_log::{ChannelInfo, OutputLog, for_each_record, list_channels};
 use crate::io::{foxglove_msgs, ros2};
 use crate::odometry::{FrameEstimate, Odometry, OdometryConfig};
@@ -24,7 +25,9 @@ use crate::{Error, Result};
 
 /// Frames in flight between stages (each queue). Bounds memory.
 pub const QUEUE_CAPACITY: usize = 2;
-/// Cloud messages held to restore log-time order when a file is not time-ordered.
+/// Cloud messages held at most to restore log-time order when the file's chunk index does not
+/// prove its order ([`Reorder`]); a file whose chunks are time-ordered holds only its current
+/// chunk's clouds.
 pub const REORDER_WINDOW: usize = 16;
 /// Topic of the reference poses used for the summary, when the log has one.
 pub const DEFAULT_REFERENCE_TOPIC: &str = "/ground_truth/pose";
@@ -422,6 +425,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
             c.topic == DEFAULT_REFERENCE_TOPIC && c.schema_name == ros2::POSE_STAMPED_SCHEMA_NAME
         })
         .map(|c| c.topic.clone());
+    let chunk_times = ChunkTimes::read(input)?;
     let total_frames = channels
         .iter()
         .filter(|c| c.topic == topic)
@@ -461,8 +465,10 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         scope.spawn(move || {
             for msg in cloud_rx {
                 let t = Instant::now();
-                let r = kind
-                    .decode(&msg.data)
+                let decoded = kind.decode(&msg.data);
+                // The message bytes are not needed past decoding: don't hold them through prepare.
+                drop(msg.data);
+                let r = decoded
                     .map_err(|e| decode_error(input, topic_ref, msg.log_time, e))
                     .and_then(|cloud| {
                         let decode_s = t.elapsed().as_secs_f64();
@@ -530,10 +536,9 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
             Ok(())
         };
 
-        // Clouds are handed on in log-time order (a small reorder window tolerates files whose
-        // chunks are not time-ordered).
-        let mut pending: BTreeMap<(u64, u64), CloudMsg> = BTreeMap::new();
-        let mut order = 0u64;
+        // Clouds are handed on in log-time order: at once where the chunk index proves nothing
+        // earlier follows, else after a window of REORDER_WINDOW clouds.
+        let mut pending = Reorder::new(REORDER_WINDOW, chunk_times);
         let mut cloud_channels: Vec<u16> = Vec::new();
         let mut reference_channels: Vec<u16> = Vec::new();
         let mut cloud_tx = Some(cloud_tx);
@@ -547,17 +552,15 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                 Record::Message { header, data } => {
                     copied += 1;
                     if cloud_channels.contains(&header.channel_id) {
-                        pending.insert(
-                            (header.log_time, order),
+                        pending.push(
+                            header.log_time,
                             CloudMsg {
                                 log_time: header.log_time,
                                 publish_time: header.publish_time,
                                 data: data.to_vec(),
                             },
                         );
-                        order += 1;
-                        if pending.len() > REORDER_WINDOW {
-                            let (_, msg) = pending.pop_first().expect("non-empty");
+                        while let Some(msg) = pending.pop_ready() {
                             if cloud_tx.as_ref().expect("open").send(msg).is_err() {
                                 return Err(Error::InvalidInput(
                                     "registration stopped early".into(),
@@ -578,7 +581,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
             Ok(())
         });
         if read.is_ok() {
-            for (_, msg) in std::mem::take(&mut pending) {
+            for msg in pending.into_remaining() {
                 if cloud_tx.as_ref().expect("open").send(msg).is_err() {
                     break;
                 }
