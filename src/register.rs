@@ -19,7 +19,7 @@ use crate::io::log_order::{ChunkTimes, Reorder};
 use crate::io::mcap_log::{ChannelInfo, OutputLog, for_each_record, list_channels};
 use crate::io::{foxglove_msgs, ros2};
 use crate::odometry::{FrameEstimate, Odometry, OdometryConfig};
-use crate::pipeline::{PreparedFrame, prepare_frame};
+use crate::pipeline::{PrepareScratch, PreparedFrame, prepare_frame, prepare_frame_with};
 use crate::trajectory::{Trajectory, evaluate};
 use crate::{Error, Result};
 
@@ -463,6 +463,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         let topic_ref = topic.as_str();
 
         scope.spawn(move || {
+            let mut scratch = PrepareScratch::default();
             for msg in cloud_rx {
                 let t = Instant::now();
                 let decoded = kind.decode(&msg.data);
@@ -474,7 +475,9 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                         let decode_s = t.elapsed().as_secs_f64();
                         // A cloud the pipeline cannot take (e.g. a glitch at 1e38 m) is one bad
                         // frame: flag it, keep going.
-                        let (frame, invalid) = match prepare_frame(&cloud.points, &config.pair) {
+                        let prepared =
+                            prepare_frame_with(&cloud.points, &config.pair, &mut scratch);
+                        let (frame, invalid) = match prepared {
                             Ok(f) => (f, None),
                             Err(e) => (prepare_frame(&[], &config.pair)?, Some(e.to_string())),
                         };
