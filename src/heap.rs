@@ -10,8 +10,8 @@
 //! rayon workers' arenas 12.5 and 13.1 MB for under 40 kB in use (`malloc_stats`), and the peak
 //! RSS grew from 79 MB over 20 frames to 90 MB over 200 while the live heap stayed flat
 //! (heaptrack). Keeping the threshold fixed at its default gives 55 → 57 MB, at the cost of
-//! page faults on every frame's large buffers (system time about 4 s per 200 frames; see
-//! docs/BENCHMARKS.md).
+//! page faults on every frame's large buffers (system time 2.6–4.2 s instead of 0.7–1.0 s per 200
+//! frames; see docs/BENCHMARKS.md).
 
 /// The `mmap` threshold kept: glibc's default, made static \[bytes\].
 pub const MMAP_THRESHOLD_BYTES: i32 = 128 * 1024;
