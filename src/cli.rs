@@ -509,6 +509,7 @@ fn command_line() -> String {
 }
 
 fn run_register(args: &RegisterArgs) -> Result<()> {
+    crate::heap::release_large_blocks_promptly();
     let config = OdometryConfig {
         pair: args.flags.config()?,
         min_inliers: args.min_inliers,
@@ -542,6 +543,7 @@ pub const DEFAULT_FIXTURE: &str = "fixtures/icl_livingroom1.mcap";
 /// `mireg` with no arguments: registers the embedded fixture into a temporary directory and
 /// prints a summary.
 fn run_default() -> Result<()> {
+    crate::heap::release_large_blocks_promptly();
     let local = PathBuf::from(DEFAULT_FIXTURE);
     let input = if local.is_file() {
         local

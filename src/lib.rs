@@ -11,6 +11,7 @@ pub mod correspondence;
 pub mod error;
 pub mod features;
 pub mod geometry;
+pub mod heap;
 pub mod io;
 pub mod ransac;
 pub mod refine;

@@ -15,7 +15,7 @@ use crate::correspondence::ranking::{
 };
 use crate::features::fpfh::{Fpfh, compute_fpfh_from_neighbourhoods, compute_fpfh_with_tree};
 use crate::geometry::grid;
-use crate::geometry::kdtree::KdTree;
+use crate::geometry::kdtree::{KdTree, Neighbourhoods};
 use crate::geometry::normals::{estimate_normals_from_neighbourhoods, estimate_normals_with_tree};
 use crate::geometry::voxel::voxel_downsample;
 use crate::ransac::consensus::{Consensus, ConsensusConfig, Scoring, Termination};
@@ -228,9 +228,27 @@ pub struct PreparedFrame {
     pub timings: FrameTimings,
 }
 
+/// Storage that [`prepare_frame_with`] reuses from one frame to the next: a stream of similar
+/// clouds allocates its largest intermediate, the FPFH neighbourhoods (~8 MB at HDL-64 size with a
+/// 0.5 m voxel), once instead of mapping and unmapping it for every frame.
+#[derive(Debug, Default)]
+pub struct PrepareScratch {
+    neighbourhoods: Neighbourhoods,
+}
+
 /// Downsamples, estimates normals and FPFH, and builds the ICP cloud. `config` must be
 /// [`resolved`](PairConfig::resolved).
 pub fn prepare_frame(points: &[Point3<f64>], config: &PairConfig) -> Result<PreparedFrame> {
+    prepare_frame_with(points, config, &mut PrepareScratch::default())
+}
+
+/// [`prepare_frame`] reusing `scratch` (keep one per stream of frames). The result does not
+/// depend on what `scratch` held.
+pub fn prepare_frame_with(
+    points: &[Point3<f64>],
+    config: &PairConfig,
+    scratch: &mut PrepareScratch,
+) -> Result<PreparedFrame> {
     let c = config.resolved()?;
     let origin = c.sensor_origin.map(Point3::from);
     let mut timings = FrameTimings::default();
@@ -253,22 +271,22 @@ pub fn prepare_frame(points: &[Point3<f64>], config: &PairConfig) -> Result<Prep
         if feature_radius >= normal_radius && c.feature_max_nn >= c.normal_max_nn {
             // One kd-tree pass serves both: the normals' neighbourhoods are prefixes of the FPFH
             // ones (timed as features).
-            let nbhd = match grid::self_neighbourhoods(&down, feature_radius, c.feature_max_nn)? {
-                Some(nbhd) => nbhd,
-                None => tree.hybrid_neighbourhoods(&down, feature_radius, c.feature_max_nn),
-            };
+            let nbhd = &mut scratch.neighbourhoods;
+            if !grid::self_neighbourhoods_into(&down, feature_radius, c.feature_max_nn, nbhd)? {
+                tree.hybrid_neighbourhoods_into(&down, feature_radius, c.feature_max_nn, nbhd);
+            }
             timings.features = t.elapsed().as_secs_f64();
             let t = Instant::now();
             let normals = estimate_normals_from_neighbourhoods(
                 &down,
-                &nbhd,
+                nbhd,
                 normal_radius,
                 c.normal_max_nn,
                 origin,
             )?;
             timings.normals = t.elapsed().as_secs_f64();
             let t = Instant::now();
-            let features = compute_fpfh_from_neighbourhoods(&down, &normals, &nbhd)?;
+            let features = compute_fpfh_from_neighbourhoods(&down, &normals, nbhd)?;
             timings.features += t.elapsed().as_secs_f64();
             (normals, features)
         } else {

@@ -14,16 +14,19 @@ use std::time::Instant;
 use nalgebra::Isometry3;
 use serde_json::json;
 
+use crate::io::log_order::{ChunkTimes, Reorder};
 use crate::io::mcap_log::{ChannelInfo, InputCatalog, OutputLog, pass_through};
 use crate::io::{foxglove_msgs, ros2};
 use crate::odometry::{FrameEstimate, Odometry, OdometryConfig};
-use crate::pipeline::{PreparedFrame, prepare_frame};
+use crate::pipeline::{PrepareScratch, PreparedFrame, prepare_frame, prepare_frame_with};
 use crate::trajectory::{Trajectory, evaluate};
 use crate::{Error, Result};
 
 /// Frames in flight between stages (each queue). Bounds memory.
 pub const QUEUE_CAPACITY: usize = 2;
-/// Cloud messages held to restore log-time order when a file is not time-ordered.
+/// Cloud messages held at most to restore log-time order when the file's chunk index does not
+/// prove its order ([`Reorder`]); a file whose chunks are time-ordered holds only its current
+/// chunk's clouds.
 pub const REORDER_WINDOW: usize = 16;
 /// Topic of the reference poses used for the summary, when the log has one.
 pub const DEFAULT_REFERENCE_TOPIC: &str = "/ground_truth/pose";
@@ -422,6 +425,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
             c.topic == DEFAULT_REFERENCE_TOPIC && c.schema_name == ros2::POSE_STAMPED_SCHEMA_NAME
         })
         .map(|c| c.topic.clone());
+    let chunk_times = ChunkTimes::read(input)?;
     let total_frames = channels
         .iter()
         .filter(|c| c.topic == topic)
@@ -477,16 +481,21 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         let topic_ref = topic.as_str();
 
         scope.spawn(move || {
+            let mut scratch = PrepareScratch::default();
             for msg in cloud_rx {
                 let t = Instant::now();
-                let r = kind
-                    .decode(&msg.data)
+                let decoded = kind.decode(&msg.data);
+                // The message bytes are not needed past decoding: don't hold them through prepare.
+                drop(msg.data);
+                let r = decoded
                     .map_err(|e| decode_error(input, topic_ref, msg.log_time, e))
                     .and_then(|cloud| {
                         let decode_s = t.elapsed().as_secs_f64();
                         // A cloud the pipeline cannot take (e.g. a glitch at 1e38 m) is one bad
                         // frame: flag it, keep going.
-                        let (frame, invalid) = match prepare_frame(&cloud.points, &config.pair) {
+                        let prepared =
+                            prepare_frame_with(&cloud.points, &config.pair, &mut scratch);
+                        let (frame, invalid) = match prepared {
                             Ok(f) => (f, None),
                             Err(e) => (prepare_frame(&[], &config.pair)?, Some(e.to_string())),
                         };
@@ -548,26 +557,23 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
             Ok(())
         };
 
-        // Clouds are handed on in log-time order (a small reorder window tolerates files whose
-        // chunks are not time-ordered).
-        let mut pending: BTreeMap<(u64, u64), CloudMsg> = BTreeMap::new();
-        let mut order = 0u64;
+        // Clouds are handed on in log-time order: at once where the chunk index proves nothing
+        // earlier follows, else after a window of REORDER_WINDOW clouds.
+        let mut pending = Reorder::new(REORDER_WINDOW, chunk_times);
         let mut cloud_tx = Some(cloud_tx);
         // Input chunks are copied byte for byte; only messages on the cloud and reference
         // channels come here, in file order.
         let read = pass_through(input, &mut log, &wanted, |log, header, data| {
             if cloud_channels.contains(&header.channel_id) {
-                pending.insert(
-                    (header.log_time, order),
+                pending.push(
+                    header.log_time,
                     CloudMsg {
                         log_time: header.log_time,
                         publish_time: header.publish_time,
                         data: data.to_vec(),
                     },
                 );
-                order += 1;
-                if pending.len() > REORDER_WINDOW {
-                    let (_, msg) = pending.pop_first().expect("non-empty");
+                while let Some(msg) = pending.pop_ready() {
                     if cloud_tx.as_ref().expect("open").send(msg).is_err() {
                         return Err(Error::InvalidInput("registration stopped early".into()));
                     }
@@ -584,7 +590,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         })
         .map(|n| copied = n);
         if read.is_ok() {
-            for (_, msg) in std::mem::take(&mut pending) {
+            for msg in pending.into_remaining() {
                 if cloud_tx.as_ref().expect("open").send(msg).is_err() {
                     break;
                 }

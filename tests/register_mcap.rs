@@ -5,6 +5,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use mcap::records::{MessageHeader, Record};
+use mireg::io::log_order::ChunkTimes;
 use mireg::io::mcap_log::for_each_record;
 use mireg::io::ros2::{self, Header, Time};
 use mireg::odometry::OdometryConfig;
@@ -225,13 +226,29 @@ fn world_from_camera(k: usize) -> Isometry3<f64> {
 /// Writes a log with a cloud topic seen from `world_from_camera(k)`, plus unrelated channels,
 /// metadata and an attachment.
 fn write_synthetic_log(path: &Path, frames: usize) {
-    write_log_with(path, frames, |o| o);
+    write_log_full(path, &(0..frames).collect::<Vec<_>>(), None, |o| o);
 }
 
 /// [`write_synthetic_log`] with writer options (compression, chunking, indexes) set by `opts`.
 fn write_log_with(
     path: &Path,
     frames: usize,
+    opts: impl FnOnce(mcap::WriteOptions) -> mcap::WriteOptions,
+) {
+    write_log_full(path, &(0..frames).collect::<Vec<_>>(), None, opts);
+}
+
+/// [`write_synthetic_log`] with the frames written in file order `order` (frame `k` keeps log
+/// time `t0 + k · 0.1 s`), and a new chunk after every `frames_per_chunk` frames when given.
+fn write_synthetic_log_in_order(path: &Path, order: &[usize], frames_per_chunk: Option<usize>) {
+    write_log_full(path, order, frames_per_chunk, |o| o);
+}
+
+/// The synthetic log with every option: file order, chunking and writer options.
+fn write_log_full(
+    path: &Path,
+    order: &[usize],
+    frames_per_chunk: Option<usize>,
     opts: impl FnOnce(mcap::WriteOptions) -> mcap::WriteOptions,
 ) {
     let world = scene(1);
@@ -277,7 +294,10 @@ fn write_log_with(
     })
     .unwrap();
     let t0 = 1_700_000_000_000_000_000u64;
-    for k in 0..frames {
+    for (i, &k) in order.iter().enumerate() {
+        if frames_per_chunk.is_some_and(|n| i > 0 && i % n == 0) {
+            w.flush().unwrap();
+        }
         let t = t0 + k as u64 * 100_000_000;
         let cam_from_world = world_from_camera(k).inverse();
         let pts: Vec<Point3<f64>> = world.iter().map(|p| cam_from_world * p).collect();
@@ -319,6 +339,54 @@ fn write_log_with(
         .unwrap();
     }
     w.finish().unwrap();
+}
+
+/// Poses on `topic` in file order.
+fn poses_in_file_order(path: &Path, topic: &str) -> Vec<(i64, Isometry3<f64>)> {
+    let mut channel = None;
+    let mut out = Vec::new();
+    for_each_record(path, |r| {
+        match r {
+            Record::Channel(ch) if ch.topic == topic => channel = Some(ch.id),
+            Record::Message { header, data } if Some(header.channel_id) == channel => {
+                let (h, p) = ros2::decode_pose_stamped(&data).unwrap();
+                out.push((h.stamp.to_ns(), p));
+            }
+            _ => {}
+        }
+        Ok(())
+    })
+    .unwrap();
+    out
+}
+
+/// Clouds written out of log-time order are registered in log-time order, both where the chunk
+/// index proves the chunks ordered (each cloud waits only for its own chunk) and where it cannot
+/// (chunks out of order: the reorder window).
+#[test]
+fn clouds_out_of_log_time_order_are_registered_in_log_time_order() {
+    for (name, order, proven) in [
+        ("swapped within ordered chunks", [1, 0, 3, 2, 5, 4], true),
+        ("chunks out of order", [2, 3, 0, 1, 4, 5], false),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let (input, out) = (dir.path().join("in.mcap"), dir.path().join("out.mcap"));
+        write_synthetic_log_in_order(&input, &order, Some(2));
+        let chunks = ChunkTimes::read(&input).unwrap();
+        assert_eq!(chunks.is_some(), proven, "{name}: {chunks:?}");
+        let summary = register_log(&options(&input, &out, 0.1)).unwrap();
+        assert_eq!((summary.frames, summary.failed_frames), (6, 0), "{name}");
+        let poses = poses_in_file_order(&out, "/mireg/pose");
+        assert!(
+            poses.is_sorted_by_key(|p| p.0),
+            "{name}: poses not in log-time order"
+        );
+        for (k, (_, est)) in poses.iter().enumerate() {
+            let truth = world_from_camera(0).inverse() * world_from_camera(k);
+            let (r, t) = pose_error(&truth, est);
+            assert!(r < 0.3 && t < 0.01, "{name}, frame {k}: {r:.3}° {t:.4} m");
+        }
+    }
 }
 
 #[test]

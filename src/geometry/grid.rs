@@ -9,13 +9,10 @@
 //! descent with a bounded result heap (figures in docs/BENCHMARKS.md).
 
 use nalgebra::Point3;
-use rayon::prelude::*;
 
 use super::Neighbourhoods;
+use super::kdtree::QUERY_CHUNK;
 use crate::{Error, Result};
-
-/// Queries per rayon task.
-const QUERY_CHUNK: usize = 256;
 
 /// Largest number of cells along an axis; beyond it (a radius tiny against the cloud's extent)
 /// the caller should use the kd-tree.
@@ -33,6 +30,19 @@ pub fn self_neighbourhoods(
     radius_m: f64,
     max_nn: usize,
 ) -> Result<Option<Neighbourhoods>> {
+    let mut out = Neighbourhoods::default();
+    Ok(self_neighbourhoods_into(points, radius_m, max_nn, &mut out)?.then_some(out))
+}
+
+/// [`self_neighbourhoods`] into `out`, replacing its contents but keeping its storage (a stream
+/// of similar clouds allocates its neighbourhoods once). Returns `Ok(false)`, leaving `out`
+/// untouched, where [`self_neighbourhoods`] returns `Ok(None)`.
+pub fn self_neighbourhoods_into(
+    points: &[Point3<f64>],
+    radius_m: f64,
+    max_nn: usize,
+    out: &mut Neighbourhoods,
+) -> Result<bool> {
     if !(radius_m.is_finite() && radius_m > 0.0) || max_nn == 0 {
         return Err(Error::InvalidInput(format!(
             "neighbourhood search needs a finite radius > 0 and max_nn > 0, got {radius_m} and {max_nn}"
@@ -55,30 +65,22 @@ pub fn self_neighbourhoods(
         )));
     }
     let Some(grid) = Grid::new(points, radius_m) else {
-        return Ok(None);
+        return Ok(false);
     };
     let radius_sq = radius_m * radius_m;
-    let chunks: Vec<(Vec<usize>, Vec<u32>, Vec<f64>)> = points
-        .par_chunks(QUERY_CHUNK)
-        .enumerate()
-        .map(|(c, chunk)| {
-            let mut search = CellSearch::default();
-            let mut counts = Vec::with_capacity(chunk.len());
-            let mut indices = Vec::with_capacity(chunk.len() * max_nn.min(64));
-            let mut distances_sq = Vec::with_capacity(indices.capacity());
-            for (k, q) in chunk.iter().enumerate() {
-                let cell = grid.cell_of_point[c * QUERY_CHUNK + k];
-                let found = search.query(&grid, cell, q, radius_sq, max_nn);
-                counts.push(found.len());
-                for &(d, j) in found {
-                    indices.push(j);
-                    distances_sq.push(f64::from_bits(d));
-                }
+    out.refill(points.len(), |first, block| {
+        let mut search = CellSearch::default();
+        let end = (first + QUERY_CHUNK).min(points.len());
+        for (i, q) in points[first..end].iter().enumerate() {
+            let cell = grid.cell_of_point[first + i];
+            for &(d, j) in search.query(&grid, cell, q, radius_sq, max_nn) {
+                block.indices.push(j);
+                block.distances_sq.push(f64::from_bits(d));
             }
-            (counts, indices, distances_sq)
-        })
-        .collect();
-    Ok(Some(Neighbourhoods::from_chunks(chunks)))
+            block.offsets.push(block.indices.len());
+        }
+    });
+    Ok(true)
 }
 
 /// Reusable buffers of one worker: the candidates of the last cell searched (consecutive queries,

@@ -21,29 +21,69 @@ pub struct Neighbour {
     pub distance_sq: f64,
 }
 
-/// Neighbourhoods of many query points in one flat (CSR) layout: no per-query allocation survives.
+/// Neighbourhoods of many query points, flat (CSR) per block of 256 queries: no
+/// per-query allocation survives, the blocks are filled in parallel where they stay (no merge
+/// copy), and [`KdTree::hybrid_neighbourhoods_into`] reuses their storage from one cloud to the
+/// next.
 #[derive(Debug, Clone, Default)]
 pub struct Neighbourhoods {
-    offsets: Vec<usize>,
-    indices: Vec<u32>,
-    distances_sq: Vec<f64>,
+    len: usize,
+    blocks: Vec<NeighbourBlock>,
+}
+
+/// The neighbourhoods of one block of queries: query `k`'s are at `offsets[k]..offsets[k + 1]`.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct NeighbourBlock {
+    pub(crate) offsets: Vec<usize>,
+    pub(crate) indices: Vec<u32>,
+    pub(crate) distances_sq: Vec<f64>,
 }
 
 impl Neighbourhoods {
     /// Number of query points.
     pub fn len(&self) -> usize {
-        self.offsets.len().saturating_sub(1)
+        self.len
     }
 
     /// `true` when there are no query points.
     pub fn is_empty(&self) -> bool {
-        self.len() == 0
+        self.len == 0
+    }
+
+    /// Refills `self` for `queries` queries, block by block in parallel: `fill(first, block)`
+    /// receives the index of the block's first query and an empty block (storage kept) to push
+    /// the [`QUERY_CHUNK`] (or fewer, for the last) queries' neighbourhoods into, starting with
+    /// the leading `0` offset already in place.
+    pub(crate) fn refill(
+        &mut self,
+        queries: usize,
+        fill: impl Fn(usize, &mut NeighbourBlock) + Sync + Send,
+    ) {
+        self.len = queries;
+        self.blocks
+            .resize_with(queries.div_ceil(QUERY_CHUNK), Default::default);
+        self.blocks
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(b, block)| {
+                block.offsets.clear();
+                block.indices.clear();
+                block.distances_sq.clear();
+                block.offsets.push(0);
+                fill(b * QUERY_CHUNK, block);
+            });
     }
 
     /// Neighbour indices and squared distances (m²) of query `i`, nearest first.
+    ///
+    /// # Panics
+    /// If `i >= self.len()`.
     pub fn get(&self, i: usize) -> (&[u32], &[f64]) {
-        let range = self.offsets[i]..self.offsets[i + 1];
-        (&self.indices[range.clone()], &self.distances_sq[range])
+        assert!(i < self.len, "query {i} of {}", self.len);
+        let block = &self.blocks[i / QUERY_CHUNK];
+        let k = i % QUERY_CHUNK;
+        let range = block.offsets[k]..block.offsets[k + 1];
+        (&block.indices[range.clone()], &block.distances_sq[range])
     }
 }
 
@@ -54,7 +94,7 @@ pub struct KdTree {
 }
 
 /// Queries processed per rayon task when building [`Neighbourhoods`].
-const QUERY_CHUNK: usize = 256;
+pub(crate) const QUERY_CHUNK: usize = 256;
 
 impl KdTree {
     /// Builds the tree. Fails with [`Error::InvalidInput`] on a non-finite coordinate or more than
@@ -142,54 +182,38 @@ impl KdTree {
         )
     }
 
-    /// [`Self::within_radius`] for every point of `queries`, in parallel, stored flat.
+    /// [`Self::within_radius`] for every point of `queries`, in parallel.
     pub fn hybrid_neighbourhoods(
         &self,
         queries: &[Point3<f64>],
         radius_m: f64,
         max_nn: usize,
     ) -> Neighbourhoods {
-        let chunks: Vec<(Vec<usize>, Vec<u32>, Vec<f64>)> = queries
-            .par_chunks(QUERY_CHUNK)
-            .map(|chunk| {
-                let mut counts = Vec::with_capacity(chunk.len());
-                let mut indices = Vec::with_capacity(chunk.len() * max_nn.min(64));
-                let mut distances_sq = Vec::with_capacity(indices.capacity());
-                for q in chunk {
-                    let nn = self.within_radius(q, radius_m, max_nn);
-                    counts.push(nn.len());
-                    for n in nn {
-                        indices.push(n.index as u32);
-                        distances_sq.push(n.distance_sq);
-                    }
-                }
-                (counts, indices, distances_sq)
-            })
-            .collect();
-        Neighbourhoods::from_chunks(chunks)
-    }
-}
-
-impl Neighbourhoods {
-    /// Concatenates per-chunk (counts, indices, squared distances) of consecutive queries.
-    pub(crate) fn from_chunks(chunks: Vec<(Vec<usize>, Vec<u32>, Vec<f64>)>) -> Neighbourhoods {
-        let queries: usize = chunks.iter().map(|c| c.0.len()).sum();
-        let total: usize = chunks.iter().map(|c| c.1.len()).sum();
-        let mut out = Neighbourhoods {
-            offsets: Vec::with_capacity(queries + 1),
-            indices: Vec::with_capacity(total),
-            distances_sq: Vec::with_capacity(total),
-        };
-        out.offsets.push(0);
-        for (counts, indices, distances_sq) in chunks {
-            for c in counts {
-                out.offsets
-                    .push(out.offsets.last().copied().unwrap_or(0) + c);
-            }
-            out.indices.extend_from_slice(&indices);
-            out.distances_sq.extend_from_slice(&distances_sq);
-        }
+        let mut out = Neighbourhoods::default();
+        self.hybrid_neighbourhoods_into(queries, radius_m, max_nn, &mut out);
         out
+    }
+
+    /// [`Self::hybrid_neighbourhoods`] into `out`, replacing its contents but keeping its storage:
+    /// a stream of similar clouds allocates its neighbourhoods once (megabytes a frame at LiDAR
+    /// size, which the allocator would otherwise map and unmap for every frame).
+    pub fn hybrid_neighbourhoods_into(
+        &self,
+        queries: &[Point3<f64>],
+        radius_m: f64,
+        max_nn: usize,
+        out: &mut Neighbourhoods,
+    ) {
+        out.refill(queries.len(), |first, block| {
+            let end = (first + QUERY_CHUNK).min(queries.len());
+            for q in &queries[first..end] {
+                for n in self.within_radius(q, radius_m, max_nn) {
+                    block.indices.push(n.index as u32);
+                    block.distances_sq.push(n.distance_sq);
+                }
+                block.offsets.push(block.indices.len());
+            }
+        });
     }
 }
 
@@ -298,6 +322,28 @@ mod tests {
             assert_eq!(idx[0] as usize, i, "a point is its own nearest neighbour");
             for (k, n) in single.iter().enumerate() {
                 assert_eq!((idx[k] as usize, d2[k]), (n.index, n.distance_sq));
+            }
+        }
+    }
+
+    #[test]
+    fn reused_neighbourhoods_equal_fresh_ones() {
+        let tree = KdTree::new(&random_cloud(3000, 6)).unwrap();
+        let mut reused = Neighbourhoods::default();
+        // A larger query set, then a smaller one with a partial last block, then none.
+        for (n, seed) in [(1000, 7), (600, 8), (0, 9)] {
+            let queries = random_cloud(n, seed);
+            tree.hybrid_neighbourhoods_into(&queries, 0.2, 40, &mut reused);
+            let fresh = tree.hybrid_neighbourhoods(&queries, 0.2, 40);
+            assert_eq!((reused.len(), fresh.len()), (n, n));
+            for (i, q) in queries.iter().enumerate() {
+                assert_eq!(reused.get(i), fresh.get(i));
+                let single = tree.within_radius(q, 0.2, 40);
+                let (idx, d2) = reused.get(i);
+                assert_eq!(idx.len(), single.len());
+                for (k, nb) in single.iter().enumerate() {
+                    assert_eq!((idx[k] as usize, d2[k]), (nb.index, nb.distance_sq));
+                }
             }
         }
     }

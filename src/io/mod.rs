@@ -6,6 +6,7 @@
 
 pub mod cloud_file;
 pub mod foxglove_msgs;
+pub mod log_order;
 pub mod mcap_chunk;
 pub mod mcap_log;
 pub mod mcap_write;
