@@ -9,16 +9,19 @@
 //! frame, 0.5 m voxel): at the end of 200 frames the arenas held 94 MB for 17.5 MB in use, two
 //! rayon workers' arenas 12.5 and 13.1 MB for under 40 kB in use (`malloc_stats`), and the peak
 //! RSS grew from 79 MB over 20 frames to 90 MB over 200 while the live heap stayed flat
-//! (heaptrack). Keeping the threshold fixed at its default gives 55 → 57 MB, at the cost of
-//! page faults on every frame's large buffers (system time 2.6–4.2 s instead of 0.7–1.0 s per 200
-//! frames; see docs/BENCHMARKS.md).
+//! (heaptrack). A fixed threshold stops that growth, at the cost of page faults on every frame's
+//! large buffers. Measured (docs/BENCHMARKS.md, idle, 20 → 200 KITTI-size frames, two runs each):
+//! at glibc's 128 KiB default, 48.6–49.2 → 51.3–51.7 MB peak RSS at 9.5–10.2 frames/s (system
+//! time 3.8–4.5 s per 200 frames); at 1 MiB, which leaves the sub-megabyte per-frame buffers in
+//! the arenas, 53.1–53.2 → 57.2–57.8 MB at 10.2–10.5 frames/s (3.3–3.5 s). 1 MiB is used: both
+//! stay within 10 % between a log and one 10× longer, and only 1 MiB keeps 10 frames/s.
 
-/// The `mmap` threshold kept: glibc's default, made static \[bytes\].
-pub const MMAP_THRESHOLD_BYTES: i32 = 128 * 1024;
+/// The static `mmap` threshold \[bytes\] (glibc's default is 128 KiB, dynamic).
+pub const MMAP_THRESHOLD_BYTES: i32 = 1024 * 1024;
 
 /// Makes glibc's `mmap` threshold static at [`MMAP_THRESHOLD_BYTES`] (which also fixes the trim
-/// threshold at its 128 KiB default), so memory a frame frees goes back to the system instead of
-/// accumulating in per-thread arenas. Process-wide: for the binary, not the library. No effect
+/// threshold at its 128 KiB default), so the large blocks a frame frees go back to the system
+/// instead of accumulating in per-thread arenas. Process-wide: for the binary, not the library. No effect
 /// with other allocators or C libraries.
 pub fn release_large_blocks_promptly() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
