@@ -11,8 +11,9 @@
 use nalgebra::Point3;
 
 use super::Neighbourhoods;
-use super::kdtree::QUERY_CHUNK;
-use crate::{Error, Result};
+use super::kdtree::{QUERY_CHUNK, check_points};
+use super::normals::check_search_params;
+use crate::Result;
 
 /// Largest number of cells along an axis; beyond it (a radius tiny against the cloud's extent)
 /// the caller should use the kd-tree.
@@ -23,7 +24,7 @@ const MAX_CELLS_PER_AXIS: f64 = (1u64 << 40) as f64;
 /// first neighbour. Returns `Ok(None)` when the cloud's extent exceeds 2⁴⁰ cells of the radius
 /// (use [`KdTree::hybrid_neighbourhoods`](super::KdTree::hybrid_neighbourhoods) then).
 ///
-/// Errors: [`Error::InvalidInput`] on a non-finite coordinate, `radius_m` not finite and
+/// Errors: [`Error::InvalidInput`](crate::Error::InvalidInput) on a non-finite coordinate, `radius_m` not finite and
 /// positive, `max_nn == 0`, or more than `u32::MAX` points.
 pub fn self_neighbourhoods(
     points: &[Point3<f64>],
@@ -43,27 +44,8 @@ pub fn self_neighbourhoods_into(
     max_nn: usize,
     out: &mut Neighbourhoods,
 ) -> Result<bool> {
-    if !(radius_m.is_finite() && radius_m > 0.0) || max_nn == 0 {
-        return Err(Error::InvalidInput(format!(
-            "neighbourhood search needs a finite radius > 0 and max_nn > 0, got {radius_m} and {max_nn}"
-        )));
-    }
-    if points.len() > u32::MAX as usize {
-        return Err(Error::InvalidInput(format!(
-            "at most {} points, got {}",
-            u32::MAX,
-            points.len()
-        )));
-    }
-    if let Some(i) = points
-        .iter()
-        .position(|p| !p.coords.iter().all(|c| c.is_finite()))
-    {
-        return Err(Error::InvalidInput(format!(
-            "point {i} has a non-finite coordinate: {:?}",
-            points[i]
-        )));
-    }
+    check_search_params(radius_m, max_nn)?;
+    check_points(points)?;
     let Some(grid) = Grid::new(points, radius_m) else {
         return Ok(false);
     };

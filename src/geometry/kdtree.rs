@@ -96,26 +96,33 @@ pub struct KdTree {
 /// Queries processed per rayon task when building [`Neighbourhoods`].
 pub(crate) const QUERY_CHUNK: usize = 256;
 
+/// The input checks of every neighbour search over `points`: at most `u32::MAX` points (indices
+/// are stored as `u32`), all coordinates finite.
+pub(crate) fn check_points(points: &[Point3<f64>]) -> Result<()> {
+    if points.len() > u32::MAX as usize {
+        return Err(Error::InvalidInput(format!(
+            "neighbour searches support at most {} points, got {}",
+            u32::MAX,
+            points.len()
+        )));
+    }
+    if let Some(i) = points
+        .iter()
+        .position(|p| !p.coords.iter().all(|c| c.is_finite()))
+    {
+        return Err(Error::InvalidInput(format!(
+            "point {i} has a non-finite coordinate: {:?}",
+            points[i]
+        )));
+    }
+    Ok(())
+}
+
 impl KdTree {
     /// Builds the tree. Fails with [`Error::InvalidInput`] on a non-finite coordinate or more than
     /// `u32::MAX` points. An empty slice gives a tree on which every query returns nothing.
     pub fn new(points: &[Point3<f64>]) -> Result<Self> {
-        if points.len() > u32::MAX as usize {
-            return Err(Error::InvalidInput(format!(
-                "kd-tree supports at most {} points, got {}",
-                u32::MAX,
-                points.len()
-            )));
-        }
-        if let Some(i) = points
-            .iter()
-            .position(|p| !p.coords.iter().all(|c| c.is_finite()))
-        {
-            return Err(Error::InvalidInput(format!(
-                "point {i} has a non-finite coordinate: {:?}",
-                points[i]
-            )));
-        }
+        check_points(points)?;
         if points.is_empty() {
             return Ok(Self { tree: None, len: 0 });
         }
