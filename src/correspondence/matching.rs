@@ -394,112 +394,102 @@ fn search_one(db: &Database, query: &Fpfh, low_query: &[f32; PCA_DIMS], radius_s
         .max(low_query.iter().fold(0.0f32, |m, c| m.max(c.abs())))
         * f32::EPSILON)
         .max(f32::MIN_POSITIVE);
-    let low_norm_sq = squared_norm(low_query);
-    let mut scan = Scan::EMPTY;
-    let mut threshold = f32::INFINITY;
+    let mut search = QuerySearch {
+        db,
+        query,
+        low_query,
+        low_norm_sq: squared_norm(low_query),
+        radius_sq,
+        eta,
+        scan: Scan::EMPTY,
+        threshold: f32::INFINITY,
+    };
     let blocks = db.low.len();
     let x = low_query[0];
     let start = db
         .first_axis_range
         .partition_point(|&(first, _)| first <= x);
     let (mut up, mut down) = (start, start);
-    loop {
-        let mut progressed = false;
+    while up < blocks || down > 0 {
         if up < blocks {
             let gap = db.first_axis_range[up].0 - x;
-            if gap > 0.0 && gap * gap > threshold {
+            if gap > 0.0 && gap * gap > search.threshold {
                 up = blocks;
             } else {
-                visit(
-                    db,
-                    up,
-                    query,
-                    low_query,
-                    low_norm_sq,
-                    radius_sq,
-                    &mut scan,
-                    &mut threshold,
-                    eta,
-                );
+                search.visit(up);
                 up += 1;
-                progressed = true;
             }
         }
         if down > 0 {
             let gap = x - db.first_axis_range[down - 1].1;
-            if gap > 0.0 && gap * gap > threshold {
+            if gap > 0.0 && gap * gap > search.threshold {
                 down = 0;
             } else {
-                visit(
-                    db,
-                    down - 1,
-                    query,
-                    low_query,
-                    low_norm_sq,
-                    radius_sq,
-                    &mut scan,
-                    &mut threshold,
-                    eta,
-                );
+                search.visit(down - 1);
                 down -= 1;
-                progressed = true;
             }
         }
-        if !progressed && up >= blocks && down == 0 {
-            return scan;
-        }
     }
+    search.scan
 }
 
-/// Offers block `b` to `scan` if its lower bound lets any lane through; refreshes `threshold`.
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-fn visit(
-    db: &Database,
-    b: usize,
-    query: &Fpfh,
-    low_query: &[f32; PCA_DIMS],
+/// One query's walk through a [`Database`]: the query, its projection, and its results so far.
+struct QuerySearch<'a> {
+    db: &'a Database,
+    query: &'a Fpfh,
+    low_query: &'a [f32; PCA_DIMS],
+    /// Squared norm of `low_query`.
     low_norm_sq: f32,
     radius_sq: f32,
-    scan: &mut Scan,
-    threshold: &mut f32,
+    /// Rounding bound of the stored projected coordinates (see [`prune_threshold`]).
     eta: f32,
-) {
-    // ‖a − b‖² = ‖a‖² + ‖b‖² − 2·a·b: one fused multiply-add per dimension and lane.
-    let mut dot = [0.0f32; LANES];
-    for (&q, row) in low_query.iter().zip(&db.low[b]) {
-        for l in 0..LANES {
-            dot[l] = q.mul_add(row[l], dot[l]);
+    scan: Scan,
+    /// Projected squared distance beyond which a lane cannot matter.
+    threshold: f32,
+}
+
+impl QuerySearch<'_> {
+    /// Offers block `b` to the scan if its lower bound lets any lane through; refreshes the
+    /// threshold.
+    #[inline(always)]
+    fn visit(&mut self, b: usize) {
+        let db = self.db;
+        // ‖a − b‖² = ‖a‖² + ‖b‖² − 2·a·b: one fused multiply-add per dimension and lane.
+        let mut dot = [0.0f32; LANES];
+        for (&q, row) in self.low_query.iter().zip(&db.low[b]) {
+            for l in 0..LANES {
+                dot[l] = q.mul_add(row[l], dot[l]);
+            }
         }
-    }
-    let limit = *threshold + DOT_SLACK * (low_norm_sq + db.low_norm_sq_max[b]);
-    let mut alive = false;
-    for (&d, &norm_sq) in dot.iter().zip(&db.low_norm_sq[b]) {
-        alive |= (low_norm_sq + norm_sq) - 2.0 * d <= limit;
-    }
-    if !alive {
-        return;
-    }
-    let mut acc = [0.0f32; LANES];
-    for (dim, row) in db.full[b].iter().enumerate() {
-        let q = query[dim];
-        for l in 0..LANES {
-            let x = q - row[l];
-            acc[l] = x.mul_add(x, acc[l]);
+        let limit = self.threshold + DOT_SLACK * (self.low_norm_sq + db.low_norm_sq_max[b]);
+        let mut alive = false;
+        for (&d, &norm_sq) in dot.iter().zip(&db.low_norm_sq[b]) {
+            alive |= (self.low_norm_sq + norm_sq) - 2.0 * d <= limit;
         }
-    }
-    let mut count = 0;
-    let mut improves = false;
-    for &d in &acc {
-        count += (d <= radius_sq) as u32;
-        improves |= d <= scan.second_sq;
-    }
-    scan.count += count;
-    if improves {
-        for (l, &d) in acc.iter().enumerate() {
-            scan.offer(db.index[b][l], d);
+        if !alive {
+            return;
         }
-        *threshold = prune_threshold(scan.second_sq.max(radius_sq), eta);
+        let mut acc = [0.0f32; LANES];
+        for (dim, row) in db.full[b].iter().enumerate() {
+            let q = self.query[dim];
+            for l in 0..LANES {
+                let x = q - row[l];
+                acc[l] = x.mul_add(x, acc[l]);
+            }
+        }
+        let mut count = 0;
+        let mut improves = false;
+        for &d in &acc {
+            count += (d <= self.radius_sq) as u32;
+            improves |= d <= self.scan.second_sq;
+        }
+        self.scan.count += count;
+        if improves {
+            for (l, &d) in acc.iter().enumerate() {
+                self.scan.offer(db.index[b][l], d);
+            }
+            self.threshold = prune_threshold(self.scan.second_sq.max(self.radius_sq), self.eta);
+        }
     }
 }
 
