@@ -65,16 +65,6 @@ fn real(args: &[String]) {
         mireg::pipeline::prepare_frame(&points, &config).expect("prepare")
     };
     let (s, t) = (prepare(src), prepare(tgt));
-    if let Ok(dir) = std::env::var("DUMP") {
-        let raw = |f: &[Fpfh]| {
-            f.iter()
-                .flatten()
-                .flat_map(|x| x.to_le_bytes())
-                .collect::<Vec<u8>>()
-        };
-        std::fs::write(format!("{dir}/src.f32"), raw(&s.features)).unwrap();
-        std::fs::write(format!("{dir}/tgt.f32"), raw(&t.features)).unwrap();
-    }
     let mut times = Vec::new();
     let mut out = Matches::default();
     for _ in 0..repeats {
