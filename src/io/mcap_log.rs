@@ -252,18 +252,118 @@ pub struct OutputLog {
     own_schemas: HashMap<(String, String, Vec<u8>), u16>,
     sequences: HashMap<u16, u32>,
     writeback: Option<Writeback>,
+    /// Bytes reserved on disk by [`reserve`](Self::reserve).
+    reserved: u64,
 }
 
-/// A thread that syncs the output file's data once, started when the copy of the input is
-/// complete: the disk writes then overlap whatever comes before [`OutputLog::finish`] (e.g. the
-/// registration of the last frames), whose own sync only waits for the rest.
-struct Writeback(std::thread::JoinHandle<()>);
+/// A thread that pushes the output file's data to disk while it is being written, so that the
+/// sync in [`OutputLog::finish`] only waits for the last few megabytes instead of the whole file.
+///
+/// [`OutputLog::write_behind`] hands it each stretch of [`WRITEBACK_STEP`] bytes that has reached
+/// the file, and it asks the kernel to start writing that stretch (`sync_file_range` with
+/// `SYNC_FILE_RANGE_WRITE` on Linux: no waiting, and no metadata or durability guarantee; that is
+/// still `finish`'s `fsync`). [`OutputLog::start_writeback`] makes it sync the file's data once
+/// (`fdatasync`), when the data section is complete, overlapping whatever comes before `finish`.
+/// Only an early start of the disk writes: a failure here shows in the final sync.
+struct Writeback {
+    thread: std::thread::JoinHandle<()>,
+    requests: Option<Sender<WritebackRequest>>,
+    /// End of the stretches handed on so far.
+    requested: u64,
+    /// Whether the data sync was requested.
+    synced: bool,
+}
+
+/// What the writeback thread is asked to do.
+enum WritebackRequest {
+    /// Start writing `len` bytes at `offset` to disk.
+    Range { offset: u64, len: u64 },
+    /// Sync the file's data (and wait for it).
+    SyncData,
+}
+
+/// Bytes of output handed to the writeback thread at a time: large enough that the calls cost
+/// nothing next to the copy, small enough that the disk starts early.
+const WRITEBACK_STEP: u64 = 8 << 20;
+
+impl Writeback {
+    fn start(file: File) -> Self {
+        let (tx, rx) = channel::<WritebackRequest>();
+        let thread = std::thread::spawn(move || {
+            for r in rx {
+                match r {
+                    WritebackRequest::Range { offset, len } => start_disk_write(&file, offset, len),
+                    WritebackRequest::SyncData => {
+                        let _ = file.sync_data();
+                    }
+                }
+            }
+        });
+        Self {
+            thread,
+            requests: Some(tx),
+            requested: 0,
+            synced: false,
+        }
+    }
+
+    fn send(&self, r: WritebackRequest) {
+        if let Some(tx) = &self.requests {
+            // A thread that is gone only means no early writeback.
+            let _ = tx.send(r);
+        }
+    }
+
+    /// Waits for the thread to finish what it was asked.
+    fn join(mut self) {
+        drop(self.requests.take());
+        let _ = self.thread.join();
+    }
+}
+
+/// Asks the kernel to start writing `len` bytes of `file` at `offset` to disk, without waiting.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+fn start_disk_write(file: &File, offset: u64, len: u64) {
+    use std::os::fd::AsRawFd;
+    let (Ok(offset), Ok(len)) = (i64::try_from(offset), i64::try_from(len)) else {
+        return;
+    };
+    // SAFETY: sync_file_range only reads its integer arguments; the descriptor is open for as
+    // long as `file` lives. Its result is advisory here (see `Writeback`).
+    unsafe {
+        libc::sync_file_range(file.as_raw_fd(), offset, len, libc::SYNC_FILE_RANGE_WRITE);
+    }
+}
+
+/// Allocates the first `bytes` of `file` on disk (`fallocate`, which also sets its length);
+/// whether it did.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+fn preallocate(file: &File, bytes: u64) -> bool {
+    use std::os::fd::AsRawFd;
+    let Ok(len) = i64::try_from(bytes) else {
+        return false;
+    };
+    // SAFETY: fallocate only reads its integer arguments; the descriptor is open for as long as
+    // `file` lives. Not posix_fallocate, which writes zeros where the file system cannot
+    // preallocate.
+    unsafe { libc::fallocate(file.as_raw_fd(), 0, 0, len) == 0 }
+}
+
+/// Elsewhere space is allocated as the file is written.
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+fn preallocate(_file: &File, _bytes: u64) -> bool {
+    false
+}
+
+/// Elsewhere the data goes to disk at the final sync.
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+fn start_disk_write(_file: &File, _offset: u64, _len: u64) {}
 
 impl Drop for OutputLog {
     fn drop(&mut self) {
-        // Let an early sync end before the temporary file is deleted.
-        if let Some(Writeback(t)) = self.writeback.take() {
-            let _ = t.join();
+        // Let the writeback thread end before the temporary file is deleted.
+        if let Some(w) = self.writeback.take() {
+            w.join();
         }
     }
 }
@@ -315,6 +415,7 @@ impl OutputLog {
             own_schemas: HashMap::new(),
             sequences: HashMap::new(),
             writeback: None,
+            reserved: 0,
         })
     }
 
@@ -444,20 +545,62 @@ impl OutputLog {
         self.w().message(&header, data)
     }
 
-    /// Starts pushing what was written so far to disk on another thread (once; see
+    /// The writeback thread, started on first use.
+    fn writeback(&mut self) -> Result<&mut Writeback> {
+        if self.writeback.is_none() {
+            let file = self.w().get_ref().get_ref().try_clone();
+            let file = file.map_err(|e| io_err(&self.target, e))?;
+            self.writeback = Some(Writeback::start(file));
+        }
+        Ok(self.writeback.as_mut().expect("just started"))
+    }
+
+    /// Lets the disk writes of what has reached the file so far start on another thread, once
+    /// a further [`WRITEBACK_STEP`] bytes have (see [`Writeback`]). Cheap: call it after each
+    /// large write.
+    pub fn write_behind(&mut self) -> Result<()> {
+        let w = self.w();
+        let written = w.position() - w.get_ref().buffer().len() as u64;
+        let requested = self.writeback.as_ref().map_or(0, |w| w.requested);
+        if written < requested + WRITEBACK_STEP {
+            return Ok(());
+        }
+        let wb = self.writeback()?;
+        if !wb.synced {
+            wb.send(WritebackRequest::Range {
+                offset: requested,
+                len: written - requested,
+            });
+        }
+        wb.requested = written;
+        Ok(())
+    }
+
+    /// Syncs what was written so far to disk on another thread (once; see
     /// [`finish`](Self::finish), which waits for it and syncs the rest).
     pub fn start_writeback(&mut self) -> Result<()> {
-        if self.writeback.is_some() {
+        if self.writeback.as_ref().is_some_and(|w| w.synced) {
             return Ok(());
         }
         let r = self.w().flush();
         r?;
-        let file = self.w().get_ref().get_ref().try_clone();
-        let file = file.map_err(|e| io_err(&self.target, e))?;
-        // Only an early start of the disk writes: a failure shows in the final sync.
-        self.writeback = Some(Writeback(std::thread::spawn(move || {
-            let _ = file.sync_data();
-        })));
+        let wb = self.writeback()?;
+        wb.send(WritebackRequest::SyncData);
+        wb.synced = true;
+        Ok(())
+    }
+
+    /// Reserves `bytes` of disk space for the file (e.g. the size of a log about to be copied into
+    /// it), so that writing it only fills blocks already allocated instead of reserving them
+    /// page by page. The file is cut to what was written in [`finish`](Self::finish). Advisory:
+    /// does nothing where the file system (or the platform) cannot preallocate.
+    pub fn reserve(&mut self, bytes: u64) -> Result<()> {
+        if bytes <= self.reserved {
+            return Ok(());
+        }
+        if preallocate(self.w().get_ref().get_ref(), bytes) {
+            self.reserved = bytes;
+        }
         Ok(())
     }
 
@@ -474,12 +617,18 @@ impl OutputLog {
     pub fn finish(mut self) -> Result<()> {
         let writer = self.writer.take().expect("writer present until finish");
         let buf = writer.finish()?;
-        if let Some(Writeback(t)) = self.writeback.take() {
-            let _ = t.join();
+        if let Some(w) = self.writeback.take() {
+            w.join();
         }
-        let file = buf
+        let mut file = buf
             .into_inner()
             .map_err(|e| io_err(&self.target, e.into_error()))?;
+        if self.reserved > 0 {
+            // Drop the reserved space that was not written.
+            let len = std::io::Seek::stream_position(&mut file);
+            let len = len.map_err(|e| io_err(&self.target, e))?;
+            file.set_len(len).map_err(|e| io_err(&self.target, e))?;
+        }
         // Temporary files are created private (0600); a finished log is an ordinary file.
         #[cfg(unix)]
         {
@@ -964,6 +1113,7 @@ impl PassThrough<'_> {
                     body.extend_from_slice(&head);
                     src.append(opcode, len - head.len() as u64, &mut body)?;
                     let crc_id = log.w().write_copied(&body[head.len()..])?;
+                    log.write_behind()?;
                     open = Some(Group {
                         at: ChunkAt {
                             chunk,
@@ -1038,6 +1188,8 @@ pub fn pass_through(
         ));
     }
     src.body(opcode, len, &mut Vec::new())?;
+    // The output is about as large as the input.
+    log.reserve(size)?;
     let decoder = ChunkDecoder::new().map_err(|e| mcap_err(input, "reading MCAP records", e))?;
     std::thread::scope(|scope| {
         let (jobs, job_rx) = sync_channel(VALIDATION_QUEUE);
@@ -1072,4 +1224,79 @@ pub fn pass_through(
         }
         Ok(p.messages)
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A log written into reserved space larger than what it ends up holding, with its disk
+    /// writes started on the way: the file is cut to its records, which read back unchanged with
+    /// the mcap crate's reader (chunk, data-section and summary CRCs checked).
+    #[test]
+    fn reserved_space_and_early_writeback_leave_an_exact_log() {
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("out.mcap");
+        let mut log = OutputLog::create(&target, false, "x").unwrap();
+        let reserved = 4 * WRITEBACK_STEP;
+        log.reserve(reserved).unwrap();
+        if cfg!(all(target_os = "linux", target_env = "gnu")) {
+            let temp: &Path = log.temp.as_ref().unwrap();
+            // tmpfs and ext4 both preallocate; the cut at the end is then exercised.
+            assert_eq!(std::fs::metadata(temp).unwrap().len(), reserved);
+        }
+        let ch = log
+            .add_channel("/blob", "", "", &[], "application/octet-stream")
+            .unwrap();
+        // Incompressible payloads (xorshift), so that the file passes several writeback steps.
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut payloads = Vec::new();
+        for k in 0..24u64 {
+            let data: Vec<u8> = (0..1 << 20)
+                .map(|_| {
+                    state ^= state << 13;
+                    state ^= state >> 7;
+                    state ^= state << 17;
+                    state as u8
+                })
+                .collect();
+            log.write(ch, k, k, &data).unwrap();
+            log.write_behind().unwrap();
+            payloads.push(data);
+        }
+        let requested = log.writeback.as_ref().map_or(0, |w| w.requested);
+        assert!(
+            requested >= 2 * WRITEBACK_STEP,
+            "handed on {requested} bytes"
+        );
+        log.start_writeback().unwrap();
+        log.write_behind().unwrap(); // after the data sync was requested: nothing more to do
+        log.finish().unwrap();
+
+        let bytes = std::fs::read(&target).unwrap();
+        assert!((bytes.len() as u64) < reserved);
+        assert!(bytes.ends_with(mcap::MAGIC));
+        let summary = mcap::Summary::read(&bytes).unwrap().expect("summary");
+        assert_eq!(summary.stats.as_ref().unwrap().message_count, 24);
+        let read: Vec<Vec<u8>> = mcap::MessageStream::new(&bytes)
+            .unwrap()
+            .map(|m| m.unwrap().data.into_owned())
+            .collect();
+        assert!(read == payloads, "payloads differ");
+        let mut reader = LinearReader::new_with_options(
+            mcap::sans_io::LinearReaderOptions::default()
+                .with_validate_chunk_crcs(true)
+                .with_validate_data_section_crc(true)
+                .with_validate_summary_section_crc(true),
+        );
+        let mut rest = &bytes[..];
+        while let Some(e) = reader.next_event() {
+            if let LinearReadEvent::ReadRequest(need) = e.unwrap() {
+                let n = need.min(rest.len());
+                reader.insert(n).copy_from_slice(&rest[..n]);
+                reader.notify_read(n);
+                rest = &rest[n..];
+            }
+        }
+    }
 }
