@@ -14,7 +14,7 @@ use crate::correspondence::ranking::{CountOrder, PAPER_DESCRIPTOR_RADIUS};
 use crate::io::{cloud_file, pose_file};
 use crate::odometry::OdometryConfig;
 use crate::pipeline::{
-    PairConfig, PairResult, RankingConfig, SamplerConfig, pose_error, register_pair,
+    PairConfig, PairResult, RankingConfig, SamplerConfig, Verification, pose_error, register_pair,
 };
 use crate::register::{RegisterOptions, RegisterSummary, default_output, register_log};
 use crate::simulate::{CSV_HEADER, SimulationConfig, SimulationRow, simulate};
@@ -67,6 +67,15 @@ pub enum RankingArg {
     CountFewest,
 }
 
+/// Hypothesis verification on the command line ([`crate::pipeline::Verification`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum VerificationArg {
+    /// Overlap of the whole feature clouds (Open3D's fitness).
+    Dense,
+    /// Correspondence inliers (the paper's count).
+    Correspondences,
+}
+
 /// Ground-truth file formats for `--gt`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum GtFormat {
@@ -114,6 +123,9 @@ pub struct RegistrationFlags {
     /// Cap on RANSAC hypotheses [default: 100000].
     #[arg(long)]
     pub max_hypotheses: Option<u64>,
+    /// What RANSAC hypotheses are scored against [default: dense].
+    #[arg(long, value_enum)]
+    pub verification: Option<VerificationArg>,
     /// Skip ICP refinement.
     #[arg(long)]
     pub no_icp: bool,
@@ -191,6 +203,12 @@ impl RegistrationFlags {
         };
         if let Some(m) = self.max_hypotheses {
             c.max_hypotheses = m;
+        }
+        if let Some(v) = self.verification {
+            c.verification = match v {
+                VerificationArg::Dense => Verification::Dense,
+                VerificationArg::Correspondences => Verification::Correspondences,
+            };
         }
         if self.no_icp {
             c.icp = false;

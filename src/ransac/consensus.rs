@@ -114,7 +114,8 @@ pub struct Consensus<M> {
     pub prerejected: u64,
     /// Hypotheses whose sample was degenerate (no model).
     pub degenerate: u64,
-    /// Hypotheses scored against all data.
+    /// Hypotheses scored against all data (including those whose scoring stopped early because
+    /// they could not beat the best model; see [`Estimator::score_unless_worse`]).
     pub verified: u64,
     /// Index (0-based) of the hypothesis that first produced the final best model.
     pub best_found_at: Option<u64>,
@@ -125,6 +126,8 @@ pub struct Consensus<M> {
 enum Outcome<M> {
     Prerejected,
     Degenerate,
+    /// Scoring stopped early: cannot beat the best model known before its batch.
+    Worse,
     Scored(Score, M),
 }
 
@@ -193,7 +196,7 @@ pub fn run_consensus<S: Sampler, E: Estimator>(
         return out;
     }
 
-    let evaluate = |h: u64| -> Outcome<E::Model> {
+    let evaluate = |h: u64, bound: Option<&Score>| -> Outcome<E::Model> {
         let mut rng = hypothesis_rng(config.seed, h);
         let mut buf = [0usize; MAX_SAMPLE_SIZE];
         let sample = &mut buf[..s];
@@ -201,9 +204,12 @@ pub fn run_consensus<S: Sampler, E: Estimator>(
         if !estimator.accept_sample(sample) {
             return Outcome::Prerejected;
         }
-        match estimator.estimate(sample) {
-            Some(model) => Outcome::Scored(estimator.score(&model, threshold_sq), model),
-            None => Outcome::Degenerate,
+        let Some(model) = estimator.estimate(sample) else {
+            return Outcome::Degenerate;
+        };
+        match estimator.score_unless_worse(&model, threshold_sq, bound, config.scoring) {
+            Some(score) => Outcome::Scored(score, model),
+            None => Outcome::Worse,
         }
     };
 
@@ -221,9 +227,11 @@ pub fn run_consensus<S: Sampler, E: Estimator>(
             .min(config.max_hypotheses)
             .min(limit.ceil() as u64);
         batch_size = (batch_size * 2).min(MAX_BATCH_SIZE as u64);
+        // The best before this batch: fixed for the batch whatever the thread count.
+        let bound = best.as_ref().map(|(score, _)| *score);
         (0..(h1 - h0) as usize)
             .into_par_iter()
-            .map(|k| evaluate(h0 + k as u64))
+            .map(|k| evaluate(h0 + k as u64, bound.as_ref()))
             .collect_into_vec(&mut batch);
         for (k, outcome) in batch.drain(..).enumerate() {
             let h = h0 + k as u64;
@@ -238,6 +246,10 @@ pub fn run_consensus<S: Sampler, E: Estimator>(
                 }
                 Outcome::Degenerate => {
                     out.degenerate += 1;
+                    continue;
+                }
+                Outcome::Worse => {
+                    out.verified += 1;
                     continue;
                 }
                 Outcome::Scored(score, model) => (score, model),
@@ -319,7 +331,11 @@ fn local_optimisation<E: Estimator>(
         let Some(refit) = estimator.refit(inliers) else {
             break;
         };
-        let refit_score = estimator.score(&refit, threshold_sq);
+        let Some(refit_score) =
+            estimator.score_unless_worse(&refit, threshold_sq, Some(&score), config.scoring)
+        else {
+            break;
+        };
         if !better(&refit_score, &score, config.scoring) {
             break;
         }

@@ -2,10 +2,12 @@
 
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
-/// Inlier count and MSAC cost of a model over all correspondences.
+/// Inlier count and MSAC cost of a model: by default over all correspondences; an estimator may
+/// score against other data ([`DenseRigidEstimator`](super::DenseRigidEstimator): the whole source
+/// cloud).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Score {
-    /// Correspondences with squared residual below the squared threshold.
+    /// Items (by default correspondences) with squared residual below the squared threshold.
     pub inliers: u32,
     /// Truncated-quadratic (MSAC, Torr & Zisserman 2000) cost `Σ min(r², τ²)` \[residual units²\].
     pub cost: f64,
@@ -34,7 +36,9 @@ pub trait Estimator: Sync {
     /// Squared residual of item `i` under `model` \[residual units²\].
     fn residual_sq(&self, model: &Self::Model, i: usize) -> f64;
 
-    /// Scores `model` over all items with squared inlier threshold `threshold_sq`. Override for speed.
+    /// Scores `model` with squared inlier threshold `threshold_sq`. Default: over all items with
+    /// [`Estimator::residual_sq`]; override for speed, or to verify against other data than the
+    /// items ([`DenseRigidEstimator`](super::DenseRigidEstimator)).
     fn score(&self, model: &Self::Model, threshold_sq: f64) -> Score {
         let mut s = Score::default();
         for i in 0..self.num_items() {
@@ -43,6 +47,20 @@ pub trait Estimator: Sync {
             s.cost += r.min(threshold_sq);
         }
         s
+    }
+
+    /// [`Estimator::score`], allowed to stop early and return `None` as soon as the model provably
+    /// cannot be strictly better than `bound` under `scoring` (more inliers, or a lower cost). The
+    /// consensus loop passes the best score known before the hypothesis's batch, so stopping
+    /// never changes which model wins. Default: scores fully.
+    fn score_unless_worse(
+        &self,
+        model: &Self::Model,
+        threshold_sq: f64,
+        _bound: Option<&Score>,
+        _scoring: super::Scoring,
+    ) -> Option<Score> {
+        Some(self.score(model, threshold_sq))
     }
 
     /// Least-squares refit on a (non-minimal) inlier set for local optimisation. Default: the

@@ -298,6 +298,15 @@ impl IcpTarget {
         self.normals.as_deref()
     }
 
+    /// Squared distance \[m²\] from `p` to the nearest target point.
+    pub fn nearest_distance_squared(&self, p: &Point3<f64>) -> f64 {
+        self.tree
+            .query(&[p.x, p.y, p.z])
+            .nearest_one::<SquaredEuclidean<f64>>()
+            .execute()
+            .distance
+    }
+
     /// Index of and squared distance \[m²\] to the nearest target point if it is within
     /// `max_squared` \[m²\] (inclusive; the caller applies Open3D's strict bound). Which of several
     /// equidistant points is returned is kiddo's choice.
