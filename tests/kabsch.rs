@@ -106,3 +106,39 @@ fn planar_points_with_reflection_ambiguity_give_a_rotation() {
     let (r, t) = pose_error(&gt, &est);
     assert!(r < 1e-9 && t < 1e-9);
 }
+
+/// Open3D's distance checker: a model fitted to a sample survives only if it maps each sampled
+/// source point strictly within the distance of its target point.
+#[test]
+fn sample_distance_check_rejects_samples_that_disagree_with_their_own_model() {
+    use mireg::ransac::estimator::{Estimator, RigidEstimator};
+    let mut rng = Pcg64Mcg::seed_from_u64(7);
+    let gt = random_isometry(&mut rng);
+    // A unit right triangle and a fourth point; correspondence 3 is moved 2 m along the first
+    // edge in the target, which changes that triangle's edge lengths by more than 0.5 m: no
+    // rigid model can then keep all three residuals below 0.25 m (|Δedge| ≤ rᵢ + rⱼ).
+    let src = vec![
+        Point3::new(0.0, 0.0, 0.0),
+        Point3::new(1.0, 0.0, 0.0),
+        Point3::new(0.0, 1.0, 0.0),
+        Point3::new(1.0, 1.0, 0.0),
+    ];
+    let mut tgt: Vec<Point3<f64>> = src.iter().map(|p| gt * p).collect();
+    tgt[3] = gt * Point3::new(3.0, 1.0, 0.0);
+    let check = |distance: Option<f64>, sample: &[usize]| {
+        let e = RigidEstimator::new(&src, &tgt)
+            .edge_similarity(0.0)
+            .sample_distance(distance);
+        let model = e.estimate(sample).expect("non-degenerate sample");
+        e.accept_model(&model, sample)
+    };
+    // Exact correspondences: residuals are rounding only.
+    assert!(check(Some(1e-6), &[0, 1, 2]));
+    for distance in [Some(0.05), Some(0.25)] {
+        assert!(!check(distance, &[0, 1, 3]), "{distance:?}");
+        assert!(!check(distance, &[1, 2, 3]), "{distance:?}");
+    }
+    // A distance beyond every residual accepts; no check accepts everything.
+    assert!(check(Some(10.0), &[0, 1, 3]));
+    assert!(check(None, &[0, 1, 3]));
+}

@@ -207,6 +207,9 @@ pub fn run_consensus<S: Sampler, E: Estimator>(
         let Some(model) = estimator.estimate(sample) else {
             return Outcome::Degenerate;
         };
+        if !estimator.accept_model(&model, sample) {
+            return Outcome::Prerejected;
+        }
         match estimator.score_unless_worse(&model, threshold_sq, bound, config.scoring) {
             Some(score) => Outcome::Scored(score, model),
             None => Outcome::Worse,

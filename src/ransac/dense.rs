@@ -108,6 +108,10 @@ impl Estimator for DenseRigidEstimator<'_> {
         self.correspondences.estimate(sample)
     }
 
+    fn accept_model(&self, model: &Isometry3<f64>, sample: &[usize]) -> bool {
+        self.correspondences.accept_model(model, sample)
+    }
+
     #[inline]
     fn residual_sq(&self, model: &Isometry3<f64>, i: usize) -> f64 {
         self.correspondences.residual_sq(model, i)

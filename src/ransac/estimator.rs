@@ -33,6 +33,12 @@ pub trait Estimator: Sync {
     /// Fits a model to a minimal (or larger) sample; `None` for a degenerate sample.
     fn estimate(&self, sample: &[usize]) -> Option<Self::Model>;
 
+    /// A cheap test of the model fitted to `sample`, before it is scored (pre-rejection after
+    /// estimation, e.g. Open3D's `CorrespondenceCheckerBasedOnDistance`). Default: accept.
+    fn accept_model(&self, _model: &Self::Model, _sample: &[usize]) -> bool {
+        true
+    }
+
     /// Squared residual of item `i` under `model` \[residual units²\].
     fn residual_sq(&self, model: &Self::Model, i: usize) -> f64;
 
@@ -87,6 +93,8 @@ pub struct RigidEstimator<'a> {
     target: &'a [Point3<f64>],
     edge_similarity: f64,
     min_singular_ratio: f64,
+    /// Squared distance bound of the sample check (m²); `None`: no check.
+    sample_distance_sq: Option<f64>,
 }
 
 impl<'a> RigidEstimator<'a> {
@@ -102,7 +110,23 @@ impl<'a> RigidEstimator<'a> {
             target,
             edge_similarity: DEFAULT_EDGE_SIMILARITY,
             min_singular_ratio: DEFAULT_MIN_SINGULAR_RATIO,
+            sample_distance_sq: None,
         }
+    }
+
+    /// Distance pre-rejection after estimation (Open3D's `CorrespondenceCheckerBasedOnDistance`):
+    /// a model survives only if it maps every correspondence of its own sample strictly within
+    /// `distance` \[m\] of its target point. `None` (the default) disables it.
+    #[must_use]
+    pub fn sample_distance(mut self, distance: Option<f64>) -> Self {
+        if let Some(d) = distance {
+            assert!(
+                d.is_finite() && d > 0.0,
+                "sample distance {d} not finite and > 0"
+            );
+        }
+        self.sample_distance_sq = distance.map(|d| d * d);
+        self
     }
 
     /// Edge-length pre-rejection: a sample survives only if for every pair of its correspondences
@@ -155,6 +179,11 @@ impl Estimator for RigidEstimator<'_> {
 
     fn estimate(&self, sample: &[usize]) -> Option<Isometry3<f64>> {
         kabsch_indexed(self.source, self.target, sample, self.min_singular_ratio)
+    }
+
+    fn accept_model(&self, model: &Isometry3<f64>, sample: &[usize]) -> bool {
+        self.sample_distance_sq
+            .is_none_or(|bound| sample.iter().all(|&i| self.residual_sq(model, i) < bound))
     }
 
     #[inline]
