@@ -48,6 +48,8 @@ pub struct RadiusGrid {
     starts: Vec<u32>,
     /// Coordinates in cell order (original axis order).
     xyz: Vec<[f64; 3]>,
+    /// Index in the input cloud of each entry of `xyz`.
+    index: Vec<u32>,
 }
 
 impl RadiusGrid {
@@ -132,9 +134,11 @@ impl RadiusGrid {
         }
         let mut next = starts.clone();
         let mut xyz = vec![[0.0; 3]; points.len()];
-        for (p, &c) in points.iter().zip(&cell) {
+        let mut index = vec![0u32; points.len()];
+        for (i, (p, &c)) in points.iter().zip(&cell).enumerate() {
             let s = &mut next[slot(c)];
             xyz[*s as usize] = [p.x, p.y, p.z];
+            index[*s as usize] = i as u32;
             *s += 1;
         }
         Ok(Some(Self {
@@ -146,6 +150,7 @@ impl RadiusGrid {
             columns,
             starts,
             xyz,
+            index,
         }))
     }
 
@@ -153,6 +158,14 @@ impl RadiusGrid {
     /// the radius squared, else `None`. Exact (the same value as a kd-tree's nearest neighbour
     /// whenever that one is within the radius). A non-finite `q` has no neighbour.
     pub fn nearest_within_sq(&self, q: &Point3<f64>) -> Option<f64> {
+        self.nearest_within(q).map(|(_, d)| d)
+    }
+
+    /// Index (in the cloud given to [`RadiusGrid::new`]) of and squared distance \[m²\] to the
+    /// nearest point of the cloud if that is strictly within the radius, else `None`. Of several
+    /// equidistant nearest points, the one first in the grid's storage order. A non-finite `q`
+    /// has no neighbour.
+    pub fn nearest_within(&self, q: &Point3<f64>) -> Option<(u32, f64)> {
         let mut c = [0i64; 3];
         for k in 0..3 {
             let f = ((q[self.axes[k]] - self.min[k]) / self.edge).floor();
@@ -171,6 +184,7 @@ impl RadiusGrid {
         let span =
             |k: usize| (c[k] - 1).max(0) as usize..=((c[k] + 1) as usize).min(self.dims[k] - 1);
         let mut best = self.radius_sq;
+        let mut best_at = usize::MAX;
         for x in span(0) {
             for y in span(1) {
                 let col = x * self.dims[1] + y;
@@ -186,17 +200,18 @@ impl RadiusGrid {
                 }
                 let first = self.starts[off as usize + (a - z_lo as i64) as usize] as usize;
                 let last = self.starts[off as usize + (b - z_lo as i64) as usize + 1] as usize;
-                for p in &self.xyz[first..last] {
+                for (k, p) in self.xyz[first..last].iter().enumerate() {
                     // kiddo's squared Euclidean distance, term by term.
                     let (dx, dy, dz) = (q.x - p[0], q.y - p[1], q.z - p[2]);
                     let d = dx * dx + dy * dy + dz * dz;
                     if d < best {
                         best = d;
+                        best_at = first + k;
                     }
                 }
             }
         }
-        (best < self.radius_sq).then_some(best)
+        (best < self.radius_sq).then(|| (self.index[best_at], best))
     }
 
     /// Number of points.
@@ -280,11 +295,16 @@ mod tests {
                         rng.random_range(lo[a] - 1.5 * radius..hi[a] + 1.5 * radius)
                     }))
                 };
-                assert_eq!(
-                    grid.nearest_within_sq(&q),
-                    oracle(points, &q, radius),
-                    "{q:?}"
-                );
+                let expected = oracle(points, &q, radius);
+                assert_eq!(grid.nearest_within_sq(&q), expected, "{q:?}");
+                // The index returned is a point at exactly that distance.
+                let found = grid.nearest_within(&q);
+                assert_eq!(found.map(|(_, d)| d), expected, "{q:?}");
+                if let Some((j, d)) = found {
+                    let p = points[j as usize];
+                    let (dx, dy, dz) = (q.x - p.x, q.y - p.y, q.z - p.z);
+                    assert_eq!(dx * dx + dy * dy + dz * dz, d, "{q:?}");
+                }
             }
             let inside = points[0];
             for far in [

@@ -13,6 +13,8 @@ use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
 use rayon::prelude::*;
 
+use crate::geometry::RadiusGrid;
+use crate::geometry::radius_grid::{DEFAULT_COLUMNS_PER_POINT, DEFAULT_MIN_COLUMNS};
 use crate::{Error, Result};
 
 /// Default [`IcpConfig::max_iterations`] (Open3D's `ICPConvergenceCriteria` default).
@@ -389,6 +391,7 @@ impl PassSums {
 fn correspondence_pass(
     source: &[Point3<f64>],
     target: &IcpTarget,
+    grid: Option<&RadiusGrid>,
     target_from_source: &Isometry3<f64>,
     max_distance_m: f64,
     kernel: Option<RobustKernel>,
@@ -401,7 +404,11 @@ fn correspondence_pass(
             let mut sums = PassSums::zero();
             for s in chunk {
                 let p = target_from_source * s;
-                let Some((j, squared)) = target.nearest(&p, max_squared) else {
+                let nearest = match grid {
+                    Some(grid) => grid.nearest_within(&p).map(|(j, d)| (j as usize, d)),
+                    None => target.nearest(&p, max_squared),
+                };
+                let Some((j, squared)) = nearest else {
                     continue;
                 };
                 // NOTE: strict `<` like Open3D's nanoflann radius search.
@@ -470,6 +477,15 @@ fn update_from_vector(x: &Vector6<f64>) -> Isometry3<f64> {
     )
 }
 
+/// A grid over the target at the correspondence distance, where its extent allows: every
+/// correspondence search then scans a few cells (one grid build per call, linear in the target)
+/// instead of descending the kd-tree. Measured on the KITTI pair at 0.5 m (docs/BENCHMARKS.md).
+/// Same pairs as the tree except between exactly equidistant target points.
+fn correspondence_grid(target: &IcpTarget, max_distance_m: f64) -> Result<Option<RadiusGrid>> {
+    let cap = (DEFAULT_COLUMNS_PER_POINT * target.points.len()).max(DEFAULT_MIN_COLUMNS);
+    RadiusGrid::new(&target.points, max_distance_m, cap)
+}
+
 /// Fitness and inlier RMSE of `target_from_source`, exactly as Open3D's `evaluate_registration`:
 /// each source point moved into the target frame is paired with its nearest target point; pairs
 /// closer than `max_correspondence_distance_m` \[m\] (strictly) are inliers; fitness = inliers /
@@ -489,7 +505,8 @@ pub fn evaluate_registration(
             "max_correspondence_distance_m must be finite and > 0, got {d}"
         )));
     }
-    let sums = correspondence_pass(source, target, target_from_source, d, None);
+    let grid = correspondence_grid(target, d)?;
+    let sums = correspondence_pass(source, target, grid.as_ref(), target_from_source, d, None);
     Ok(sums.evaluation(source.len()))
 }
 
@@ -519,7 +536,11 @@ pub fn registration_icp_point_to_plane(
     let max_distance_m = config.max_correspondence_distance_m;
     let kernel = Some(config.robust_kernel);
     let mut target_from_source = *init_target_from_source;
-    let mut sums = correspondence_pass(source, target, &target_from_source, max_distance_m, kernel);
+    let grid = correspondence_grid(target, max_distance_m)?;
+    let pass = |pose: &Isometry3<f64>| {
+        correspondence_pass(source, target, grid.as_ref(), pose, max_distance_m, kernel)
+    };
+    let mut sums = pass(&target_from_source);
     let mut evaluation = sums.evaluation(source.len());
     let mut iterations = 0;
     let mut converged = false;
@@ -537,7 +558,7 @@ pub fn registration_icp_point_to_plane(
         target_from_source = update_from_vector(&x) * target_from_source;
         target_from_source.rotation.renormalize();
         iterations += 1;
-        sums = correspondence_pass(source, target, &target_from_source, max_distance_m, kernel);
+        sums = pass(&target_from_source);
         let next = sums.evaluation(source.len());
         let small_change = (next.fitness - evaluation.fitness).abs() < config.relative_fitness
             && (next.inlier_rmse_m - evaluation.inlier_rmse_m).abs() < config.relative_rmse;
