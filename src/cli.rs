@@ -413,6 +413,7 @@ fn load_gt(args: &PairArgs, path: &Path) -> Result<Isometry3<f64>> {
 }
 
 fn run_pair(args: &PairArgs) -> Result<()> {
+    crate::heap::keep_freed_memory();
     let config = args.flags.config()?;
     let gt = args.gt.as_deref().map(|p| load_gt(args, p)).transpose()?;
     let (source, target) = rayon::join(

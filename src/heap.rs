@@ -1,4 +1,5 @@
-//! Allocator settings for long streaming runs (`mireg register`).
+//! Allocator settings: for long streaming runs (`mireg register`) and for one-shot commands
+//! (`mireg pair`).
 //!
 //! glibc's malloc serves blocks of at least `M_MMAP_THRESHOLD` (128 KiB) with their own `mmap`,
 //! returned to the system on free. But by default the threshold is *dynamic*: freeing such a block
@@ -29,5 +30,30 @@ pub fn release_large_blocks_promptly() {
     // lock) and M_MMAP_THRESHOLD accepts any value up to 32 MiB.
     unsafe {
         libc::mallopt(libc::M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES);
+    }
+}
+
+/// Largest `mmap` threshold glibc accepts on 64-bit targets (its `DEFAULT_MMAP_THRESHOLD_MAX`).
+const ONE_SHOT_MMAP_THRESHOLD_BYTES: i32 = 32 * 1024 * 1024;
+/// Trim threshold and top padding \[bytes\] of [`keep_freed_memory`].
+const ONE_SHOT_TRIM_BYTES: i32 = 1 << 30;
+const ONE_SHOT_TOP_PAD_BYTES: i32 = 64 * 1024 * 1024;
+
+/// For one-shot commands (`mireg pair`): keeps freed memory in the heap for reuse instead of
+/// returning it (blocks up to 32 MiB come from the heap, which is grown 64 MiB at a time and never
+/// trimmed). A registration allocates and frees the same multi-megabyte buffers stage after
+/// stage; with glibc's defaults each of them is a fresh `mmap`, faulted in page by page, and an
+/// `munmap` that interrupts the other core to flush its TLB. Measured on the KITTI pair at 0.5 m
+/// (posed source, `/usr/bin/time`, 3–4 runs each, docs/BENCHMARKS.md): 13.0k → 9.5–10.1k minor
+/// faults, 0.05–0.07 → 0.01–0.03 s system time, 39–40 → 43–45 MB peak RSS. Not for `register`, whose
+/// memory must stay flat over long logs ([`release_large_blocks_promptly`]).
+pub fn keep_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt only sets allocator parameters; it is thread-safe, and the values are
+    // within the ranges glibc accepts.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, ONE_SHOT_MMAP_THRESHOLD_BYTES);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, ONE_SHOT_TRIM_BYTES);
+        libc::mallopt(libc::M_TOP_PAD, ONE_SHOT_TOP_PAD_BYTES);
     }
 }
