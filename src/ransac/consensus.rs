@@ -334,11 +334,9 @@ fn local_optimisation<E: Estimator>(
         let Some(refit) = estimator.refit(inliers) else {
             break;
         };
-        let Some(refit_score) =
-            estimator.score_unless_worse(&refit, threshold_sq, Some(&score), config.scoring)
-        else {
-            break;
-        };
+        // Scored fully (refits are usually better, so an early stop would rarely save work, and
+        // an estimator may parallelise a full score).
+        let refit_score = estimator.score(&refit, threshold_sq);
         if !better(&refit_score, &score, config.scoring) {
             break;
         }

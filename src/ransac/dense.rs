@@ -9,6 +9,7 @@
 //! wrong ones. The overlap does not depend on the descriptors.
 
 use nalgebra::{Isometry3, Matrix3, Point3};
+use rayon::prelude::*;
 
 use super::Scoring;
 use super::estimator::{Estimator, RigidEstimator, Score};
@@ -72,7 +73,32 @@ pub struct DenseRigidEstimator<'a> {
     target_cloud: &'a OverlapTarget<'a>,
 }
 
+/// Source points per chunk of a dense score (the unit of its parallel sum).
+const SCORE_CHUNK: usize = 1024;
+
+/// The rotation matrix and translation of `model`.
+fn rotation_translation(model: &Isometry3<f64>) -> (Matrix3<f64>, nalgebra::Vector3<f64>) {
+    (
+        model.rotation.to_rotation_matrix().into_inner(),
+        model.translation.vector,
+    )
+}
+
 impl<'a> DenseRigidEstimator<'a> {
+    /// Squared distance from source point `p` moved by (`r`, `t`) to the nearest target point,
+    /// clamped to `threshold_sq`.
+    #[inline]
+    fn distance_sq(
+        &self,
+        r: &Matrix3<f64>,
+        t: &nalgebra::Vector3<f64>,
+        p: &Point3<f64>,
+        threshold_sq: f64,
+    ) -> f64 {
+        let q = Point3::from(r * p.coords + t);
+        self.target_cloud.clamped_distance_sq(&q, threshold_sq)
+    }
+
     /// Scores `correspondences`' models by the overlap of `source_cloud` (source frame) with
     /// `target_cloud` (target frame). The consensus loop's inlier threshold must be the one
     /// `target_cloud` was built for.
@@ -117,14 +143,36 @@ impl Estimator for DenseRigidEstimator<'_> {
         self.correspondences.residual_sq(model, i)
     }
 
+    /// All source points, in parallel over fixed chunks summed in order: the same score as
+    /// [`Estimator::score_unless_worse`] without a bound, on any thread count. (The local
+    /// optimisation scores its refits one at a time, on the consensus loop's thread.)
     fn score(&self, model: &Isometry3<f64>, threshold_sq: f64) -> Score {
-        self.score_unless_worse(model, threshold_sq, None, Scoring::InlierCount)
-            .expect("no bound, no early stop")
+        let (r, t) = rotation_translation(model);
+        let partials: Vec<(u32, f64)> = self
+            .source_cloud
+            .par_chunks(SCORE_CHUNK)
+            .map(|chunk| {
+                let (mut inliers, mut cost) = (0u32, 0.0);
+                for p in chunk {
+                    let d = self.distance_sq(&r, &t, p, threshold_sq);
+                    inliers += (d < threshold_sq) as u32;
+                    cost += d;
+                }
+                (inliers, cost)
+            })
+            .collect();
+        let mut score = Score::default();
+        for (inliers, cost) in partials {
+            score.inliers += inliers;
+            score.cost += cost;
+        }
+        score
     }
 
     /// Stops once the source points left cannot lift the inlier count above `bound`'s
     /// ([`Scoring::InlierCount`]) or the cost already exceeds `bound`'s ([`Scoring::Msac`]): most
-    /// hypotheses are far from the best, so most stop after a fraction of the cloud.
+    /// hypotheses are far from the best, so most stop after a fraction of the cloud. The cost is
+    /// summed per chunk of [`SCORE_CHUNK`] points, as [`Estimator::score`].
     fn score_unless_worse(
         &self,
         model: &Isometry3<f64>,
@@ -132,8 +180,7 @@ impl Estimator for DenseRigidEstimator<'_> {
         bound: Option<&Score>,
         scoring: Scoring,
     ) -> Option<Score> {
-        let r: Matrix3<f64> = model.rotation.to_rotation_matrix().into_inner();
-        let t = model.translation.vector;
+        let (r, t) = rotation_translation(model);
         let n = self.source_cloud.len();
         // Misses allowed before the count can no longer exceed the bound's; the cost ceiling.
         let (max_misses, max_cost) = match (bound, scoring) {
@@ -146,17 +193,22 @@ impl Estimator for DenseRigidEstimator<'_> {
         let mut inliers = 0u32;
         let mut misses = 0usize;
         let mut cost = 0.0;
-        for (k, p) in self.source_cloud.iter().enumerate() {
-            let q = Point3::from(r * p.coords + t);
-            let d = self.target_cloud.clamped_distance_sq(&q, threshold_sq);
-            let inlier = d < threshold_sq;
-            inliers += inlier as u32;
-            misses += !inlier as usize;
-            cost += d;
-            // Checked every 64 points: keeps the loop tight; stopping later never changes a result.
-            if k % 64 == 63 && (misses > max_misses || cost >= max_cost) {
-                return None;
+        for chunk in self.source_cloud.chunks(SCORE_CHUNK) {
+            let mut chunk_cost = 0.0;
+            for (k, p) in chunk.iter().enumerate() {
+                let d = self.distance_sq(&r, &t, p, threshold_sq);
+                let inlier = d < threshold_sq;
+                inliers += inlier as u32;
+                misses += !inlier as usize;
+                chunk_cost += d;
+                // Checked every 64 points: keeps the loop tight; stopping later never changes a
+                // result. The final cost is at least `cost + chunk_cost` (sums of non-negative
+                // terms only grow).
+                if k % 64 == 63 && (misses > max_misses || cost + chunk_cost >= max_cost) {
+                    return None;
+                }
             }
+            cost += chunk_cost;
         }
         if misses > max_misses || cost >= max_cost {
             return None;
