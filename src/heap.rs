@@ -33,6 +33,17 @@ pub fn release_large_blocks_promptly() {
     }
 }
 
+/// Returns the free memory of every malloc arena to the system (`malloc_trim(0)`: trims each
+/// heap's top and releases whole free pages inside it). For long streaming runs, every few frames:
+/// frames of varying size leave free gaps in the per-thread arenas that nothing else would give back.
+pub fn trim() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only walks the allocator's own arenas under their locks.
+    unsafe {
+        libc::malloc_trim(0);
+    }
+}
+
 /// Largest `mmap` threshold glibc accepts on 64-bit targets (its `DEFAULT_MMAP_THRESHOLD_MAX`).
 const ONE_SHOT_MMAP_THRESHOLD_BYTES: i32 = 32 * 1024 * 1024;
 /// Trim threshold and top padding \[bytes\] of [`keep_freed_memory`].

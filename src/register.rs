@@ -28,6 +28,11 @@ pub const QUEUE_CAPACITY: usize = 2;
 /// prove its order ([`Reorder`]); a file whose chunks are time-ordered holds only its current
 /// chunk's clouds.
 pub const REORDER_WINDOW: usize = 16;
+/// Frames between two returns of the allocator's free memory to the system
+/// ([`crate::heap::trim`]), which keeps the peak RSS of a long log within a few percent of a short
+/// one's (docs/BENCHMARKS.md).
+const TRIM_EVERY_FRAMES: usize = 8;
+
 /// Topic of the reference poses used for the summary, when the log has one.
 pub const DEFAULT_REFERENCE_TOPIC: &str = "/ground_truth/pose";
 
@@ -516,7 +521,10 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         });
         let odometry = &mut odometry;
         scope.spawn(move || {
-            for msg in prep_rx {
+            for (k, msg) in prep_rx.into_iter().enumerate() {
+                if k % TRIM_EVERY_FRAMES == TRIM_EVERY_FRAMES - 1 {
+                    crate::heap::trim();
+                }
                 let r = msg.and_then(|m| {
                     let prep = m.frame.timings;
                     let t = Instant::now();
