@@ -55,10 +55,11 @@ pub fn self_neighbourhoods_into(
         let end = (first + QUERY_CHUNK).min(points.len());
         for (i, q) in points[first..end].iter().enumerate() {
             let cell = grid.cell_of_point[first + i];
-            for &(d, j) in search.query(&grid, cell, q, radius_sq, max_nn) {
-                block.indices.push(j);
-                block.distances_sq.push(f64::from_bits(d));
-            }
+            let found = search.query(&grid, cell, q, radius_sq, max_nn);
+            block.indices.extend(found.iter().map(|&key| key as u32));
+            block
+                .distances_sq
+                .extend(found.iter().map(|&key| f64::from_bits((key >> 32) as u64)));
             block.offsets.push(block.indices.len());
         }
     });
@@ -74,9 +75,9 @@ struct CellSearch {
     y: Vec<f64>,
     z: Vec<f64>,
     index: Vec<u32>,
-    distance_sq: Vec<f64>,
-    /// (squared distance as bits — monotone for non-negative values —, index).
-    found: Vec<(u64, u32)>,
+    /// Squared distance as bits (monotone for non-negative values) above the index: one integer
+    /// whose order is (distance, index), compared in one step where a tuple needs two.
+    found: Vec<u128>,
 }
 
 impl CellSearch {
@@ -89,7 +90,7 @@ impl CellSearch {
         q: &Point3<f64>,
         radius_sq: f64,
         max_nn: usize,
-    ) -> &[(u64, u32)] {
+    ) -> &[u128] {
         if self.cell != Some(cell) {
             self.cell = Some(cell);
             for v in [&mut self.x, &mut self.y, &mut self.z] {
@@ -106,19 +107,20 @@ impl CellSearch {
                 self.index.extend_from_slice(&grid.sorted_index[range]);
             }
         }
-        self.distance_sq.clear();
-        self.distance_sq
-            .extend(self.x.iter().zip(&self.y).zip(&self.z).map(|((x, y), z)| {
-                // kiddo's squared Euclidean distance, term by term.
-                let (dx, dy, dz) = (q.x - x, q.y - y, q.z - z);
-                dx * dx + dy * dy + dz * dz
-            }));
-        self.found.clear();
-        for (&d, &j) in self.distance_sq.iter().zip(&self.index) {
-            if d < radius_sq {
-                self.found.push((d.to_bits(), j));
-            }
+        // Branch-free filter: every candidate's key is written at the next free slot, which only
+        // advances when the candidate is within the radius (about half are, so a branch on it
+        // would be mispredicted often).
+        let candidates = self.index.len();
+        self.found.resize(candidates, 0);
+        let mut n = 0;
+        for (((x, y), z), &j) in self.x.iter().zip(&self.y).zip(&self.z).zip(&self.index) {
+            // kiddo's squared Euclidean distance, term by term.
+            let (dx, dy, dz) = (q.x - x, q.y - y, q.z - z);
+            let d = dx * dx + dy * dy + dz * dz;
+            self.found[n] = u128::from(d.to_bits()) << 32 | u128::from(j);
+            n += usize::from(d < radius_sq);
         }
+        self.found.truncate(n);
         if self.found.len() > max_nn {
             self.found.select_nth_unstable(max_nn);
             self.found.truncate(max_nn);
