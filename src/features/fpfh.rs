@@ -160,9 +160,10 @@ struct SpfhRows<'a> {
 }
 
 impl SpfhRows<'_> {
+    /// Fills the rows with `add_pairs(i, neighbours, hist, incr)` adding each pair (i, j) of
+    /// point `i` and a neighbour `j` to `hist` (with [`add_bins`]), then the block sums.
     #[inline(always)]
-    fn run(&self, hists: &mut [f64]) {
-        let (points, normals) = (self.points, self.normals);
+    fn run_with(&self, hists: &mut [f64], add_pairs: impl Fn(usize, &[u32], &mut [f64], f64)) {
         for (k, hist) in hists.chunks_exact_mut(SPFH_STRIDE).enumerate() {
             let i = self.first + k;
             let (idx, _) = self.nbhd.get(i);
@@ -172,19 +173,29 @@ impl SpfhRows<'_> {
             // The first entry is the query point itself (distance 0, nearest first); Open3D skips
             // the first entry whatever it is, and so do we.
             let incr = BLOCK_MASS / (idx.len() - 1) as f64;
-            for &j in &idx[1..] {
-                let j = j as usize;
-                let f = pair_features(&points[i], &normals[i], &points[j], &normals[j]);
-                hist[theta_bin(f.theta_y, f.theta_x, self.edges)] += incr;
-                hist[BINS_PER_FEATURE + unit_bin(f.alpha)] += incr;
-                hist[2 * BINS_PER_FEATURE + unit_bin(f.phi)] += incr;
-            }
+            add_pairs(i, &idx[1..], hist, incr);
             for b in 0..3 {
                 hist[FPFH_BINS + b] = hist[b * BINS_PER_FEATURE..(b + 1) * BINS_PER_FEATURE]
                     .iter()
                     .sum();
             }
         }
+    }
+
+    /// The bins of the pair (point `i`, point `j`).
+    #[inline(always)]
+    fn pair_bins(&self, i: usize, j: usize) -> [usize; 3] {
+        let (points, normals) = (self.points, self.normals);
+        pair_bins(&points[i], &normals[i], &points[j], &normals[j], self.edges)
+    }
+
+    #[inline(always)]
+    fn run(&self, hists: &mut [f64]) {
+        self.run_with(hists, |i, neighbours, hist, incr| {
+            for &j in neighbours {
+                add_bins(hist, self.pair_bins(i, j as usize), incr);
+            }
+        })
     }
 
     /// [`run`](Self::run) with the pair features of 4 neighbours at a time in AVX2 lanes: the
@@ -195,16 +206,11 @@ impl SpfhRows<'_> {
     #[target_feature(enable = "avx2,fma")]
     fn run_avx2(&self, hists: &mut [f64]) {
         let (points, normals) = (self.points, self.normals);
-        for (k, hist) in hists.chunks_exact_mut(SPFH_STRIDE).enumerate() {
-            let i = self.first + k;
-            let (idx, _) = self.nbhd.get(i);
-            if idx.len() < 2 {
-                continue;
-            }
-            let incr = BLOCK_MASS / (idx.len() - 1) as f64;
-            let mut quads = idx[1..].chunks_exact(4);
+        self.run_with(hists, |i, neighbours, hist, incr| {
+            let mut quads = neighbours.chunks_exact(4);
             for quad in &mut quads {
                 let quad: &[u32; 4] = quad.try_into().expect("4 lanes");
+                // The closure inherits `run_avx2`'s target features.
                 let bins = pair_bins_x4(
                     &points[i],
                     &normals[i],
@@ -212,30 +218,44 @@ impl SpfhRows<'_> {
                     quad.map(|j| &normals[j as usize]),
                     self.edges,
                 );
-                for [theta, alpha, phi] in bins {
-                    hist[theta] += incr;
-                    hist[BINS_PER_FEATURE + alpha] += incr;
-                    hist[2 * BINS_PER_FEATURE + phi] += incr;
+                for bins in bins {
+                    add_bins(hist, bins, incr);
                 }
             }
             for &j in quads.remainder() {
-                let j = j as usize;
-                let f = pair_features(&points[i], &normals[i], &points[j], &normals[j]);
-                hist[theta_bin(f.theta_y, f.theta_x, self.edges)] += incr;
-                hist[BINS_PER_FEATURE + unit_bin(f.alpha)] += incr;
-                hist[2 * BINS_PER_FEATURE + unit_bin(f.phi)] += incr;
+                add_bins(hist, self.pair_bins(i, j as usize), incr);
             }
-            for b in 0..3 {
-                hist[FPFH_BINS + b] = hist[b * BINS_PER_FEATURE..(b + 1) * BINS_PER_FEATURE]
-                    .iter()
-                    .sum();
-            }
-        }
+        })
     }
 }
 
+/// Adds `incr` to the θ, α and φ bins `bins` of an SPFH row.
+#[inline(always)]
+fn add_bins(hist: &mut [f64], [theta, alpha, phi]: [usize; 3], incr: f64) {
+    hist[theta] += incr;
+    hist[BINS_PER_FEATURE + alpha] += incr;
+    hist[2 * BINS_PER_FEATURE + phi] += incr;
+}
+
+/// `[theta_bin, unit_bin(α), unit_bin(φ)]` of the pair features of (`p1`, `n1`) and (`p2`, `n2`).
+#[inline(always)]
+fn pair_bins(
+    p1: &Point3<f64>,
+    n1: &Vector3<f64>,
+    p2: &Point3<f64>,
+    n2: &Vector3<f64>,
+    edges: &[(f64, f64); BINS_PER_FEATURE - 1],
+) -> [usize; 3] {
+    let f = pair_features(p1, n1, p2, n2);
+    [
+        theta_bin(f.theta_y, f.theta_x, edges),
+        unit_bin(f.alpha),
+        unit_bin(f.phi),
+    ]
+}
+
 /// The (θ, α, φ) bins of the pairs (`p1`, `n1`)–(`p2[l]`, `n2[l]`) for 4 lanes `l`: exactly
-/// `[theta_bin, unit_bin(α), unit_bin(φ)]` of [`pair_features`], lane by lane.
+/// [`pair_bins`], lane by lane.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 fn pair_bins_x4(
@@ -719,22 +739,6 @@ mod tests {
             }
         }
     }
-    /// The scalar reference bins of one pair.
-    fn scalar_bins(
-        p1: &Point3<f64>,
-        n1: &Vector3<f64>,
-        p2: &Point3<f64>,
-        n2: &Vector3<f64>,
-        edges: &[(f64, f64); BINS_PER_FEATURE - 1],
-    ) -> [usize; 3] {
-        let f = pair_features(p1, n1, p2, n2);
-        [
-            theta_bin(f.theta_y, f.theta_x, edges),
-            unit_bin(f.alpha),
-            unit_bin(f.phi),
-        ]
-    }
-
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn vector_pair_bins_equal_the_scalar_ones() {
@@ -871,7 +875,7 @@ mod tests {
                 for l in 0..4 {
                     assert_eq!(
                         got[l],
-                        scalar_bins(p1, n1, &p2s[l], &n2s[l], &edges),
+                        pair_bins(p1, n1, &p2s[l], &n2s[l], &edges),
                         "pair {k}, lane {l}: {p1:?} {n1:?} {:?} {:?}",
                         p2s[l],
                         n2s[l]
