@@ -425,23 +425,18 @@ impl OutputLog {
 
     /// Writes every schema and channel of the input (`input` names it in errors), with their ids.
     pub fn declare_input(&mut self, input: &Path, catalog: &InputCatalog) -> Result<()> {
+        let in_input = |problem: String| Error::Format {
+            path: input.to_path_buf(),
+            detail: problem,
+        };
+        let w = self.w();
         for (&id, s) in &catalog.schemas {
-            if id == 0 {
-                return Err(mcap_err(input, "schema with id 0", &s.name));
-            }
-            self.w().define_schema(id, s.clone(), true)?;
+            w.check_schema(id, s).map_err(in_input)?;
+            w.define_schema(id, s.clone(), true)?;
         }
         for c in catalog.channels.values() {
-            if c.schema_id != 0 && !catalog.schemas.contains_key(&c.schema_id) {
-                return Err(Error::Format {
-                    path: input.to_path_buf(),
-                    detail: format!(
-                        "channel {} ({}) names schema {}, which is not defined",
-                        c.id, c.topic, c.schema_id
-                    ),
-                });
-            }
-            self.w().define_channel(c.clone(), true)?;
+            w.check_channel(c).map_err(in_input)?;
+            w.define_channel(c.clone(), true)?;
         }
         Ok(())
     }
@@ -860,37 +855,14 @@ impl PassThrough<'_> {
         checked_index: bool,
     ) -> Result<()> {
         let w = log.w();
+        let in_chunk = |problem: String| self.err(format!("chunk at offset {offset}: {problem}"));
         for (id, s) in contents.schemas {
-            match w.schema(id) {
-                Some(known) if *known == s => {}
-                Some(_) => {
-                    return Err(self.err(format!(
-                        "chunk at offset {offset} redefines schema id {id} with other content"
-                    )));
-                }
-                None if id == 0 => {
-                    return Err(self.err(format!("chunk at offset {offset}: schema with id 0")));
-                }
-                None => w.define_schema(id, s, false)?,
-            }
+            w.check_schema(id, &s).map_err(in_chunk)?;
+            w.define_schema(id, s, false)?;
         }
         for c in contents.channels {
-            match w.channel(c.id) {
-                Some(known) if *known == c => {}
-                Some(_) => {
-                    return Err(self.err(format!(
-                        "chunk at offset {offset} redefines channel id {} ({}) with other content",
-                        c.id, c.topic
-                    )));
-                }
-                None if c.schema_id != 0 && w.schema(c.schema_id).is_none() => {
-                    return Err(self.err(format!(
-                        "chunk at offset {offset}: channel {} ({}) names schema {}, which is not defined",
-                        c.id, c.topic, c.schema_id
-                    )));
-                }
-                None => w.define_channel(c, false)?,
-            }
+            w.check_channel(&c).map_err(in_chunk)?;
+            w.define_channel(c, false)?;
         }
         for (&id, &n) in &contents.counts {
             if w.channel(id).is_none() {
@@ -1017,36 +989,15 @@ impl PassThrough<'_> {
                     encoding: header.encoding,
                     data: data.into_owned(),
                 };
-                match w.schema(header.id) {
-                    Some(known) if *known == s => {}
-                    Some(_) => {
-                        return Err(self.err(format!(
-                            "schema id {} defined twice with different content (offset {offset})",
-                            header.id
-                        )));
-                    }
-                    None if header.id == 0 => {
-                        return Err(self.err(format!("schema with id 0 at offset {offset}")));
-                    }
-                    None => w.define_schema(header.id, s, true)?,
-                }
+                w.check_schema(header.id, &s)
+                    .map_err(|p| self.err(format!("{p} (offset {offset})")))?;
+                w.define_schema(header.id, s, true)?;
             }
-            Record::Channel(c) => match w.channel(c.id) {
-                Some(known) if *known == c => {}
-                Some(_) => {
-                    return Err(self.err(format!(
-                        "channel id {} ({}) defined twice with different content (offset {offset})",
-                        c.id, c.topic
-                    )));
-                }
-                None if c.schema_id != 0 && w.schema(c.schema_id).is_none() => {
-                    return Err(self.err(format!(
-                        "channel {} ({}) at offset {offset} names schema {}, which is not defined",
-                        c.id, c.topic, c.schema_id
-                    )));
-                }
-                None => w.define_channel(c, true)?,
-            },
+            Record::Channel(c) => {
+                w.check_channel(&c)
+                    .map_err(|p| self.err(format!("{p} (offset {offset})")))?;
+                w.define_channel(c, true)?;
+            }
             Record::Message { header, data } => {
                 if w.channel(header.channel_id).is_none() {
                     return Err(self.err(format!(

@@ -246,24 +246,59 @@ impl<W: Write> McapWriter<W> {
         self.channels.keys().next_back().copied().unwrap_or(0)
     }
 
-    /// Defines schema `id`, writing a schema record when `write` (else it only goes into the
-    /// summary, e.g. because a copied chunk holds it). Defining an id again with the same content
-    /// is a no-op; with other content, or id 0, an error.
-    pub fn define_schema(&mut self, id: u16, schema: SchemaRecord, write: bool) -> Result<()> {
+    /// Whether schema `id` may be defined with `schema`: `Ok(true)` when it already is, with the
+    /// same content; `Ok(false)` when it is new; `Err` with the problem when `id` is 0 or is
+    /// defined with other content. Callers reading an input use it to report the problem against
+    /// the input.
+    pub fn check_schema(
+        &self,
+        id: u16,
+        schema: &SchemaRecord,
+    ) -> std::result::Result<bool, String> {
         if id == 0 {
-            return Err(self.format_err(format!(
+            return Err(format!(
                 "schema {:?} has id 0, which MCAP reserves for \"no schema\"",
                 schema.name
-            )));
+            ));
         }
-        if let Some(known) = self.schemas.get(&id) {
-            if *known == schema {
-                return Ok(());
-            }
-            return Err(self.format_err(format!(
+        match self.schemas.get(&id) {
+            Some(known) if known == schema => Ok(true),
+            Some(known) => Err(format!(
                 "schema id {id} defined twice with different content ({:?} and {:?})",
                 known.name, schema.name
-            )));
+            )),
+            None => Ok(false),
+        }
+    }
+
+    /// [`check_schema`](Self::check_schema) for a channel, whose schema must be defined already
+    /// (or be 0, schemaless).
+    pub fn check_channel(&self, channel: &Channel) -> std::result::Result<bool, String> {
+        match self.channels.get(&channel.id) {
+            Some(known) if known == channel => Ok(true),
+            Some(known) => Err(format!(
+                "channel id {} defined twice with different content ({:?} and {:?})",
+                channel.id, known.topic, channel.topic
+            )),
+            None if channel.schema_id != 0 && !self.schemas.contains_key(&channel.schema_id) => {
+                Err(format!(
+                    "channel {} ({}) names schema {}, which is not defined",
+                    channel.id, channel.topic, channel.schema_id
+                ))
+            }
+            None => Ok(false),
+        }
+    }
+
+    /// Defines schema `id`, writing a schema record when `write` (else it only goes into the
+    /// summary, e.g. because a copied chunk holds it). Defining an id again with the same content
+    /// is a no-op; with other content, or id 0, an error ([`check_schema`](Self::check_schema)).
+    pub fn define_schema(&mut self, id: u16, schema: SchemaRecord, write: bool) -> Result<()> {
+        if self
+            .check_schema(id, &schema)
+            .map_err(|p| self.format_err(p))?
+        {
+            return Ok(());
         }
         if write {
             let body = self.io(schema_body(id, &schema))?;
@@ -273,23 +308,14 @@ impl<W: Write> McapWriter<W> {
         Ok(())
     }
 
-    /// Defines a channel, like [`define_schema`](Self::define_schema); its schema must be defined
-    /// already (or be 0, schemaless).
+    /// Defines a channel, like [`define_schema`](Self::define_schema)
+    /// ([`check_channel`](Self::check_channel)).
     pub fn define_channel(&mut self, channel: Channel, write: bool) -> Result<()> {
-        if let Some(known) = self.channels.get(&channel.id) {
-            if *known == channel {
-                return Ok(());
-            }
-            return Err(self.format_err(format!(
-                "channel id {} defined twice with different content ({:?} and {:?})",
-                channel.id, known.topic, channel.topic
-            )));
-        }
-        if channel.schema_id != 0 && !self.schemas.contains_key(&channel.schema_id) {
-            return Err(self.format_err(format!(
-                "channel {} ({}) names schema {}, which is not defined",
-                channel.id, channel.topic, channel.schema_id
-            )));
+        if self
+            .check_channel(&channel)
+            .map_err(|p| self.format_err(p))?
+        {
+            return Ok(());
         }
         if write {
             let body = self.io(encode(&channel))?;
@@ -690,6 +716,31 @@ mod tests {
             message_encoding: "json".into(),
             metadata: BTreeMap::from([("k".to_string(), "v".to_string())]),
         }
+    }
+
+    /// The definition checks that both the writer and the input readers use.
+    #[test]
+    fn schema_and_channel_checks() {
+        let mut w = McapWriter::new(Vec::new(), Path::new("t.mcap"), "x", "test", 1, 64).unwrap();
+        let schema = |name: &str| SchemaRecord {
+            name: name.into(),
+            encoding: "jsonschema".into(),
+            data: b"{}".to_vec(),
+        };
+        assert!(w.check_schema(0, &schema("S")).is_err());
+        assert_eq!(w.check_schema(7, &schema("S")), Ok(false));
+        assert!(
+            w.check_channel(&channel(1, 7, "/a")).is_err(),
+            "schema 7 undefined"
+        );
+        w.define_schema(7, schema("S"), false).unwrap();
+        assert_eq!(w.check_schema(7, &schema("S")), Ok(true));
+        assert!(w.check_schema(7, &schema("T")).is_err());
+        assert_eq!(w.check_channel(&channel(1, 7, "/a")), Ok(false));
+        assert_eq!(w.check_channel(&channel(2, 0, "/schemaless")), Ok(false));
+        w.define_channel(channel(1, 7, "/a"), false).unwrap();
+        assert_eq!(w.check_channel(&channel(1, 7, "/a")), Ok(true));
+        assert!(w.check_channel(&channel(1, 7, "/b")).is_err());
     }
 
     /// A file from every kind of record, read back by the `mcap` crate's own readers.
