@@ -11,7 +11,7 @@
 use nalgebra::Point3;
 
 use super::Neighbourhoods;
-use super::kdtree::{QUERY_CHUNK, check_points};
+use super::kdtree::{QUERY_CHUNK, bounds, check_points};
 use super::normals::check_search_params;
 use crate::Result;
 
@@ -150,14 +150,7 @@ impl Grid {
         // A cell edge a little above the radius keeps every in-radius pair within one cell of
         // each other despite the rounding of (p − min) / edge.
         let edge = radius_m * (1.0 + 1e-6);
-        let mut min = [f64::INFINITY; 3];
-        let mut max = [f64::NEG_INFINITY; 3];
-        for p in points {
-            for a in 0..3 {
-                min[a] = min[a].min(p[a]);
-                max[a] = max[a].max(p[a]);
-            }
-        }
+        let (min, max) = bounds(points);
         if (0..3).any(|a| (max[a] - min[a]) / edge > MAX_CELLS_PER_AXIS) {
             return None;
         }

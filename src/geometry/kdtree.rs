@@ -118,6 +118,19 @@ pub(crate) fn check_points(points: &[Point3<f64>]) -> Result<()> {
     Ok(())
 }
 
+/// Per-axis minimum and maximum of `points` (`[+∞; 3]` and `[−∞; 3]` when empty).
+pub(crate) fn bounds(points: &[Point3<f64>]) -> ([f64; 3], [f64; 3]) {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in points {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    (lo, hi)
+}
+
 impl KdTree {
     /// Builds the tree. Fails with [`Error::InvalidInput`] on a non-finite coordinate or more than
     /// `u32::MAX` points. An empty slice gives a tree on which every query returns nothing.

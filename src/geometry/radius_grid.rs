@@ -13,7 +13,7 @@
 
 use nalgebra::Point3;
 
-use super::kdtree::check_points;
+use super::kdtree::{bounds, check_points};
 use crate::Result;
 
 /// Default cap on the grid's columns (cells of the plane spanned by the cloud's two longest axes):
@@ -69,14 +69,7 @@ impl RadiusGrid {
             return Ok(None);
         }
         let edge = radius_m * (1.0 + 1e-6);
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        for p in points {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-        }
+        let (lo, hi) = bounds(points);
         // Longest axes first (ties by index); the shortest runs along the columns.
         let mut axes = [0usize, 1, 2];
         axes.sort_by(|&a, &b| (hi[b] - lo[b]).total_cmp(&(hi[a] - lo[a])).then(a.cmp(&b)));
@@ -273,13 +266,7 @@ mod tests {
     }
 
     fn check_cloud(points: &[Point3<f64>], rng: &mut Pcg64) {
-        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-        for p in points {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-        }
+        let (lo, hi) = bounds(points);
         for radius in [0.01, 0.05, 0.2, 3.0] {
             let grid = RadiusGrid::new(points, radius, usize::MAX)
                 .unwrap()
