@@ -53,16 +53,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let (s, t) = (prepare_frame(&src, &config)?, prepare_frame(&tgt, &config)?);
     let m = match_features_with(&s.features, &t.features, &MatchConfig::default());
     let ranking = rank_by_ratio(&m.distance, &m.second_distance);
-    let sp: Vec<Point3<f64>> = ranking
-        .order
-        .iter()
-        .map(|&k| s.points[m.source_index[k as usize] as usize])
-        .collect();
-    let tp: Vec<Point3<f64>> = ranking
-        .order
-        .iter()
-        .map(|&k| t.points[m.target_index[k as usize] as usize])
-        .collect();
+    let sp = ranking.gather(&m.source_index, &s.points);
+    let tp = ranking.gather(&m.target_index, &t.points);
     let thr = 1.5 * voxel;
     let est = RigidEstimator::new(&sp, &tp);
     let dense_t = IcpTarget::points_only(&t.points)?;

@@ -590,16 +590,8 @@ pub fn register_prepared(
 
     let t = Instant::now();
     let ranking = make_ranking(&matches, target.points.len(), c.ranking);
-    let src: Vec<Point3<f64>> = ranking
-        .order
-        .iter()
-        .map(|&k| source.points[matches.source_index[k as usize] as usize])
-        .collect();
-    let tgt: Vec<Point3<f64>> = ranking
-        .order
-        .iter()
-        .map(|&k| target.points[matches.target_index[k as usize] as usize])
-        .collect();
+    let src = ranking.gather(&matches.source_index, &source.points);
+    let tgt = ranking.gather(&matches.target_index, &target.points);
     out.timings_s.ranking = t.elapsed().as_secs_f64();
 
     let t = Instant::now();

@@ -23,6 +23,16 @@ impl Ranking {
         );
         self.order.iter().map(|&i| items[i as usize]).collect()
     }
+
+    /// Looks up per-correspondence indices into `items`, in rank order:
+    /// `out[k] = items[index[order[k]]]` (e.g. the source points of the ranked correspondences,
+    /// with `index` = the matches' source indices).
+    pub fn gather<T: Copy>(&self, index: &[u32], items: &[T]) -> Vec<T> {
+        self.apply(index)
+            .iter()
+            .map(|&i| items[i as usize])
+            .collect()
+    }
 }
 
 /// Sort direction for the paper's neighbour-count metric.
@@ -114,5 +124,10 @@ mod tests {
         let r = rank_by_ratio(&[1.0, 1.0, 2.0], &[2.0, 0.0, 10.0]);
         assert_eq!(r.order, vec![2, 0, 1]);
         assert_eq!(r.apply(&['a', 'b', 'c']), vec!['c', 'a', 'b']);
+        // Correspondence k points at items[index[k]]; rank order is 2, 0, 1.
+        assert_eq!(
+            r.gather(&[4, 0, 2], &['p', 'q', 'r', 's', 't']),
+            vec!['r', 't', 'p']
+        );
     }
 }
