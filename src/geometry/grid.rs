@@ -2,10 +2,11 @@
 //! a uniform grid whose cell edge is the search radius: each point's candidates are the points of
 //! its own and the 26 surrounding cells, which hold, in sorted cell order, in 9 contiguous runs.
 //!
-//! Same semantics as [`KdTree::hybrid_neighbourhoods`](super::KdTree::hybrid_neighbourhoods) on a
-//! tree over the same points (strict radius, nearest first, ties by index, at most `max_nn`),
-//! with one rule made explicit: when equal distances straddle the `max_nn` cut, the lowest indices
-//! are kept. On the voxel-downsampled clouds this serves, a cell lookup per query replaces a tree
+//! Same sets as [`KdTree::hybrid_neighbourhoods`](super::KdTree::hybrid_neighbourhoods) on a
+//! tree over the same points (strict radius, ties by index, at most `max_nn`), with one rule made
+//! explicit: when equal distances straddle the `max_nn` cut, the lowest indices are kept. Only the
+//! order differs: the nearest comes first, the others follow in an unspecified (but
+//! deterministic) order, where the tree sorts them all. On the voxel-downsampled clouds this serves, a cell lookup per query replaces a tree
 //! descent with a bounded result heap (figures in docs/BENCHMARKS.md).
 
 use nalgebra::Point3;
@@ -20,9 +21,10 @@ use crate::Result;
 const MAX_CELLS_PER_AXIS: f64 = (1u64 << 40) as f64;
 
 /// Neighbourhoods of every point of `points` among `points`: the points strictly closer than
-/// `radius_m` (m), nearest first (ties by index), at most `max_nn` of them; each point is its own
-/// first neighbour. Returns `Ok(None)` when the cloud's extent exceeds 2⁴⁰ cells of the radius
-/// (use [`KdTree::hybrid_neighbourhoods`](super::KdTree::hybrid_neighbourhoods) then).
+/// `radius_m` (m), at most `max_nn` of them (the nearest, ties by index); the nearest first (each
+/// point is its own first neighbour), the others in an unspecified, deterministic order. Returns
+/// `Ok(None)` when the cloud's extent exceeds 2⁴⁰ cells of the radius (use
+/// [`KdTree::hybrid_neighbourhoods`](super::KdTree::hybrid_neighbourhoods) then).
 ///
 /// Errors: [`Error::InvalidInput`](crate::Error::InvalidInput) on a non-finite coordinate, `radius_m` not finite and
 /// positive, `max_nn == 0`, or more than `u32::MAX` points.
@@ -81,8 +83,8 @@ struct CellSearch {
 }
 
 impl CellSearch {
-    /// Neighbours of `q` (in cell `cell`) strictly within `radius_sq`, nearest first (ties by
-    /// index), at most `max_nn`.
+    /// Neighbours of `q` (in cell `cell`) strictly within `radius_sq`, at most `max_nn` (the
+    /// nearest, ties by index); the nearest first, the others unordered.
     fn query(
         &mut self,
         grid: &Grid,
@@ -125,7 +127,12 @@ impl CellSearch {
             self.found.select_nth_unstable(max_nn);
             self.found.truncate(max_nn);
         }
-        self.found.sort_unstable();
+        // Only the nearest has a fixed place (first): FPFH skips it, as Open3D skips its first
+        // neighbour, and no consumer needs the rest ordered. Sorting them was about a fifth of
+        // preparing a KITTI cloud (docs/BENCHMARKS.md).
+        if let Some(nearest) = (0..self.found.len()).min_by_key(|&k| self.found[k]) {
+            self.found.swap(0, nearest);
+        }
         &self.found
     }
 }
@@ -223,15 +230,26 @@ mod tests {
         all.into_iter().map(|(d, j)| (j, d)).collect()
     }
 
+    /// Query `i`'s neighbours sorted by (distance², index).
+    fn sorted(nbhd: &Neighbourhoods, i: usize) -> Vec<(u32, f64)> {
+        let (idx, d2) = nbhd.get(i);
+        let mut v: Vec<(u32, f64)> = idx.iter().copied().zip(d2.iter().copied()).collect();
+        v.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+        v
+    }
+
     fn check(points: &[Point3<f64>], radius: f64, max_nn: usize) {
         let nbhd = self_neighbourhoods(points, radius, max_nn)
             .unwrap()
             .unwrap();
         assert_eq!(nbhd.len(), points.len());
         for i in 0..points.len() {
+            let expected = oracle(points, i, radius, max_nn);
+            let got = sorted(&nbhd, i);
+            assert_eq!(got, expected, "point {i}");
+            // The nearest comes first (FPFH skips it).
             let (idx, d2) = nbhd.get(i);
-            let got: Vec<(u32, f64)> = idx.iter().copied().zip(d2.iter().copied()).collect();
-            assert_eq!(got, oracle(points, i, radius, max_nn), "point {i}");
+            assert_eq!((idx[0], d2[0]), expected[0], "point {i}");
         }
     }
 
@@ -288,7 +306,9 @@ mod tests {
         let a = tree.hybrid_neighbourhoods(&points, 0.2, 30);
         let b = self_neighbourhoods(&points, 0.2, 30).unwrap().unwrap();
         for i in 0..points.len() {
-            assert_eq!(a.get(i), b.get(i), "point {i}");
+            let (idx, d2) = a.get(i);
+            let tree_order: Vec<(u32, f64)> = idx.iter().copied().zip(d2.iter().copied()).collect();
+            assert_eq!(tree_order, sorted(&b, i), "point {i}");
         }
     }
 

@@ -74,7 +74,9 @@ impl Neighbourhoods {
             });
     }
 
-    /// Neighbour indices and squared distances (m²) of query `i`, nearest first.
+    /// Neighbour indices and squared distances (m²) of query `i`: the nearest first; the others
+    /// nearest first too when the kd-tree searched them, in an unspecified (deterministic) order
+    /// when [`grid::self_neighbourhoods`](super::grid::self_neighbourhoods) did.
     ///
     /// # Panics
     /// If `i >= self.len()`.

@@ -81,8 +81,12 @@ pub fn estimate_normals_with_tree(
 
 /// [`estimate_normals_with_tree`] from precomputed neighbourhoods `nbhd` of every point (e.g. the
 /// FPFH ones) searched with a radius ≥ `radius_m` and a cap ≥ `max_nn`: each normal's
-/// neighbourhood is the prefix of the sorted larger one strictly within `radius_m`, at most
-/// `max_nn` long, which is exactly what the direct search returns. Saves one kd-tree pass.
+/// neighbourhood is the larger one's members strictly within `radius_m`, the `max_nn` nearest
+/// (ties by index) when there are more — the set the direct search returns. Saves one search.
+///
+/// The covariance sums the members in `nbhd`'s order (the `max_nn` nearest sorted, when there are
+/// more), so the normals equal [`estimate_normals_with_tree`]'s bit for bit when `nbhd` is
+/// sorted (a kd-tree's), and to rounding when it is not (the grid's).
 pub fn estimate_normals_from_neighbourhoods(
     points: &[Point3<f64>],
     nbhd: &Neighbourhoods,
@@ -102,13 +106,25 @@ pub fn estimate_normals_from_neighbourhoods(
     Ok(points
         .par_iter()
         .enumerate()
-        .map(|(i, p)| {
+        .map_init(Vec::<u128>::new, |members, (i, p)| {
             let (idx, d2) = nbhd.get(i);
-            let n = d2.partition_point(|&d| d < radius_sq).min(max_nn);
-            let normal = if n < MIN_NEIGHBOURS {
+            // (distance² bits, index): one integer ordered by distance, then index.
+            members.clear();
+            members.extend(
+                idx.iter()
+                    .zip(d2)
+                    .filter(|&(_, &d)| d < radius_sq)
+                    .map(|(&j, &d)| u128::from(d.to_bits()) << 32 | u128::from(j)),
+            );
+            if members.len() > max_nn {
+                members.select_nth_unstable(max_nn);
+                members.truncate(max_nn);
+                members.sort_unstable();
+            }
+            let normal = if members.len() < MIN_NEIGHBOURS {
                 FALLBACK_NORMAL
             } else {
-                let cov = covariance(points, idx[..n].iter().map(|&j| j as usize));
+                let cov = covariance(points, members.iter().map(|&key| key as u32 as usize));
                 smallest_eigenvector(&cov).unwrap_or(FALLBACK_NORMAL)
             };
             match towards_sensor {
