@@ -210,26 +210,37 @@ fn collect(scans: Vec<Scan>, config: &MatchConfig, keep: impl Fn(u32, u32) -> bo
 //   walks outwards from its own position on that axis, alternately up and down, and stops in a
 //   direction once the gap along the first axis alone exceeds its current threshold; inside the
 //   window, a block's exact distances are computed only if one of its lanes passes the
-//   [`PCA_DIMS`]-dimensional bound.
-// - The threshold follows the query's current second-nearest distance (and the count radius),
-//   inflated by a margin that covers every rounding error (see [`prune_threshold`]), so the
-//   results are bit-identical to the full scan: same nearest index (ties → lowest index, made
-//   order-independent by [`Scan::offer`]), same distances, same counts.
+//   [`PCA_DIMS`]-dimensional bound. That bound is computed on coordinates quantised to 13-bit
+//   integers ([`Quantiser`]): exact integer arithmetic, 16-bit lanes, and a margin of √PCA_DIMS
+//   quantisation steps for the rounding to integers. (It replaced an f32 bound over 16 axes:
+//   KITTI pair, one thread, 63 → 47 ms, bit-identical results.)
+// - The thresholds follow the query's current second-nearest distance (and the count radius),
+//   inflated by margins that cover every rounding error (see [`prune_threshold`] and
+//   [`Quantiser::threshold`]), so the results are bit-identical to the full scan: same nearest
+//   index (ties → lowest index, made order-independent by [`Scan::offer`]), same distances, same
+//   counts.
 
-/// Principal axes of the lower bound. 16 measured fastest among 6/8/12/16 on the 3DMatch and KITTI
-/// pairs (`examples/match_bench.rs --real`).
-const PCA_DIMS: usize = 16;
+/// Principal axes of the lower bound (even: two per [`QuantBlock`] row; at most 32, see
+/// [`QUANT_MAX`]). 24 measured fastest among 16/20/24/28/32 on the KITTI pair (one thread:
+/// 16 → 24 took 50 → 47 ms) and no slower on 3DMatch (`examples/match_bench.rs --real`).
+const PCA_DIMS: usize = 24;
 /// Database descriptors per block, stored dimension-major so one vector register holds the same
 /// dimension of `LANES` descriptors.
 const LANES: usize = 8;
 /// Queries per parallel work unit (consecutive along the first axis, so they share windows).
 const WORK_QUERIES: usize = 64;
+/// Largest magnitude of a quantised projected coordinate: the difference of two fits in an
+/// `i16`, and [`PCA_DIMS`] ≤ 32 squared differences sum to at most 32 · 8190² < 2³¹.
+const QUANT_MAX: f64 = 4095.0;
+const _: () = assert!(PCA_DIMS.is_multiple_of(2) && PCA_DIMS <= 32);
 
 /// `LANES` database descriptors, dimension-major. Unused lanes hold +∞.
 type Block = [[f32; LANES]; FPFH_DIM];
-/// The same descriptors projected onto the principal axes, dimension-major. Unused lanes hold 0
-/// (with an infinite squared norm).
-type LowBlock = [[f32; LANES]; PCA_DIMS];
+/// The same descriptors' quantised projections ([`Quantiser`]), two dimensions per row
+/// interleaved by lane: row `k` holds dimensions `2k` and `2k + 1` of lane 0, then of lane 1, …
+/// (the operand layout of a pairwise multiply-add such as AVX2's `vpmaddwd`). Unused lanes hold 0;
+/// their exact distances are +∞, so letting them through the bound costs time, never a result.
+type QuantBlock = [[i16; 2 * LANES]; PCA_DIMS / 2];
 
 /// A searchable set of descriptors.
 struct Database {
@@ -237,20 +248,16 @@ struct Database {
     mean: [f64; FPFH_DIM],
     /// Orthonormal principal axes, by decreasing variance.
     axes: [[f64; FPFH_DIM]; PCA_DIMS],
-    /// Projected descriptors per block, blocks sorted along the first axis.
-    low: Vec<LowBlock>,
-    /// Squared norms of the projected descriptors (+∞ for unused lanes).
-    low_norm_sq: Vec<[f32; LANES]>,
-    /// Largest finite squared norm in each block (for the rounding margin).
-    low_norm_sq_max: Vec<f32>,
-    /// Original descriptors per block (same order).
+    /// Projected descriptors in block order (sorted along the first axis), `LANES` per block.
+    projected: Vec<[f64; PCA_DIMS]>,
+    /// Original descriptors per block.
     full: Vec<Block>,
     /// Original index of each lane (`u32::MAX` for unused lanes).
     index: Vec<[u32; LANES]>,
-    /// Smallest and largest first-axis coordinate of each block.
+    /// Smallest and largest first-axis coordinate of each block (rounded to f32).
     first_axis_range: Vec<(f32, f32)>,
-    /// Largest absolute projected coordinate (for the rounding margin).
-    max_abs_coordinate: f32,
+    /// Largest absolute first-axis coordinate (for the rounding margin of the window test).
+    max_abs_first: f32,
 }
 
 /// Mean and principal axes of `descriptors` (non-empty), from at most 4096 evenly strided
@@ -286,19 +293,19 @@ fn principal_axes(descriptors: &[Fpfh]) -> ([f64; FPFH_DIM], [[f64; FPFH_DIM]; P
     (mean, axes)
 }
 
-/// Coordinates of `d` on the axes (computed in f64, rounded to f32 once).
+/// Coordinates of `d` on the axes, in f64.
 #[inline]
 fn project(
     d: &Fpfh,
     mean: &[f64; FPFH_DIM],
     axes: &[[f64; FPFH_DIM]; PCA_DIMS],
-) -> [f32; PCA_DIMS] {
+) -> [f64; PCA_DIMS] {
     std::array::from_fn(|k| {
         let mut s = 0.0f64;
         for i in 0..FPFH_DIM {
             s += axes[k][i] * (f64::from(d[i]) - mean[i]);
         }
-        s as f32
+        s
     })
 }
 
@@ -306,7 +313,7 @@ impl Database {
     /// Builds the database (`descriptors` non-empty and finite).
     fn new(descriptors: &[Fpfh]) -> Database {
         let (mean, axes) = principal_axes(descriptors);
-        let coords: Vec<[f32; PCA_DIMS]> = descriptors
+        let coords: Vec<[f64; PCA_DIMS]> = descriptors
             .par_iter()
             .map(|d| project(d, &mean, &axes))
             .collect();
@@ -320,101 +327,231 @@ impl Database {
         let mut db = Database {
             mean,
             axes,
-            low: vec![[[0.0; LANES]; PCA_DIMS]; blocks],
-            low_norm_sq: vec![[f32::INFINITY; LANES]; blocks],
-            low_norm_sq_max: vec![0.0; blocks],
+            projected: order.iter().map(|&i| coords[i as usize]).collect(),
             full: vec![[[f32::INFINITY; LANES]; FPFH_DIM]; blocks],
             index: vec![[u32::MAX; LANES]; blocks],
             first_axis_range: Vec::with_capacity(blocks),
-            max_abs_coordinate: 0.0,
+            max_abs_first: 0.0,
         };
         for (b, members) in order.chunks(LANES).enumerate() {
             for (l, &i) in members.iter().enumerate() {
-                let (c, d) = (&coords[i as usize], &descriptors[i as usize]);
-                for (row, &x) in db.low[b].iter_mut().zip(c) {
-                    row[l] = x;
-                    db.max_abs_coordinate = db.max_abs_coordinate.max(x.abs());
-                }
-                for (dim, &v) in d.iter().enumerate() {
+                for (dim, &v) in descriptors[i as usize].iter().enumerate() {
                     db.full[b][dim][l] = v;
                 }
-                let norm_sq = squared_norm(c);
-                db.low_norm_sq[b][l] = norm_sq;
-                db.low_norm_sq_max[b] = db.low_norm_sq_max[b].max(norm_sq);
                 db.index[b][l] = i;
             }
-            let first = coords[members[0] as usize][0];
-            let last = coords[members[members.len() - 1] as usize][0];
+            let first = coords[members[0] as usize][0] as f32;
+            let last = coords[members[members.len() - 1] as usize][0] as f32;
             db.first_axis_range.push((first, last));
+            db.max_abs_first = db.max_abs_first.max(first.abs()).max(last.abs());
         }
         db
     }
 }
 
-/// Squared norm of stored projected coordinates, summed in f64 and rounded once.
-#[inline]
-fn squared_norm(c: &[f32; PCA_DIMS]) -> f32 {
-    c.iter().map(|&x| f64::from(x) * f64::from(x)).sum::<f64>() as f32
+/// Quantisation of projected coordinates to integers of magnitude ≤ [`QUANT_MAX`], with one
+/// scale for the database and the queries of a search, so that a lower bound on the projected
+/// distance costs a few integer instructions per block (exact arithmetic: no rounding to track).
+#[derive(Clone, Copy)]
+struct Quantiser {
+    /// FPFH units per integer step.
+    scale: f64,
 }
 
-/// Rounding slack of the projected squared distance computed as ‖a‖² + ‖b‖² − 2·a·b, relative to
-/// ‖a‖² + ‖b‖²: each norm is rounded once, the dot product accumulates `PCA_DIMS` fused
-/// multiply-adds (error ≤ PCA_DIMS·u·‖a‖‖b‖ ≤ PCA_DIMS·u·(‖a‖² + ‖b‖²)/2), and the sum and
-/// difference round twice more, so the error is below (PCA_DIMS + 5)·u·(‖a‖² + ‖b‖²); twice that
-/// is used.
-const DOT_SLACK: f32 = (2 * PCA_DIMS + 10) as f32 * f32::EPSILON / 2.0;
+impl Quantiser {
+    /// The scale that maps the largest coordinate magnitude of `db` and `queries` to
+    /// [`QUANT_MAX`].
+    fn new(db: &Database, queries: &[([f64; PCA_DIMS], u32)]) -> Quantiser {
+        let max_abs = db
+            .projected
+            .iter()
+            .chain(queries.iter().map(|(c, _)| c))
+            .flatten()
+            .fold(0.0f64, |m, &x| m.max(x.abs()));
+        Quantiser {
+            scale: if max_abs > 0.0 {
+                max_abs / QUANT_MAX
+            } else {
+                1.0
+            },
+        }
+    }
 
-/// Squared lower-bound threshold for a query whose results can only change through pairs at
-/// squared distance ≤ `bound_sq`, where stored coordinates carry an absolute rounding error of at
-/// most `eta` each. A pair whose computed projected squared distance exceeds the returned value
-/// has a computed full squared distance > `bound_sq`:
-/// - the computed projected squared distance is within an absolute [`DOT_SLACK`] term (added by
-///   the caller) of the exact one on the stored coordinates (u = 2⁻²⁴), and the final factor
-///   1 + 1e-5 covers the rounding of this function;
-/// - the stored coordinates of both descriptors are within `eta` of the exact projections, so
-///   the exact projected distance is at least the stored one minus 2·eta·√PCA_DIMS;
-/// - the projection onto orthonormal axes never lengthens a vector;
-/// - the computed full squared distance (33 in-order fused multiply-adds of rounded differences)
-///   is within a factor (1 − 40u) of the exact one, covered by the factor 1 + 4e-5 on its root.
+    /// `round(x / scale)`: within `scale / 2` of `x` (up to f64 rounding, ~1e-12 steps).
+    #[inline]
+    fn quantise(self, x: f64) -> i16 {
+        (x / self.scale).round().clamp(-QUANT_MAX, QUANT_MAX) as i16
+    }
+
+    /// The database's coordinates as [`QuantBlock`]s.
+    fn blocks(self, db: &Database) -> Vec<QuantBlock> {
+        let mut out = vec![[[0i16; 2 * LANES]; PCA_DIMS / 2]; db.full.len()];
+        for (k, c) in db.projected.iter().enumerate() {
+            let (b, l) = (k / LANES, k % LANES);
+            for (dim, &x) in c.iter().enumerate() {
+                out[b][dim / 2][2 * l + dim % 2] = self.quantise(x);
+            }
+        }
+        out
+    }
+
+    /// A query's coordinates laid out like a [`QuantBlock`] row by row (repeated in every lane).
+    fn pattern(self, c: &[f64; PCA_DIMS]) -> QuantBlock {
+        std::array::from_fn(|row| std::array::from_fn(|k| self.quantise(c[2 * row + k % 2])))
+    }
+
+    /// Largest quantised squared distance that can still belong to a pair whose computed full
+    /// squared distance is ≤ `bound_sq`; a lane above it is skipped. With `D` = [`PCA_DIMS`],
+    /// `s` = the scale, `a`, `b` exact projections, `A`, `B` their quantisations:
+    /// - ‖a − b‖ ≥ s·‖A − B‖ − s·√D (each quantised vector is within s·√D / 2 of its own), so
+    ///   ‖A − B‖ > (‖a − b‖) / s + √D is impossible;
+    /// - the projection onto orthonormal axes never lengthens a vector, so ‖a − b‖ ≤ the exact
+    ///   full distance;
+    /// - the computed full squared distance (33 in-order fused multiply-adds of rounded
+    ///   differences) is within a factor (1 − 40u) of the exact one, covered by 1 + 4e-5 on its
+    ///   root; the factors 1 + 1e-9 and the 1e-6 step cover the f64 rounding of the projection
+    ///   (orthonormal axes to ~1e-15), of the quantisation and of this function.
+    #[inline]
+    fn threshold(self, bound_sq: f32) -> i32 {
+        if bound_sq.is_infinite() {
+            return i32::MAX;
+        }
+        let root = f64::from(bound_sq.max(0.0)).sqrt() * (1.0 + 4e-5);
+        let steps = root / self.scale * (1.0 + 1e-9) + (PCA_DIMS as f64).sqrt() + 1e-6;
+        let sq = (steps * steps * (1.0 + 1e-9)).ceil();
+        if sq >= f64::from(i32::MAX) {
+            i32::MAX
+        } else {
+            sq as i32
+        }
+    }
+}
+
+/// Whether a block can hold a pair that matters: some lane's quantised squared distance to the
+/// query (its [`Quantiser::pattern`]) is ≤ `threshold`. The distances are exact integers (each
+/// term ≤ 8190², the sum < 2³¹), so every implementation decides alike.
+trait BoundKernel: Copy {
+    fn any_within(self, pattern: &QuantBlock, block: &QuantBlock, threshold: i32) -> bool;
+}
+
+/// Plain Rust.
+#[derive(Clone, Copy)]
+struct PortableBound;
+
+impl BoundKernel for PortableBound {
+    #[inline(always)]
+    fn any_within(self, pattern: &QuantBlock, block: &QuantBlock, threshold: i32) -> bool {
+        let mut acc = [0i32; LANES];
+        for (q, row) in pattern.iter().zip(block) {
+            for l in 0..LANES {
+                let d0 = i32::from(q[2 * l].wrapping_sub(row[2 * l]));
+                let d1 = i32::from(q[2 * l + 1].wrapping_sub(row[2 * l + 1]));
+                acc[l] += d0 * d0 + d1 * d1;
+            }
+        }
+        acc.iter().any(|&d| d <= threshold)
+    }
+}
+
+/// AVX2: one 16-bit subtract and one pairwise multiply-add (`vpmaddwd`) per row of two
+/// dimensions. Only constructed once the CPU is known to have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+struct Avx2Bound(());
+
+#[cfg(target_arch = "x86_64")]
+impl BoundKernel for Avx2Bound {
+    #[inline(always)]
+    fn any_within(self, pattern: &QuantBlock, block: &QuantBlock, threshold: i32) -> bool {
+        // SAFETY: an `Avx2Bound` exists only where AVX2 was detected (see `scan`).
+        unsafe { any_within_avx2(pattern, block, threshold) }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+fn any_within_avx2(pattern: &QuantBlock, block: &QuantBlock, threshold: i32) -> bool {
+    use std::arch::x86_64::*;
+    let mut acc = _mm256_setzero_si256();
+    for (q, row) in pattern.iter().zip(block) {
+        // SAFETY: each row is 16 contiguous i16 (32 bytes); unaligned loads.
+        let (q, row) = unsafe {
+            (
+                _mm256_loadu_si256(q.as_ptr().cast()),
+                _mm256_loadu_si256(row.as_ptr().cast()),
+            )
+        };
+        let d = _mm256_sub_epi16(q, row);
+        acc = _mm256_add_epi32(acc, _mm256_madd_epi16(d, d));
+    }
+    let above = _mm256_cmpgt_epi32(acc, _mm256_set1_epi32(threshold));
+    _mm256_movemask_epi8(above) != -1
+}
+
+/// Squared lower-bound threshold on the first-axis gap of a query whose results can only change
+/// through pairs at squared distance ≤ `bound_sq`, where the stored first-axis coordinates carry
+/// an absolute rounding error of at most `eta` each. A block whose computed gap squared exceeds
+/// the returned value holds no pair with a computed full squared distance ≤ `bound_sq`:
+/// - the stored coordinates (f32) of both descriptors are within `eta` of the exact projections,
+///   so the exact gap is at least the stored one minus 2·eta; the final factor 1 + 1e-5 covers
+///   the rounding of this function and of the gap;
+/// - the projection onto an axis never lengthens a vector;
+/// - the computed full squared distance is within a factor (1 − 40u) of the exact one, covered
+///   by the factor 1 + 4e-5 on its root.
 #[inline]
 fn prune_threshold(bound_sq: f32, eta: f32) -> f32 {
     if bound_sq.is_infinite() {
         return f32::INFINITY;
     }
-    let margin = 2.0 * eta * (PCA_DIMS as f32).sqrt();
-    let root = bound_sq.max(0.0).sqrt() * (1.0 + 4e-5) + margin;
+    let root = bound_sq.max(0.0).sqrt() * (1.0 + 4e-5) + 2.0 * eta;
     root * root * (1.0 + 1e-5)
 }
 
-/// Searches one query (projected to `low_query`) through `db`.
+/// One query of a scan: its original index, its f32 first-axis coordinate and its quantised
+/// pattern.
+struct Query {
+    index: u32,
+    first_axis: f32,
+    pattern: QuantBlock,
+}
+
+/// Searches one query through `db` (`blocks` = its quantised coordinates).
 #[inline(always)]
-fn search_one(db: &Database, query: &Fpfh, low_query: &[f32; PCA_DIMS], radius_sq: f32) -> Scan {
-    let eta = (db
-        .max_abs_coordinate
-        .max(low_query.iter().fold(0.0f32, |m, c| m.max(c.abs())))
-        * f32::EPSILON)
-        .max(f32::MIN_POSITIVE);
+fn search_one<K: BoundKernel>(
+    kernel: K,
+    db: &Database,
+    blocks: &[QuantBlock],
+    quantiser: Quantiser,
+    query: &Fpfh,
+    q: &Query,
+    radius_sq: f32,
+) -> Scan {
+    let x = q.first_axis;
+    let eta = (db.max_abs_first.max(x.abs()) * f32::EPSILON).max(f32::MIN_POSITIVE);
     let mut search = QuerySearch {
+        kernel,
         db,
+        blocks,
+        quantiser,
         query,
-        low_query,
-        low_norm_sq: squared_norm(low_query),
+        pattern: &q.pattern,
         radius_sq,
         eta,
         scan: Scan::EMPTY,
         threshold: f32::INFINITY,
+        quantised_threshold: i32::MAX,
     };
-    let blocks = db.low.len();
-    let x = low_query[0];
+    let count = db.full.len();
     let start = db
         .first_axis_range
         .partition_point(|&(first, _)| first <= x);
     let (mut up, mut down) = (start, start);
-    while up < blocks || down > 0 {
-        if up < blocks {
+    while up < count || down > 0 {
+        if up < count {
             let gap = db.first_axis_range[up].0 - x;
             if gap > 0.0 && gap * gap > search.threshold {
-                up = blocks;
+                up = count;
             } else {
                 search.visit(up);
                 up += 1;
@@ -434,41 +571,35 @@ fn search_one(db: &Database, query: &Fpfh, low_query: &[f32; PCA_DIMS], radius_s
 }
 
 /// One query's walk through a [`Database`]: the query, its projection, and its results so far.
-struct QuerySearch<'a> {
+struct QuerySearch<'a, K> {
+    kernel: K,
     db: &'a Database,
+    blocks: &'a [QuantBlock],
+    quantiser: Quantiser,
     query: &'a Fpfh,
-    low_query: &'a [f32; PCA_DIMS],
-    /// Squared norm of `low_query`.
-    low_norm_sq: f32,
+    pattern: &'a QuantBlock,
     radius_sq: f32,
-    /// Rounding bound of the stored projected coordinates (see [`prune_threshold`]).
+    /// Rounding bound of the stored first-axis coordinates (see [`prune_threshold`]).
     eta: f32,
     scan: Scan,
-    /// Projected squared distance beyond which a lane cannot matter.
+    /// First-axis gap squared beyond which a block cannot matter.
     threshold: f32,
+    /// Quantised squared distance beyond which a lane cannot matter.
+    quantised_threshold: i32,
 }
 
-impl QuerySearch<'_> {
+impl<K: BoundKernel> QuerySearch<'_, K> {
     /// Offers block `b` to the scan if its lower bound lets any lane through; refreshes the
-    /// threshold.
+    /// thresholds.
     #[inline(always)]
     fn visit(&mut self, b: usize) {
-        let db = self.db;
-        // ‖a − b‖² = ‖a‖² + ‖b‖² − 2·a·b: one fused multiply-add per dimension and lane.
-        let mut dot = [0.0f32; LANES];
-        for (&q, row) in self.low_query.iter().zip(&db.low[b]) {
-            for l in 0..LANES {
-                dot[l] = q.mul_add(row[l], dot[l]);
-            }
-        }
-        let limit = self.threshold + DOT_SLACK * (self.low_norm_sq + db.low_norm_sq_max[b]);
-        let mut alive = false;
-        for (&d, &norm_sq) in dot.iter().zip(&db.low_norm_sq[b]) {
-            alive |= (self.low_norm_sq + norm_sq) - 2.0 * d <= limit;
-        }
-        if !alive {
+        if !self
+            .kernel
+            .any_within(self.pattern, &self.blocks[b], self.quantised_threshold)
+        {
             return;
         }
+        let db = self.db;
         let mut acc = [0.0f32; LANES];
         for (dim, row) in db.full[b].iter().enumerate() {
             let q = self.query[dim];
@@ -488,50 +619,51 @@ impl QuerySearch<'_> {
             for (l, &d) in acc.iter().enumerate() {
                 self.scan.offer(db.index[b][l], d);
             }
-            self.threshold = prune_threshold(self.scan.second_sq.max(self.radius_sq), self.eta);
+            let bound_sq = self.scan.second_sq.max(self.radius_sq);
+            self.threshold = prune_threshold(bound_sq, self.eta);
+            self.quantised_threshold = self.quantiser.threshold(bound_sq);
         }
     }
 }
 
-#[inline(always)]
-fn scan_generic(
-    db: &Database,
-    queries: &[(u32, [f32; PCA_DIMS])],
-    all: &[Fpfh],
+/// The shared state of one scan's work units.
+struct ScanInput<'a> {
+    db: &'a Database,
+    blocks: &'a [QuantBlock],
+    quantiser: Quantiser,
+    all: &'a [Fpfh],
     radius_sq: f32,
-    out: &mut [Scan],
-) {
-    for ((i, low), o) in queries.iter().zip(out) {
-        *o = search_one(db, &all[*i as usize], low, radius_sq);
+}
+
+#[inline(always)]
+fn scan_generic(kernel: impl BoundKernel, input: &ScanInput, queries: &[Query], out: &mut [Scan]) {
+    for (q, o) in queries.iter().zip(out) {
+        *o = search_one(
+            kernel,
+            input.db,
+            input.blocks,
+            input.quantiser,
+            &input.all[q.index as usize],
+            q,
+            input.radius_sq,
+        );
     }
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn scan_avx2_fma(
-    db: &Database,
-    queries: &[(u32, [f32; PCA_DIMS])],
-    all: &[Fpfh],
-    radius_sq: f32,
-    out: &mut [Scan],
-) {
-    scan_generic(db, queries, all, radius_sq, out)
+fn scan_avx2_fma(input: &ScanInput, queries: &[Query], out: &mut [Scan]) {
+    scan_generic(Avx2Bound(()), input, queries, out)
 }
 
-fn scan(
-    db: &Database,
-    queries: &[(u32, [f32; PCA_DIMS])],
-    all: &[Fpfh],
-    radius_sq: f32,
-    out: &mut [Scan],
-) {
+fn scan(input: &ScanInput, queries: &[Query], out: &mut [Scan]) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
         // SAFETY: the CPU supports AVX2 and FMA (checked above).
-        unsafe { scan_avx2_fma(db, queries, all, radius_sq, out) };
+        unsafe { scan_avx2_fma(input, queries, out) };
         return;
     }
-    scan_generic(db, queries, all, radius_sq, out)
+    scan_generic(PortableBound, input, queries, out)
 }
 
 /// Nearest, second nearest and (if `radius_sq` is set) neighbour count of every query in `db`.
@@ -540,20 +672,37 @@ fn scan_all(queries: &[Fpfh], db: &Database, radius_sq: Option<f32>) -> Vec<Scan
     let radius_sq = radius_sq.unwrap_or(f32::NEG_INFINITY);
     // Queries in first-axis order, so a work unit's windows overlap (cache locality); each
     // query's result is independent of the order and of the thread that computes it.
-    let mut projected: Vec<(u32, [f32; PCA_DIMS])> = queries
+    let mut projected: Vec<([f64; PCA_DIMS], u32)> = queries
         .par_iter()
         .enumerate()
-        .map(|(i, q)| (i as u32, project(q, &db.mean, &db.axes)))
+        .map(|(i, q)| (project(q, &db.mean, &db.axes), i as u32))
         .collect();
-    projected.sort_unstable_by(|a, b| a.1[0].total_cmp(&b.1[0]).then(a.0.cmp(&b.0)));
+    projected.sort_unstable_by(|a, b| a.0[0].total_cmp(&b.0[0]).then(a.1.cmp(&b.1)));
+    let quantiser = Quantiser::new(db, &projected);
+    let blocks = quantiser.blocks(db);
+    let sorted: Vec<Query> = projected
+        .par_iter()
+        .map(|(c, i)| Query {
+            index: *i,
+            first_axis: c[0] as f32,
+            pattern: quantiser.pattern(c),
+        })
+        .collect();
+    let input = ScanInput {
+        db,
+        blocks: &blocks,
+        quantiser,
+        all: queries,
+        radius_sq,
+    };
     let mut sorted_out = vec![Scan::EMPTY; queries.len()];
     sorted_out
         .par_chunks_mut(WORK_QUERIES)
-        .zip(projected.par_chunks(WORK_QUERIES))
-        .for_each(|(out, qs)| scan(db, qs, queries, radius_sq, out));
+        .zip(sorted.par_chunks(WORK_QUERIES))
+        .for_each(|(out, qs)| scan(&input, qs, out));
     let mut out = vec![Scan::EMPTY; queries.len()];
-    for ((i, _), s) in projected.iter().zip(sorted_out) {
-        out[*i as usize] = s;
+    for (q, s) in sorted.iter().zip(sorted_out) {
+        out[q.index as usize] = s;
     }
     out
 }
@@ -839,6 +988,111 @@ mod tests {
                 .install(|| match_features_with(&source, &target, &config))
         };
         assert_eq!(run(1), run(2));
+    }
+
+    /// The quantised bound's invariant, pair by pair: a pair whose computed full squared distance
+    /// is ≤ some bound has a quantised squared distance ≤ the threshold for that bound. Pairs are
+    /// near-duplicates and ordinary neighbours (where the √PCA_DIMS-step margin matters: without
+    /// it, this fails), and the database holds an outlier that coarsens the quantisation.
+    #[test]
+    fn quantised_bound_never_exceeds_the_full_distance() {
+        let mut rng = Pcg64Mcg::seed_from_u64(23);
+        let mut base = fpfh_like(&mut rng, 400, 5);
+        base[7] = [0.0; FPFH_DIM];
+        base[7][0] = 600.0;
+        let db = Database::new(&base);
+        let queries: Vec<Fpfh> = base
+            .iter()
+            .map(|d| {
+                let scale = [0.0, 1e-3, 0.05, 1.0][rng.random_range(0..4)];
+                std::array::from_fn(|k| (d[k] + scale * rng.random::<f32>()).max(0.0))
+            })
+            .collect();
+        let projected: Vec<([f64; PCA_DIMS], u32)> = queries
+            .iter()
+            .enumerate()
+            .map(|(i, q)| (project(q, &db.mean, &db.axes), i as u32))
+            .collect();
+        let quantiser = Quantiser::new(&db, &projected);
+        let blocks = quantiser.blocks(&db);
+        let mut order: Vec<usize> = (0..base.len()).collect();
+        order.sort_by(|&a, &b| {
+            let (x, y) = (
+                project(&base[a], &db.mean, &db.axes),
+                project(&base[b], &db.mean, &db.axes),
+            );
+            x[0].total_cmp(&y[0]).then(a.cmp(&b))
+        });
+        let mut tight = 0;
+        for (q, (c, _)) in queries.iter().zip(&projected) {
+            let pattern = quantiser.pattern(c);
+            for (k, &j) in order.iter().enumerate() {
+                let full = in_order_squared(q, &base[j]);
+                let (b, l) = (k / LANES, k % LANES);
+                let quantised: i32 = (0..PCA_DIMS)
+                    .map(|dim| {
+                        let d = i32::from(pattern[dim / 2][2 * l + dim % 2])
+                            - i32::from(blocks[b][dim / 2][2 * l + dim % 2]);
+                        d * d
+                    })
+                    .sum();
+                let threshold = quantiser.threshold(full);
+                assert!(
+                    quantised <= threshold,
+                    "{quantised} > {threshold} (full {full})"
+                );
+                tight += usize::from(threshold - quantised < 4 * PCA_DIMS as i32);
+            }
+        }
+        assert!(
+            tight > 100,
+            "only {tight} pairs near the margin: the test is too easy"
+        );
+    }
+
+    /// The AVX2 kernel decides exactly as the portable one, at the extremes of the quantised range
+    /// and at thresholds on, just below and just above a lane's distance.
+    #[test]
+    fn bound_kernels_agree() {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            let mut rng = Pcg64Mcg::seed_from_u64(29);
+            let max = QUANT_MAX as i16;
+            for trial in 0..2000 {
+                let mut value = || match rng.random_range(0..4) {
+                    0 => max,
+                    1 => -max,
+                    _ => rng.random_range(-max..=max),
+                };
+                let pattern: QuantBlock = std::array::from_fn(|_| std::array::from_fn(|_| value()));
+                let block: QuantBlock = std::array::from_fn(|_| std::array::from_fn(|_| value()));
+                let lanes: Vec<i64> = (0..LANES)
+                    .map(|l| {
+                        (0..PCA_DIMS)
+                            .map(|dim| {
+                                let d = i64::from(pattern[dim / 2][2 * l + dim % 2])
+                                    - i64::from(block[dim / 2][2 * l + dim % 2]);
+                                d * d
+                            })
+                            .sum()
+                    })
+                    .collect();
+                let min = *lanes.iter().min().unwrap();
+                for threshold in [min - 1, min, min + 1, i64::from(i32::MAX), 0] {
+                    let threshold = threshold.clamp(0, i64::from(i32::MAX)) as i32;
+                    let expected = min <= i64::from(threshold);
+                    assert_eq!(
+                        PortableBound.any_within(&pattern, &block, threshold),
+                        expected
+                    );
+                    assert_eq!(
+                        Avx2Bound(()).any_within(&pattern, &block, threshold),
+                        expected,
+                        "trial {trial}, threshold {threshold}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]
