@@ -113,7 +113,10 @@ impl CellSearch {
         // advances when the candidate is within the radius (about half are, so a branch on it
         // would be mispredicted often).
         let candidates = self.index.len();
-        self.found.resize(candidates, 0);
+        // Grown, never shrunk nor cleared: every slot read below was written for this query.
+        if self.found.len() < candidates {
+            self.found.resize(candidates, 0);
+        }
         let mut n = 0;
         for (((x, y), z), &j) in self.x.iter().zip(&self.y).zip(&self.z).zip(&self.index) {
             // kiddo's squared Euclidean distance, term by term.
@@ -122,18 +125,18 @@ impl CellSearch {
             self.found[n] = u128::from(d.to_bits()) << 32 | u128::from(j);
             n += usize::from(d < radius_sq);
         }
-        self.found.truncate(n);
-        if self.found.len() > max_nn {
-            self.found.select_nth_unstable(max_nn);
-            self.found.truncate(max_nn);
+        let mut found = &mut self.found[..n];
+        if found.len() > max_nn {
+            found.select_nth_unstable(max_nn);
+            found = &mut found[..max_nn];
         }
         // Only the nearest has a fixed place (first): FPFH skips it, as Open3D skips its first
         // neighbour, and no consumer needs the rest ordered. Sorting them was about a fifth of
         // preparing a KITTI cloud (docs/BENCHMARKS.md).
-        if let Some(nearest) = (0..self.found.len()).min_by_key(|&k| self.found[k]) {
-            self.found.swap(0, nearest);
+        if let Some(nearest) = (0..found.len()).min_by_key(|&k| found[k]) {
+            found.swap(0, nearest);
         }
-        &self.found
+        found
     }
 }
 
