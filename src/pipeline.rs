@@ -628,7 +628,7 @@ pub fn register_prepared(
                 OverlapTarget::new(&target.points, consensus.inlier_threshold, target_tree)?;
             run_sampler(
                 c.sampler,
-                &DenseRigidEstimator::new(estimator, &source.points, &overlap),
+                &DenseRigidEstimator::new(estimator, &source.points, &overlap).scoring(c.scoring),
                 &consensus,
             )?
         }

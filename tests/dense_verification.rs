@@ -258,5 +258,24 @@ fn early_stop_never_changes_the_result_and_threads_do_not_either() {
         assert_eq!(run(1, true), reference, "{scoring:?}");
         assert_eq!(run(2, true), reference, "{scoring:?}");
         assert_eq!(run(3, true), reference, "{scoring:?}");
+        if scoring == Scoring::InlierCount {
+            // Counting only (first target point within τ, no nearest search): same counts, so
+            // the same consensus, on any thread count.
+            let counting = dense.scoring(Scoring::InlierCount);
+            for m in [&s.gt, &s.wrong] {
+                assert_eq!(
+                    counting.score(m, TAU * TAU).inliers,
+                    dense.score(m, TAU * TAU).inliers
+                );
+            }
+            for threads in [1, 2, 3] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let got = pool.install(|| run_consensus(&sampler, &counting, &c));
+                assert_eq!(got, reference, "counting only, {threads} threads");
+            }
+        }
     }
 }

@@ -159,11 +159,66 @@ impl RadiusGrid {
     /// equidistant nearest points, the one first in the grid's storage order. A non-finite `q`
     /// has no neighbour.
     pub fn nearest_within(&self, q: &Point3<f64>) -> Option<(u32, f64)> {
+        let c = self.query_cell(q)?;
+        let mut best = self.radius_sq;
+        let mut best_at = usize::MAX;
+        // Columns in storage order, so the first of equidistant points wins.
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                let Some(run) = self.column_run(c, dx, dy) else {
+                    continue;
+                };
+                for (k, p) in self.xyz[run.clone()].iter().enumerate() {
+                    // kiddo's squared Euclidean distance, term by term.
+                    let (dx, dy, dz) = (q.x - p[0], q.y - p[1], q.z - p[2]);
+                    let d = dx * dx + dy * dy + dz * dz;
+                    if d < best {
+                        best = d;
+                        best_at = run.start + k;
+                    }
+                }
+            }
+        }
+        (best < self.radius_sq).then(|| (self.index[best_at], best))
+    }
+
+    /// Whether some point of the cloud is strictly within the radius of `q`: [`Self::nearest_within`]
+    /// `.is_some()`, but scanning `q`'s own column first and stopping at the first point found
+    /// (a query near the cloud usually finds one there). A non-finite `q` has none.
+    pub fn any_within(&self, q: &Point3<f64>) -> bool {
+        let Some(c) = self.query_cell(q) else {
+            return false;
+        };
+        // Own column, then edge neighbours, then corners: the likeliest to hold a point first.
+        const ORDER: [(i64, i64); 9] = [
+            (0, 0),
+            (-1, 0),
+            (1, 0),
+            (0, -1),
+            (0, 1),
+            (-1, -1),
+            (-1, 1),
+            (1, -1),
+            (1, 1),
+        ];
+        ORDER.iter().any(|&(dx, dy)| {
+            self.column_run(c, dx, dy).is_some_and(|run| {
+                self.xyz[run].iter().any(|p| {
+                    let (dx, dy, dz) = (q.x - p[0], q.y - p[1], q.z - p[2]);
+                    dx * dx + dy * dy + dz * dz < self.radius_sq
+                })
+            })
+        })
+    }
+
+    /// Grid cell of `q`, or `None` when no point can be within one cell of it (or `q` is not
+    /// finite). Cells −1 and n along the column axes are outside the grid but adjacent to it.
+    #[inline]
+    fn query_cell(&self, q: &Point3<f64>) -> Option<[i64; 3]> {
         let mut c = [0i64; 3];
         for k in 0..3 {
             let f = ((q[self.axes[k]] - self.min[k]) / self.edge).floor();
-            // Cells −1 and n are outside the grid but adjacent to it; anything further (or NaN)
-            // has no point within one cell. (Along the columns, the column's own range decides.)
+            // Along the columns, the column's own range decides.
             let n = if k < 2 {
                 self.dims[k] as f64
             } else {
@@ -174,37 +229,31 @@ impl RadiusGrid {
             }
             c[k] = f as i64;
         }
-        let span =
-            |k: usize| (c[k] - 1).max(0) as usize..=((c[k] + 1) as usize).min(self.dims[k] - 1);
-        let mut best = self.radius_sq;
-        let mut best_at = usize::MAX;
-        for x in span(0) {
-            for y in span(1) {
-                let col = x * self.dims[1] + y;
-                let (z_lo, off) = self.columns[col];
-                let end = self.columns[col + 1].1;
-                if off == end {
-                    continue;
-                }
-                let z_hi = z_lo as i64 + (end - off) as i64 - 2;
-                let (a, b) = ((c[2] - 1).max(z_lo as i64), (c[2] + 1).min(z_hi));
-                if a > b {
-                    continue;
-                }
-                let first = self.starts[off as usize + (a - z_lo as i64) as usize] as usize;
-                let last = self.starts[off as usize + (b - z_lo as i64) as usize + 1] as usize;
-                for (k, p) in self.xyz[first..last].iter().enumerate() {
-                    // kiddo's squared Euclidean distance, term by term.
-                    let (dx, dy, dz) = (q.x - p[0], q.y - p[1], q.z - p[2]);
-                    let d = dx * dx + dy * dy + dz * dz;
-                    if d < best {
-                        best = d;
-                        best_at = first + k;
-                    }
-                }
-            }
+        Some(c)
+    }
+
+    /// Storage range of the points in cells `c[2] − 1 ..= c[2] + 1` of column
+    /// `(c[0] + dx, c[1] + dy)`, or `None` when that column is outside the grid or holds none.
+    #[inline]
+    fn column_run(&self, c: [i64; 3], dx: i64, dy: i64) -> Option<std::ops::Range<usize>> {
+        let (x, y) = (c[0] + dx, c[1] + dy);
+        if x < 0 || y < 0 || x >= self.dims[0] as i64 || y >= self.dims[1] as i64 {
+            return None;
         }
-        (best < self.radius_sq).then(|| (self.index[best_at], best))
+        let col = x as usize * self.dims[1] + y as usize;
+        let (z_lo, off) = self.columns[col];
+        let end = self.columns[col + 1].1;
+        if off == end {
+            return None;
+        }
+        let z_hi = z_lo as i64 + (end - off) as i64 - 2;
+        let (a, b) = ((c[2] - 1).max(z_lo as i64), (c[2] + 1).min(z_hi));
+        if a > b {
+            return None;
+        }
+        let first = self.starts[off as usize + (a - z_lo as i64) as usize] as usize;
+        let last = self.starts[off as usize + (b - z_lo as i64) as usize + 1] as usize;
+        Some(first..last)
     }
 
     /// Number of points.
@@ -284,6 +333,7 @@ mod tests {
                 };
                 let expected = oracle(points, &q, radius);
                 assert_eq!(grid.nearest_within_sq(&q), expected, "{q:?}");
+                assert_eq!(grid.any_within(&q), expected.is_some(), "{q:?}");
                 // The index returned is a point at exactly that distance.
                 let found = grid.nearest_within(&q);
                 assert_eq!(found.map(|(_, d)| d), expected, "{q:?}");
@@ -302,6 +352,7 @@ mod tests {
                 Point3::new(inside.x, f64::INFINITY, inside.z),
             ] {
                 assert_eq!(grid.nearest_within_sq(&far), None);
+                assert!(!grid.any_within(&far));
             }
         }
     }
@@ -320,6 +371,8 @@ mod tests {
         );
         // Exactly 0.5 above a lattice point: on the radius, excluded.
         assert_eq!(grid.nearest_within_sq(&Point3::new(1.0, 1.0, 0.5)), None);
+        assert!(!grid.any_within(&Point3::new(1.0, 1.0, 0.5)));
+        assert!(grid.any_within(&Point3::new(1.0, 1.0, 0.4999)));
         assert_eq!(
             grid.nearest_within_sq(&Point3::new(1.0, 1.0, 0.4999)),
             Some(0.4999 * 0.4999)

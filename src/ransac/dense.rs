@@ -53,6 +53,16 @@ impl<'a> OverlapTarget<'a> {
             OverlapTarget::Tree(t) => t.nearest_distance_squared(q).min(threshold_sq),
         }
     }
+
+    /// Whether some target point is strictly closer than the threshold (`threshold_sq` must be
+    /// the grid's radius squared for [`OverlapTarget::Grid`]).
+    #[inline]
+    fn any_within(&self, q: &Point3<f64>, threshold_sq: f64) -> bool {
+        match self {
+            OverlapTarget::Grid(g) => g.any_within(q),
+            OverlapTarget::Tree(t) => t.nearest_distance_squared(q) < threshold_sq,
+        }
+    }
 }
 
 /// A [`RigidEstimator`] whose [`Estimator::score`] is the dense overlap of `source_cloud` with
@@ -66,11 +76,17 @@ impl<'a> OverlapTarget<'a> {
 /// With [`Scoring::InlierCount`] the best model is the one with the
 /// highest fitness (`inliers / source_cloud.len()`): Open3D's `IsBetterRANSACThan` without its RMSE
 /// tie-break (ties go to the earlier hypothesis, as everywhere in the consensus loop).
+///
+/// [`DenseRigidEstimator::scoring`]`(Scoring::InlierCount)` makes the scores count inliers only:
+/// each source point stops at the first target point within the threshold instead of looking for
+/// the nearest, and [`Score::cost`] is left at 0 (the consensus loop never reads it under that
+/// scoring). Same inlier counts, hence the same models.
 #[derive(Debug, Clone, Copy)]
 pub struct DenseRigidEstimator<'a> {
     correspondences: RigidEstimator<'a>,
     source_cloud: &'a [Point3<f64>],
     target_cloud: &'a OverlapTarget<'a>,
+    count_only: bool,
 }
 
 /// Source points per chunk of a dense score (the unit of its parallel sum).
@@ -111,7 +127,30 @@ impl<'a> DenseRigidEstimator<'a> {
             correspondences,
             source_cloud,
             target_cloud,
+            count_only: false,
         }
+    }
+
+    /// Tells the estimator which scoring the consensus loop uses: under
+    /// [`Scoring::InlierCount`] only inliers are counted (faster; `cost` = 0). Default: costs
+    /// are computed, as any scoring needs.
+    pub fn scoring(mut self, scoring: Scoring) -> Self {
+        self.count_only = scoring == Scoring::InlierCount;
+        self
+    }
+
+    /// Whether source point `p` moved by (`r`, `t`) has a target point strictly within the
+    /// threshold.
+    #[inline]
+    fn is_inlier(
+        &self,
+        r: &Matrix3<f64>,
+        t: &nalgebra::Vector3<f64>,
+        p: &Point3<f64>,
+        threshold_sq: f64,
+    ) -> bool {
+        let q = Point3::from(r * p.coords + t);
+        self.target_cloud.any_within(&q, threshold_sq)
     }
 }
 
@@ -153,6 +192,12 @@ impl Estimator for DenseRigidEstimator<'_> {
             .par_chunks(SCORE_CHUNK)
             .map(|chunk| {
                 let (mut inliers, mut cost) = (0u32, 0.0);
+                if self.count_only {
+                    for p in chunk {
+                        inliers += self.is_inlier(&r, &t, p, threshold_sq) as u32;
+                    }
+                    return (inliers, cost);
+                }
                 for p in chunk {
                     let d = self.distance_sq(&r, &t, p, threshold_sq);
                     inliers += (d < threshold_sq) as u32;
@@ -193,6 +238,17 @@ impl Estimator for DenseRigidEstimator<'_> {
         let mut inliers = 0u32;
         let mut misses = 0usize;
         let mut cost = 0.0;
+        if self.count_only && scoring == Scoring::InlierCount {
+            for (k, p) in self.source_cloud.iter().enumerate() {
+                let inlier = self.is_inlier(&r, &t, p, threshold_sq);
+                inliers += inlier as u32;
+                misses += !inlier as usize;
+                if k % 64 == 63 && misses > max_misses {
+                    return None;
+                }
+            }
+            return (misses <= max_misses).then_some(Score { inliers, cost });
+        }
         for chunk in self.source_cloud.chunks(SCORE_CHUNK) {
             let mut chunk_cost = 0.0;
             for (k, p) in chunk.iter().enumerate() {
