@@ -246,8 +246,9 @@ type QuantBlock = [[i16; 2 * LANES]; PCA_DIMS / 2];
 struct Database {
     /// Mean descriptor (the projection's origin).
     mean: [f64; FPFH_DIM],
-    /// Orthonormal principal axes, by decreasing variance.
-    axes: [[f64; FPFH_DIM]; PCA_DIMS],
+    /// Orthonormal principal axes, by decreasing variance, transposed: `axes_t[i][k]` is
+    /// component `i` of axis `k`.
+    axes_t: [[f64; PCA_DIMS]; FPFH_DIM],
     /// Projected descriptors in block order (sorted along the first axis), `LANES` per block.
     projected: Vec<[f64; PCA_DIMS]>,
     /// Original descriptors per block.
@@ -263,7 +264,7 @@ struct Database {
 /// Mean and principal axes of `descriptors` (non-empty), from at most 4096 evenly strided
 /// samples (the axes only need to be orthonormal for the bound to hold; sampling affects how
 /// tight it is, not whether it is exact).
-fn principal_axes(descriptors: &[Fpfh]) -> ([f64; FPFH_DIM], [[f64; FPFH_DIM]; PCA_DIMS]) {
+fn principal_axes(descriptors: &[Fpfh]) -> ([f64; FPFH_DIM], [[f64; PCA_DIMS]; FPFH_DIM]) {
     let stride = descriptors.len().div_ceil(4096);
     let samples: Vec<&Fpfh> = descriptors.iter().step_by(stride).collect();
     let n = samples.len() as f64;
@@ -286,36 +287,37 @@ fn principal_axes(descriptors: &[Fpfh]) -> ([f64; FPFH_DIM], [[f64; FPFH_DIM]; P
             .total_cmp(&eigen.eigenvalues[a])
             .then(a.cmp(&b))
     });
-    let axes = std::array::from_fn(|k| {
-        let v = eigen.eigenvectors.column(order[k]);
-        std::array::from_fn(|i| v[i])
-    });
-    (mean, axes)
+    let axes_t =
+        std::array::from_fn(|i| std::array::from_fn(|k| eigen.eigenvectors[(i, order[k])]));
+    (mean, axes_t)
 }
 
-/// Coordinates of `d` on the axes, in f64.
+/// Coordinates of `d` on the axes (given transposed: `axes_t[i][k]` is component `i` of axis
+/// `k`), in f64. Each coordinate sums its 33 products in order; the loop runs over all axes at
+/// once so that it vectorises (bit-identical to one dot product per axis).
 #[inline]
 fn project(
     d: &Fpfh,
     mean: &[f64; FPFH_DIM],
-    axes: &[[f64; FPFH_DIM]; PCA_DIMS],
+    axes_t: &[[f64; PCA_DIMS]; FPFH_DIM],
 ) -> [f64; PCA_DIMS] {
-    std::array::from_fn(|k| {
-        let mut s = 0.0f64;
-        for i in 0..FPFH_DIM {
-            s += axes[k][i] * (f64::from(d[i]) - mean[i]);
+    let mut s = [0.0f64; PCA_DIMS];
+    for ((&x, &m), axis) in d.iter().zip(mean).zip(axes_t) {
+        let centred = f64::from(x) - m;
+        for (s, &a) in s.iter_mut().zip(axis) {
+            *s += a * centred;
         }
-        s
-    })
+    }
+    s
 }
 
 impl Database {
     /// Builds the database (`descriptors` non-empty and finite).
     fn new(descriptors: &[Fpfh]) -> Database {
-        let (mean, axes) = principal_axes(descriptors);
+        let (mean, axes_t) = principal_axes(descriptors);
         let coords: Vec<[f64; PCA_DIMS]> = descriptors
             .par_iter()
-            .map(|d| project(d, &mean, &axes))
+            .map(|d| project(d, &mean, &axes_t))
             .collect();
         let mut order: Vec<u32> = (0..descriptors.len() as u32).collect();
         order.sort_unstable_by(|&a, &b| {
@@ -326,7 +328,7 @@ impl Database {
         let blocks = order.len().div_ceil(LANES);
         let mut db = Database {
             mean,
-            axes,
+            axes_t,
             projected: order.iter().map(|&i| coords[i as usize]).collect(),
             full: vec![[[f32::INFINITY; LANES]; FPFH_DIM]; blocks],
             index: vec![[u32::MAX; LANES]; blocks],
@@ -675,7 +677,7 @@ fn scan_all(queries: &[Fpfh], db: &Database, radius_sq: Option<f32>) -> Vec<Scan
     let mut projected: Vec<([f64; PCA_DIMS], u32)> = queries
         .par_iter()
         .enumerate()
-        .map(|(i, q)| (project(q, &db.mean, &db.axes), i as u32))
+        .map(|(i, q)| (project(q, &db.mean, &db.axes_t), i as u32))
         .collect();
     projected.sort_unstable_by(|a, b| a.0[0].total_cmp(&b.0[0]).then(a.1.cmp(&b.1)));
     let quantiser = Quantiser::new(db, &projected);
@@ -1011,15 +1013,15 @@ mod tests {
         let projected: Vec<([f64; PCA_DIMS], u32)> = queries
             .iter()
             .enumerate()
-            .map(|(i, q)| (project(q, &db.mean, &db.axes), i as u32))
+            .map(|(i, q)| (project(q, &db.mean, &db.axes_t), i as u32))
             .collect();
         let quantiser = Quantiser::new(&db, &projected);
         let blocks = quantiser.blocks(&db);
         let mut order: Vec<usize> = (0..base.len()).collect();
         order.sort_by(|&a, &b| {
             let (x, y) = (
-                project(&base[a], &db.mean, &db.axes),
-                project(&base[b], &db.mean, &db.axes),
+                project(&base[a], &db.mean, &db.axes_t),
+                project(&base[b], &db.mean, &db.axes_t),
             );
             x[0].total_cmp(&y[0]).then(a.cmp(&b))
         });
