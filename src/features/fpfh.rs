@@ -78,8 +78,10 @@ pub fn compute_fpfh_with_tree(
 }
 
 /// [`compute_fpfh_with_tree`] from the hybrid neighbourhoods of every point
-/// ([`KdTree::hybrid_neighbourhoods`] with the FPFH radius and cap), e.g. shared with normal
-/// estimation.
+/// ([`KdTree::hybrid_neighbourhoods`] or [`grid::self_neighbourhoods`](crate::geometry::grid::self_neighbourhoods)
+/// with the FPFH radius and cap), e.g. shared with normal estimation. Each neighbourhood must
+/// list the nearest first; the others may come in any order (the weighted sum of the FPFH pass
+/// then rounds accordingly).
 pub fn compute_fpfh_from_neighbourhoods(
     points: &[Point3<f64>],
     normals: &[Vector3<f64>],
@@ -170,8 +172,9 @@ impl SpfhRows<'_> {
             if idx.len() < 2 {
                 continue;
             }
-            // The first entry is the query point itself (distance 0, nearest first); Open3D skips
-            // the first entry whatever it is, and so do we.
+            // The first entry is the nearest, i.e. the query point itself (distance 0); Open3D
+            // skips the first entry whatever it is, and so do we. The order of the others does
+            // not matter here: each bin receives the same increment however often.
             let incr = BLOCK_MASS / (idx.len() - 1) as f64;
             add_pairs(i, &idx[1..], hist, incr);
             for b in 0..3 {
