@@ -363,11 +363,11 @@ struct Quantiser {
 impl Quantiser {
     /// The scale that maps the largest coordinate magnitude of `db` and `queries` to
     /// [`QUANT_MAX`].
-    fn new(db: &Database, queries: &[([f64; PCA_DIMS], u32)]) -> Quantiser {
+    fn new(db: &Database, queries: &[[f64; PCA_DIMS]]) -> Quantiser {
         let max_abs = db
             .projected
             .iter()
-            .chain(queries.iter().map(|(c, _)| c))
+            .chain(queries)
             .flatten()
             .fold(0.0f64, |m, &x| m.max(x.abs()));
         Quantiser {
@@ -682,20 +682,27 @@ fn scan_all(queries: &[Fpfh], db: &Database, radius_sq: Option<f32>) -> Vec<Scan
     let radius_sq = radius_sq.unwrap_or(f32::NEG_INFINITY);
     // Queries in first-axis order, so a work unit's windows overlap (cache locality); each
     // query's result is independent of the order and of the thread that computes it.
-    let mut projected: Vec<([f64; PCA_DIMS], u32)> = queries
+    let projected: Vec<[f64; PCA_DIMS]> = queries
         .par_iter()
-        .enumerate()
-        .map(|(i, q)| (project(q, &db.mean, &db.axes_t), i as u32))
+        .map(|q| project(q, &db.mean, &db.axes_t))
         .collect();
-    projected.sort_unstable_by(|a, b| a.0[0].total_cmp(&b.0[0]).then(a.1.cmp(&b.1)));
+    let mut order: Vec<u32> = (0..queries.len() as u32).collect();
+    order.sort_unstable_by(|&a, &b| {
+        projected[a as usize][0]
+            .total_cmp(&projected[b as usize][0])
+            .then(a.cmp(&b))
+    });
     let quantiser = Quantiser::new(db, &projected);
     let blocks = quantiser.blocks(db);
-    let sorted: Vec<Query> = projected
+    let sorted: Vec<Query> = order
         .par_iter()
-        .map(|(c, i)| Query {
-            index: *i,
-            first_axis: c[0] as f32,
-            coordinates: quantiser.coordinates(c),
+        .map(|&i| {
+            let c = &projected[i as usize];
+            Query {
+                index: i,
+                first_axis: c[0] as f32,
+                coordinates: quantiser.coordinates(c),
+            }
         })
         .collect();
     let input = ScanInput {
@@ -1018,10 +1025,9 @@ mod tests {
                 std::array::from_fn(|k| (d[k] + scale * rng.random::<f32>()).max(0.0))
             })
             .collect();
-        let projected: Vec<([f64; PCA_DIMS], u32)> = queries
+        let projected: Vec<[f64; PCA_DIMS]> = queries
             .iter()
-            .enumerate()
-            .map(|(i, q)| (project(q, &db.mean, &db.axes_t), i as u32))
+            .map(|q| project(q, &db.mean, &db.axes_t))
             .collect();
         let quantiser = Quantiser::new(&db, &projected);
         let blocks = quantiser.blocks(&db);
@@ -1034,7 +1040,7 @@ mod tests {
             x[0].total_cmp(&y[0]).then(a.cmp(&b))
         });
         let mut tight = 0;
-        for (q, (c, _)) in queries.iter().zip(&projected) {
+        for (q, c) in queries.iter().zip(&projected) {
             let pattern = pattern(&quantiser.coordinates(c));
             for (k, &j) in order.iter().enumerate() {
                 let full = in_order_squared(q, &base[j]);
