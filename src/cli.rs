@@ -120,7 +120,7 @@ pub struct RegistrationFlags {
     /// Keep only mutual nearest neighbours in feature space.
     #[arg(long)]
     pub mutual: bool,
-    /// Cap on RANSAC hypotheses [default: 100000].
+    /// Cap on RANSAC hypotheses [default: 200000; Open3D's is 100000].
     #[arg(long)]
     pub max_hypotheses: Option<u64>,
     /// What RANSAC hypotheses are scored against [default: dense].
