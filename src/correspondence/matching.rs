@@ -311,20 +311,31 @@ fn project(
     s
 }
 
+/// The projections of `descriptors` (in their order) and their indices sorted along the first
+/// axis (ties by index).
+fn project_sorted(
+    descriptors: &[Fpfh],
+    mean: &[f64; FPFH_DIM],
+    axes_t: &[[f64; PCA_DIMS]; FPFH_DIM],
+) -> (Vec<[f64; PCA_DIMS]>, Vec<u32>) {
+    let coords: Vec<[f64; PCA_DIMS]> = descriptors
+        .par_iter()
+        .map(|d| project(d, mean, axes_t))
+        .collect();
+    let mut order: Vec<u32> = (0..descriptors.len() as u32).collect();
+    order.sort_unstable_by(|&a, &b| {
+        coords[a as usize][0]
+            .total_cmp(&coords[b as usize][0])
+            .then(a.cmp(&b))
+    });
+    (coords, order)
+}
+
 impl Database {
     /// Builds the database (`descriptors` non-empty and finite).
     fn new(descriptors: &[Fpfh]) -> Database {
         let (mean, axes_t) = principal_axes(descriptors);
-        let coords: Vec<[f64; PCA_DIMS]> = descriptors
-            .par_iter()
-            .map(|d| project(d, &mean, &axes_t))
-            .collect();
-        let mut order: Vec<u32> = (0..descriptors.len() as u32).collect();
-        order.sort_unstable_by(|&a, &b| {
-            coords[a as usize][0]
-                .total_cmp(&coords[b as usize][0])
-                .then(a.cmp(&b))
-        });
+        let (coords, order) = project_sorted(descriptors, &mean, &axes_t);
         let blocks = order.len().div_ceil(LANES);
         let mut db = Database {
             mean,
@@ -682,16 +693,7 @@ fn scan_all(queries: &[Fpfh], db: &Database, radius_sq: Option<f32>) -> Vec<Scan
     let radius_sq = radius_sq.unwrap_or(f32::NEG_INFINITY);
     // Queries in first-axis order, so a work unit's windows overlap (cache locality); each
     // query's result is independent of the order and of the thread that computes it.
-    let projected: Vec<[f64; PCA_DIMS]> = queries
-        .par_iter()
-        .map(|q| project(q, &db.mean, &db.axes_t))
-        .collect();
-    let mut order: Vec<u32> = (0..queries.len() as u32).collect();
-    order.sort_unstable_by(|&a, &b| {
-        projected[a as usize][0]
-            .total_cmp(&projected[b as usize][0])
-            .then(a.cmp(&b))
-    });
+    let (projected, order) = project_sorted(queries, &db.mean, &db.axes_t);
     let quantiser = Quantiser::new(db, &projected);
     let blocks = quantiser.blocks(db);
     let sorted: Vec<Query> = order
