@@ -304,8 +304,24 @@ pub struct SimulateArgs {
     pub seed: u64,
 }
 
+/// The error and its causes on one line, `outer: inner: …`, each said once: a cause whose text
+/// the line already ends with (an I/O error that its wrapper prints too) is left out.
+pub fn error_text(e: &anyhow::Error) -> String {
+    let mut text = e.to_string();
+    for cause in e.chain().skip(1) {
+        let c = cause.to_string();
+        if !text.ends_with(&c) {
+            text.push_str(": ");
+            text.push_str(&c);
+        }
+    }
+    text
+}
+
 /// Runs the parsed command line.
 pub fn run(cli: Cli) -> Result<()> {
+    // Ctrl-C and SIGTERM end a run at once, leaving no partial output behind.
+    crate::io::atomic_file::install_signal_handlers();
     match cli.command {
         Some(Command::Simulate(args)) => run_simulate(&args),
         Some(Command::Pair(args)) => run_pair(&args),

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 
+use crate::io::atomic_file::{PendingFile, same_file};
 use crate::io::mcap_log::list_channels;
 use crate::trajectory::{
     self, DEFAULT_ESTIMATE_TOPIC, DEFAULT_GROUND_TRUTH_TOPIC, DEFAULT_STATS_TOPIC, Evaluation,
@@ -335,12 +336,36 @@ pub fn run_export(args: &ExportArgs) -> Result<()> {
     }
     match &args.output {
         Some(path) => {
-            let file = std::fs::File::create(path)
-                .with_context(|| format!("creating {}", path.display()))?;
+            if same_file(&args.input, path) {
+                bail!(
+                    "output {} is the input; mireg never writes over its input",
+                    path.display()
+                );
+            }
+            // Written beside the target and moved into place when complete: a full disk or an
+            // interruption never leaves a truncated file there.
+            let (file, pending) = PendingFile::create(path, true)?;
             let mut w = std::io::BufWriter::new(file);
-            write_trajectory(&t, args.format, &mut w)?;
-            w.flush()
-                .with_context(|| format!("writing {}", path.display()))?;
+            let named = |e: crate::Error| match e {
+                crate::Error::Io { path: p, source }
+                    if p == Path::new(trajectory::OUTPUT_STREAM) =>
+                {
+                    crate::Error::Io {
+                        path: path.clone(),
+                        source,
+                    }
+                }
+                e => e,
+            };
+            write_trajectory(&t, args.format, &mut w).map_err(|e| match e.downcast() {
+                Ok(e) => anyhow::Error::from(named(e)),
+                Err(e) => e,
+            })?;
+            let file = w.into_inner().map_err(|e| crate::Error::Io {
+                path: path.clone(),
+                source: e.into_error(),
+            })?;
+            pending.commit(file)?;
         }
         None => {
             let stdout = std::io::stdout();

@@ -14,6 +14,7 @@ use std::time::Instant;
 use nalgebra::Isometry3;
 use serde_json::json;
 
+use crate::io::atomic_file::same_file;
 use crate::io::log_order::{ChunkTimes, Reorder};
 use crate::io::mcap_log::{ChannelInfo, InputCatalog, OutputLog, pass_through};
 use crate::io::{foxglove_msgs, ros2};
@@ -396,19 +397,37 @@ fn write_frame(log: &mut OutputLog, ch: &Outputs, world_frame: &str, out: &Frame
     log.write(ch.stats, out.log_time, out.publish_time, &stats)
 }
 
+/// Fails unless `input` is a regular file, saying once what is wrong and what is accepted.
+fn check_input(input: &Path) -> Result<()> {
+    const ACCEPTED: &str = "mireg register reads one MCAP file (.mcap)";
+    match std::fs::metadata(input) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Err(Error::InvalidInput(format!(
+            "{}: no such file; {ACCEPTED}",
+            input.display()
+        ))),
+        Err(source) => Err(Error::Io {
+            path: input.to_path_buf(),
+            source,
+        }),
+        Ok(m) if m.is_dir() => Err(Error::InvalidInput(format!(
+            "{}: is a directory; {ACCEPTED} (for a ROS 2 bag directory, pass the .mcap file inside it)",
+            input.display()
+        ))),
+        Ok(m) if !m.is_file() => Err(Error::InvalidInput(format!(
+            "{}: is {}; {ACCEPTED}",
+            input.display(),
+            crate::io::file_kind(&m)
+        ))),
+        Ok(_) => Ok(()),
+    }
+}
+
 /// Runs the whole job. On any error the output path is left untouched.
 pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     let start = Instant::now();
     let input = &opts.input;
-    if !input.is_file() {
-        return Err(Error::Io {
-            path: input.clone(),
-            source: std::io::Error::new(std::io::ErrorKind::NotFound, "input MCAP not found"),
-        });
-    }
-    if let (Ok(a), Ok(b)) = (input.canonicalize(), opts.output.canonicalize())
-        && a == b
-    {
+    check_input(input)?;
+    if same_file(input, &opts.output) {
         return Err(Error::InvalidInput(format!(
             "output {} is the input; mireg never writes over its input",
             opts.output.display()

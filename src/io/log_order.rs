@@ -10,14 +10,11 @@
 //! ([`ChunkTimes`]). The order handed on is the same either way: log time, then file order.
 
 use std::collections::BTreeMap;
-use std::fs::File;
-use std::io::{Read, Seek};
 use std::path::Path;
 
 use mcap::records::ChunkIndex;
-use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader};
 
-use crate::{Error, Result};
+use crate::Result;
 
 /// The time ranges of a log's chunks, in file order, when they are ordered and disjoint:
 /// `start ≤ end` for every chunk and `end ≤ next start` (log times in ns).
@@ -75,26 +72,7 @@ impl ChunkTimes {
 /// The chunk indexes of the summary section of `path`; `None` when the file has no readable
 /// summary (e.g. a log cut short while recording).
 fn read_chunk_indexes(path: &Path) -> Result<Option<Vec<ChunkIndex>>> {
-    let io_err = |source| Error::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let mut file = File::open(path).map_err(io_err)?;
-    let mut reader = SummaryReader::new();
-    while let Some(event) = reader.next_event() {
-        let Ok(event) = event else { return Ok(None) };
-        match event {
-            SummaryReadEvent::ReadRequest(need) => {
-                let n = file.read(reader.insert(need)).map_err(io_err)?;
-                reader.notify_read(n);
-            }
-            SummaryReadEvent::SeekRequest(to) => {
-                let pos = file.seek(to).map_err(io_err)?;
-                reader.notify_seeked(pos);
-            }
-        }
-    }
-    Ok(reader.finish().map(|s| s.chunk_indexes))
+    Ok(super::mcap_read::read_summary(path)?.map(|s| s.chunk_indexes))
 }
 
 /// Items keyed by log time, handed on in (log time, arrival) order once no earlier item can

@@ -7,8 +7,9 @@
 use std::collections::BTreeMap;
 use std::io::Read;
 
-use mcap::records::{Channel, ChunkHeader, MessageHeader, Record, op};
+use mcap::records::{Channel, ChunkHeader, MessageHeader, MessageIndex, Record, op};
 
+use super::mcap_read::MAX_CHUNK_BYTES;
 use super::mcap_write::SchemaRecord;
 
 /// Decompresses chunks into a buffer reused from one chunk to the next.
@@ -54,6 +55,11 @@ impl ChunkDecoder {
             Err(e) => return Err(format!("bad chunk record: {e}")),
         };
         let size = header.uncompressed_size;
+        if size > MAX_CHUNK_BYTES {
+            return Err(format!(
+                "chunk claims {size} uncompressed bytes, more than the limit of {MAX_CHUNK_BYTES}"
+            ));
+        }
         let records: &[u8] = match header.compression.as_str() {
             "" => data,
             "zstd" | "lz4" => {
@@ -101,13 +107,15 @@ impl ChunkDecoder {
     }
 }
 
-/// The records of an uncompressed chunk: `(opcode, body)`, or an error for a record that runs
-/// past the end.
-pub fn records(mut rest: &[u8]) -> impl Iterator<Item = Result<(u8, &[u8]), String>> {
+/// The records of an uncompressed chunk: `(offset, opcode, body)` with the record's offset in
+/// the chunk's uncompressed data, or an error for a record that runs past the end.
+pub fn records(all: &[u8]) -> impl Iterator<Item = Result<(u64, u8, &[u8]), String>> {
+    let mut rest = all;
     std::iter::from_fn(move || {
         if rest.is_empty() {
             return None;
         }
+        let offset = (all.len() - rest.len()) as u64;
         if rest.len() < 9 {
             rest = &[];
             return Some(Err("truncated record inside the chunk".into()));
@@ -118,16 +126,39 @@ pub fn records(mut rest: &[u8]) -> impl Iterator<Item = Result<(u8, &[u8]), Stri
         match usize::try_from(len).ok().filter(|&l| l <= body.len()) {
             Some(l) => {
                 rest = &body[l..];
-                Some(Ok((opcode, &body[..l])))
+                Some(Ok((offset, opcode, &body[..l])))
             }
             None => {
                 rest = &[];
                 Some(Err(format!(
-                    "record (opcode 0x{opcode:02x}) of {len} bytes runs past the end of the chunk"
+                    "record (opcode 0x{opcode:02x}) at offset {offset} of {len} bytes runs past the end of the chunk"
                 )))
             }
         }
     })
+}
+
+/// Fails for a record that may not appear inside a chunk (MCAP specification: only schema,
+/// channel and message records do; records of unknown opcodes are allowed and skipped).
+pub fn check_chunk_opcode(opcode: u8) -> Result<(), String> {
+    match opcode {
+        op::SCHEMA | op::CHANNEL | op::MESSAGE => Ok(()),
+        op::HEADER
+        | op::FOOTER
+        | op::CHUNK
+        | op::MESSAGE_INDEX
+        | op::CHUNK_INDEX
+        | op::ATTACHMENT
+        | op::ATTACHMENT_INDEX
+        | op::STATISTICS
+        | op::METADATA
+        | op::METADATA_INDEX
+        | op::SUMMARY_OFFSET
+        | op::DATA_END => Err(format!(
+            "holds a record of opcode 0x{opcode:02x}, which may not appear inside a chunk"
+        )),
+        _ => Ok(()),
+    }
 }
 
 /// The header and payload of a message record body.
@@ -152,18 +183,27 @@ pub struct ChunkContents {
     pub schemas: Vec<(u16, SchemaRecord)>,
     /// Channel records.
     pub channels: Vec<Channel>,
+    /// Every message record: (offset in the uncompressed chunk, channel id, log time \[ns\]), in
+    /// offset order.
+    pub messages: Vec<(u64, u16, u64)>,
 }
 
 impl ChunkContents {
     /// Accounts for one record of the chunk; returns the channel id of a message record.
-    pub fn add(&mut self, opcode: u8, body: &[u8]) -> Result<Option<u16>, String> {
+    pub fn add(&mut self, offset: u64, opcode: u8, body: &[u8]) -> Result<Option<u16>, String> {
+        check_chunk_opcode(opcode)?;
         match opcode {
             op::MESSAGE => {
-                let id = body
-                    .get(..2)
-                    .map(|b| u16::from_le_bytes([b[0], b[1]]))
-                    .ok_or("message record shorter than its header")?;
+                // channel id (2), sequence (4), log time (8), publish time (8)
+                let (Some(id), Some(t)) = (body.get(..2), body.get(6..14)) else {
+                    return Err(format!(
+                        "message record at offset {offset} shorter than its header"
+                    ));
+                };
+                let id = u16::from_le_bytes([id[0], id[1]]);
+                let log_time = u64::from_le_bytes(t.try_into().expect("8 bytes"));
                 *self.counts.entry(id).or_default() += 1;
+                self.messages.push((offset, id, log_time));
                 return Ok(Some(id));
             }
             op::SCHEMA | op::CHANNEL => match mcap::parse_record(opcode, body) {
@@ -189,10 +229,66 @@ impl ChunkContents {
         let (_, recs) = decoder.decode(body)?;
         let mut contents = Self::default();
         for r in records(recs) {
-            let (opcode, body) = r?;
-            contents.add(opcode, body)?;
+            let (offset, opcode, body) = r?;
+            contents.add(offset, opcode, body)?;
         }
         Ok(contents)
+    }
+
+    /// Checks the message index records that followed the chunk against its messages (MCAP
+    /// specification): exactly one record per channel with messages in the chunk, listing each of
+    /// that channel's messages once, by the offset of its record and its log time. A reader that
+    /// seeks by the index then finds exactly the messages a linear read finds.
+    pub fn check_index(&self, index: &[MessageIndex]) -> Result<(), String> {
+        let mut seen = BTreeMap::new();
+        for i in index {
+            if seen.insert(i.channel_id, ()).is_some() {
+                return Err(format!(
+                    "two message index records for channel {}",
+                    i.channel_id
+                ));
+            }
+            let expected = self.counts.get(&i.channel_id).copied().unwrap_or(0);
+            if i.records.len() as u64 != expected {
+                return Err(format!(
+                    "message index of channel {} lists {} messages, the chunk holds {expected}",
+                    i.channel_id,
+                    i.records.len()
+                ));
+            }
+            let mut offsets = Vec::with_capacity(i.records.len());
+            for e in &i.records {
+                let found = self
+                    .messages
+                    .binary_search_by_key(&e.offset, |m| m.0)
+                    .ok()
+                    .map(|k| self.messages[k]);
+                if found != Some((e.offset, i.channel_id, e.log_time)) {
+                    return Err(format!(
+                        "message index of channel {} points at offset {} (log time {}), where the chunk holds no such message",
+                        i.channel_id, e.offset, e.log_time
+                    ));
+                }
+                offsets.push(e.offset);
+            }
+            offsets.sort_unstable();
+            if offsets.windows(2).any(|w| w[0] == w[1]) {
+                return Err(format!(
+                    "message index of channel {} lists a message twice",
+                    i.channel_id
+                ));
+            }
+        }
+        if let Some((id, _)) = self
+            .counts
+            .iter()
+            .find(|(id, n)| **n > 0 && !seen.contains_key(*id))
+        {
+            return Err(format!(
+                "holds messages on channel {id} that its message index records do not list"
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -261,6 +357,9 @@ mod tests {
         body[16..24].copy_from_slice(&(u64::MAX / 2).to_le_bytes());
         assert!(ChunkContents::of_chunk(&mut dec, &body).is_err());
         let rec = message_record(4, b"xy");
+        // Record offsets inside the chunk.
+        let offsets: Vec<u64> = records(&recs).map(|r| r.unwrap().0).collect();
+        assert_eq!(offsets, [0, 9 + 25, 2 * 9 + 25 + 22]);
         let (h, d) = message(&rec[9..]).unwrap();
         assert_eq!((h.channel_id, h.sequence, d), (4, 7, &b"xy"[..]));
     }

@@ -4,11 +4,13 @@
 //! Readers parse from byte slices or strings with a path used only for error messages, so
 //! they can be tested without files; the `read_*` functions add the file system on top.
 
+pub mod atomic_file;
 pub mod cloud_file;
 pub mod foxglove_msgs;
 pub mod log_order;
 pub mod mcap_chunk;
 pub mod mcap_log;
+pub mod mcap_read;
 pub mod mcap_write;
 pub mod pose_file;
 pub mod ros2;
@@ -32,4 +34,34 @@ pub(crate) fn read_text(path: &Path) -> Result<String> {
         path: path.to_path_buf(),
         source,
     })
+}
+
+/// What kind of file `meta` describes, for messages: "a directory", "a FIFO", ….
+pub(crate) fn file_kind(meta: &std::fs::Metadata) -> &'static str {
+    let t = meta.file_type();
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        if t.is_fifo() {
+            return "a FIFO";
+        }
+        if t.is_char_device() {
+            return "a character device";
+        }
+        if t.is_block_device() {
+            return "a block device";
+        }
+        if t.is_socket() {
+            return "a socket";
+        }
+    }
+    if t.is_dir() {
+        "a directory"
+    } else if t.is_symlink() {
+        "a symbolic link"
+    } else if t.is_file() {
+        "a regular file"
+    } else {
+        "a special file"
+    }
 }

@@ -1,0 +1,365 @@
+//! Output files that appear whole or not at all.
+//!
+//! [`PendingFile::create`] opens an unnamed file in the target's directory (Linux `O_TMPFILE`):
+//! whatever happens to the process — an error, Ctrl-C, `SIGKILL`, a power cut — nothing of it is
+//! ever visible, at the target path or beside it, until [`PendingFile::commit`] syncs it and links
+//! it into place. Where the file system cannot make unnamed files (or off Linux) it is a hidden
+//! file `.NAME.mireg-PID-XXXXXX.partial` beside the target, removed on error and on
+//! `SIGINT`/`SIGTERM` ([`install_signal_handlers`]); one left by a killed run is removed by the
+//! next run towards the same target.
+//!
+//! The target itself is only ever replaced when it is a regular file (and `overwrite` is set):
+//! a device node, FIFO, socket or directory at the target path is an error, never replaced.
+
+use std::fs::File;
+use std::path::{Path, PathBuf};
+
+use super::mcap_read::io_err;
+use crate::{Error, Result};
+
+/// An output file being written; [`commit`](Self::commit) puts it at its target.
+#[derive(Debug)]
+pub struct PendingFile {
+    target: PathBuf,
+    overwrite: bool,
+    temp: Temp,
+}
+
+#[derive(Debug)]
+enum Temp {
+    /// An `O_TMPFILE` file: no name until it is linked into place.
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    Unnamed,
+    /// A hidden file beside the target, deleted on drop.
+    Named(tempfile::TempPath),
+}
+
+/// Fails unless `target` may be written: absent, or a regular file when `overwrite` is set.
+pub fn check_target(target: &Path, overwrite: bool) -> Result<()> {
+    match std::fs::metadata(target) {
+        Ok(meta) if !meta.is_file() => Err(Error::InvalidInput(format!(
+            "{}: is {}; mireg only ever replaces regular files",
+            target.display(),
+            super::file_kind(&meta)
+        ))),
+        Ok(_) if !overwrite => Err(Error::InvalidInput(format!(
+            "{} exists (use --force to replace it)",
+            target.display()
+        ))),
+        _ => Ok(()),
+    }
+}
+
+/// Whether `a` and `b` are the same file (same device and inode; same canonical path elsewhere).
+/// False when either does not exist.
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        match (std::fs::metadata(a), std::fs::metadata(b)) {
+            (Ok(x), Ok(y)) => x.dev() == y.dev() && x.ino() == y.ino(),
+            _ => false,
+        }
+    }
+    #[cfg(not(unix))]
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => false,
+    }
+}
+
+fn target_dir(target: &Path) -> PathBuf {
+    match target.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    }
+}
+
+fn file_name(target: &Path) -> String {
+    target
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+impl PendingFile {
+    /// Opens a file that will become `target`, after [`check_target`].
+    pub fn create(target: &Path, overwrite: bool) -> Result<(File, Self)> {
+        check_target(target, overwrite)?;
+        let dir = target_dir(target);
+        #[cfg(all(target_os = "linux", target_env = "gnu"))]
+        {
+            use std::os::unix::fs::OpenOptionsExt;
+            let unnamed = std::fs::OpenOptions::new()
+                .read(true)
+                .write(true)
+                .custom_flags(libc::O_TMPFILE)
+                .mode(0o600)
+                .open(&dir);
+            if let Ok(file) = unnamed {
+                let pending = Self {
+                    target: target.to_path_buf(),
+                    overwrite,
+                    temp: Temp::Unnamed,
+                };
+                return Ok((file, pending));
+            }
+        }
+        remove_stale_partials(&dir, &file_name(target));
+        let temp = tempfile::Builder::new()
+            .prefix(&partial_prefix(&file_name(target), std::process::id()))
+            .suffix(".partial")
+            .tempfile_in(&dir)
+            .map_err(|e| io_err(&dir, e))?;
+        let (file, path) = temp.into_parts();
+        signals::remove_on_signal(&path);
+        let pending = Self {
+            target: target.to_path_buf(),
+            overwrite,
+            temp: Temp::Named(path),
+        };
+        Ok((file, pending))
+    }
+
+    /// The target path.
+    pub fn target(&self) -> &Path {
+        &self.target
+    }
+
+    /// Makes `file` (the one [`create`](Self::create) returned, fully written) an ordinary file
+    /// (mode 0644), syncs it and puts it at the target: atomically, and without replacing a file
+    /// that appeared there meanwhile unless `overwrite` was set. On error nothing is left at the
+    /// target path.
+    pub fn commit(self, file: File) -> Result<()> {
+        let target = &self.target;
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            file.set_permissions(std::fs::Permissions::from_mode(0o644))
+                .map_err(|e| io_err(target, e))?;
+        }
+        file.sync_all().map_err(|e| io_err(target, e))?;
+        check_target(target, self.overwrite)?;
+        match self.temp {
+            #[cfg(all(target_os = "linux", target_env = "gnu"))]
+            Temp::Unnamed => {
+                if !self.overwrite {
+                    return link_unnamed(&file, target);
+                }
+                // Link under a hidden name, then rename over the target (rename is atomic; a
+                // link cannot replace). Only this instant has a name beside the target.
+                let dir = target_dir(target);
+                let name = partial_prefix(&file_name(target), std::process::id());
+                for k in 0u32.. {
+                    let beside = dir.join(format!("{name}link{k}.partial"));
+                    match link_unnamed(&file, &beside) {
+                        Ok(()) => {
+                            signals::remove_on_signal(&beside);
+                            let renamed = std::fs::rename(&beside, target);
+                            signals::forget(&beside);
+                            return renamed.map_err(|e| {
+                                let _ = std::fs::remove_file(&beside);
+                                io_err(target, e)
+                            });
+                        }
+                        Err(Error::Io { source, .. })
+                            if source.kind() == std::io::ErrorKind::AlreadyExists && k < 100 => {}
+                        Err(e) => return Err(e),
+                    }
+                }
+                unreachable!("the loop returns")
+            }
+            Temp::Named(path) => {
+                drop(file);
+                signals::forget(&path);
+                if self.overwrite {
+                    path.persist(target).map_err(|e| io_err(target, e.error))
+                } else {
+                    path.persist_noclobber(target)
+                        .map_err(|e| io_err(target, e.error))
+                }
+            }
+        }
+    }
+}
+
+/// Gives the `O_TMPFILE` file `file` the name `at` (fails if `at` exists).
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+fn link_unnamed(file: &File, at: &Path) -> Result<()> {
+    use std::ffi::CString;
+    use std::os::fd::AsRawFd;
+    use std::os::unix::ffi::OsStrExt;
+    let c_at = CString::new(at.as_os_str().as_bytes())
+        .map_err(|_| Error::InvalidInput(format!("{}: path holds a NUL byte", at.display())))?;
+    let proc_path = CString::new(format!("/proc/self/fd/{}", file.as_raw_fd())).expect("no NUL");
+    // SAFETY: both paths are NUL-terminated strings that live across the calls; the descriptor is
+    // open for as long as `file` lives.
+    let linked = unsafe {
+        libc::linkat(
+            libc::AT_FDCWD,
+            proc_path.as_ptr(),
+            libc::AT_FDCWD,
+            c_at.as_ptr(),
+            libc::AT_SYMLINK_FOLLOW,
+        )
+    };
+    if linked == 0 {
+        return Ok(());
+    }
+    let first = std::io::Error::last_os_error();
+    if first.kind() != std::io::ErrorKind::NotFound {
+        return Err(io_err(at, first));
+    }
+    // No /proc: AT_EMPTY_PATH (needs CAP_DAC_READ_SEARCH).
+    // SAFETY: as above; the empty path is a valid NUL-terminated string.
+    let linked = unsafe {
+        libc::linkat(
+            file.as_raw_fd(),
+            c"".as_ptr(),
+            libc::AT_FDCWD,
+            c_at.as_ptr(),
+            libc::AT_EMPTY_PATH,
+        )
+    };
+    if linked == 0 {
+        Ok(())
+    } else {
+        Err(io_err(at, std::io::Error::last_os_error()))
+    }
+}
+
+/// The start of the hidden name of a partial output of process `pid` towards file `name`.
+fn partial_prefix(name: &str, pid: u32) -> String {
+    format!(".{name}.mireg-{pid}-")
+}
+
+/// Removes partial outputs towards `name` in `dir` left by processes that no longer run.
+fn remove_stale_partials(dir: &Path, name: &str) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    let prefix = format!(".{name}.mireg-");
+    for entry in entries.flatten() {
+        let file = entry.file_name();
+        let Some(rest) = file.to_str().and_then(|f| f.strip_prefix(&prefix)) else {
+            continue;
+        };
+        let Some(pid) = rest.split('-').next().and_then(|p| p.parse::<u32>().ok()) else {
+            continue;
+        };
+        if rest.ends_with(".partial") && !process_runs(pid) {
+            let _ = std::fs::remove_file(entry.path());
+        }
+    }
+}
+
+#[cfg(target_os = "linux")]
+fn process_runs(pid: u32) -> bool {
+    Path::new(&format!("/proc/{pid}")).exists()
+}
+
+/// Elsewhere a partial file is only removed by the run that made it.
+#[cfg(not(target_os = "linux"))]
+fn process_runs(_pid: u32) -> bool {
+    true
+}
+
+pub use signals::install_signal_handlers;
+
+/// `SIGINT`/`SIGTERM`: remove the named partial outputs, say so on one line, exit 130/143.
+mod signals {
+    use std::path::Path;
+
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    mod imp {
+        use std::ffi::CString;
+        use std::os::unix::ffi::OsStrExt;
+        use std::path::Path;
+        use std::sync::atomic::{AtomicPtr, Ordering};
+
+        /// Paths (NUL-terminated, leaked so that the handler never reads freed memory) that the
+        /// handler removes.
+        static PATHS: [AtomicPtr<libc::c_char>; 8] =
+            [const { AtomicPtr::new(std::ptr::null_mut()) }; 8];
+
+        pub fn remove_on_signal(path: &Path) {
+            let Ok(c) = CString::new(path.as_os_str().as_bytes()) else {
+                return;
+            };
+            let p = c.into_raw();
+            for slot in &PATHS {
+                if slot
+                    .compare_exchange(std::ptr::null_mut(), p, Ordering::SeqCst, Ordering::SeqCst)
+                    .is_ok()
+                {
+                    return;
+                }
+            }
+        }
+
+        pub fn forget(path: &Path) {
+            let bytes = path.as_os_str().as_bytes();
+            for slot in &PATHS {
+                let p = slot.load(Ordering::SeqCst);
+                // SAFETY: non-null slots hold leaked, NUL-terminated strings from
+                // `remove_on_signal`, never freed.
+                if !p.is_null() && unsafe { std::ffi::CStr::from_ptr(p) }.to_bytes() == bytes {
+                    slot.store(std::ptr::null_mut(), Ordering::SeqCst);
+                }
+            }
+        }
+
+        extern "C" fn on_signal(sig: libc::c_int) {
+            // Only async-signal-safe calls here: unlink, write, _exit.
+            for slot in &PATHS {
+                let p = slot.load(Ordering::SeqCst);
+                if !p.is_null() {
+                    // SAFETY: a leaked NUL-terminated string (see PATHS).
+                    unsafe { libc::unlink(p) };
+                }
+            }
+            let msg: &[u8] = if sig == libc::SIGINT {
+                b"mireg: interrupted (SIGINT); no output written\n"
+            } else {
+                b"mireg: terminated (SIGTERM); no output written\n"
+            };
+            // SAFETY: write and _exit are async-signal-safe; the buffer is static.
+            unsafe {
+                libc::write(2, msg.as_ptr().cast(), msg.len());
+                libc::_exit(128 + sig);
+            }
+        }
+
+        pub fn install() {
+            let handler = on_signal as extern "C" fn(libc::c_int) as libc::sighandler_t;
+            for sig in [libc::SIGINT, libc::SIGTERM] {
+                // SAFETY: installs a handler that only makes async-signal-safe calls.
+                unsafe { libc::signal(sig, handler) };
+            }
+        }
+    }
+
+    #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+    mod imp {
+        use std::path::Path;
+        pub fn remove_on_signal(_path: &Path) {}
+        pub fn forget(_path: &Path) {}
+        pub fn install() {}
+    }
+
+    /// Makes `SIGINT` and `SIGTERM` end the process at once with exit code 130 / 143 and one line
+    /// on stderr, after removing any partial output file that has a name (outputs being written
+    /// as unnamed files vanish by themselves). Call it once, at the start of a command that
+    /// writes files.
+    pub fn install_signal_handlers() {
+        imp::install();
+    }
+
+    pub(super) fn remove_on_signal(path: &Path) {
+        imp::remove_on_signal(path);
+    }
+
+    pub(super) fn forget(path: &Path) {
+        imp::forget(path);
+    }
+}

@@ -1,0 +1,302 @@
+//! Reading MCAP files whose lengths cannot be trusted: every length, count or size read from the
+//! file is checked against what the file can hold (the rest of the record, the chunk, the file)
+//! or a documented limit ([`MAX_CHUNK_BYTES`]) before it drives an allocation.
+//!
+//! [`Source`] reads top-level records of the data section; [`for_each_record`] walks them and the
+//! records inside chunks (the streaming read of `mireg evaluate`/`export`, and the catalogue of a
+//! log without a summary); [`read_summary`] reads the summary section with the same bounds. The
+//! pass-through of `mireg register` (`mcap_log`) reads with [`Source`] too, so every input path
+//! shares one set of checks.
+
+use std::fs::File;
+use std::io::{BufReader, Read, Seek};
+use std::path::Path;
+
+use binrw::BinRead;
+use mcap::records::{ChunkHeader, Record, op};
+use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader, SummaryReaderOptions};
+
+use super::mcap_chunk::{self, ChunkDecoder};
+use crate::{Error, Result};
+
+/// Largest uncompressed chunk accepted, in bytes: 1 GiB. A chunk's declared uncompressed size is
+/// checked against it before any buffer is allocated, and decompression never writes past the
+/// declared size, so a decompression bomb (a few kilobytes claiming gigabytes of zeros) is an error
+/// instead of an allocation. Recorders write chunks of a few megabytes (MCAP's default is 768 KiB,
+/// rosbag2's 4 MiB); one chunk holds at least one whole message, so the limit is also the largest
+/// message a chunked log may carry.
+pub const MAX_CHUNK_BYTES: u64 = 1 << 30;
+
+pub(crate) fn io_err(path: &Path, source: std::io::Error) -> Error {
+    Error::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+pub(crate) fn mcap_err(path: &Path, what: &str, e: impl std::fmt::Display) -> Error {
+    Error::Format {
+        path: path.to_path_buf(),
+        detail: format!("{what}: {e}"),
+    }
+}
+
+/// An MCAP input, read record by record from the front, with its position and size.
+pub(crate) struct Source<'a> {
+    reader: BufReader<File>,
+    /// Bytes read so far (the offset of the next byte).
+    pub pos: u64,
+    /// File size in bytes.
+    pub size: u64,
+    /// The file, for errors.
+    pub path: &'a Path,
+}
+
+impl<'a> Source<'a> {
+    /// Opens `path` and reads its magic and header record; the next record is the first of the
+    /// data section. `buffer` is the read buffer's size in bytes.
+    pub fn open(path: &'a Path, buffer: usize) -> Result<Self> {
+        let file = File::open(path).map_err(|e| io_err(path, e))?;
+        let meta = file.metadata().map_err(|e| io_err(path, e))?;
+        if !meta.is_file() {
+            return Err(not_a_regular_file(path, &meta));
+        }
+        let mut src = Source {
+            reader: BufReader::with_capacity(buffer, file),
+            pos: 0,
+            size: meta.len(),
+            path,
+        };
+        if src.size < (mcap::MAGIC.len() + 9) as u64 {
+            return Err(mcap_err(
+                path,
+                "reading MCAP records",
+                format!(
+                    "not an MCAP file: {} bytes, shorter than the magic and a header",
+                    src.size
+                ),
+            ));
+        }
+        let mut magic = [0u8; 8];
+        src.read_exact(&mut magic)?;
+        if magic != mcap::MAGIC {
+            return Err(mcap_err(
+                path,
+                "reading MCAP records",
+                "not an MCAP file (bad magic)",
+            ));
+        }
+        let (opcode, len) = src.prefix()?;
+        if opcode != op::HEADER {
+            return Err(mcap_err(
+                path,
+                "reading MCAP records",
+                format!("the first record has opcode 0x{opcode:02x}, not a header"),
+            ));
+        }
+        src.body(opcode, len, &mut Vec::new())?;
+        Ok(src)
+    }
+
+    /// A format error "truncated MCAP?" naming the file.
+    pub fn truncated(&self, what: String) -> Error {
+        mcap_err(
+            self.path,
+            "reading MCAP records",
+            format!("{what} (truncated MCAP?)"),
+        )
+    }
+
+    /// Fills `buf`; the end of the file is a [`truncated`](Self::truncated) error.
+    pub fn read_exact(&mut self, buf: &mut [u8]) -> Result<()> {
+        match self.reader.read_exact(buf) {
+            Ok(()) => {
+                self.pos += buf.len() as u64;
+                Ok(())
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => {
+                Err(self.truncated("unexpected end of file".into()))
+            }
+            Err(e) => Err(io_err(self.path, e)),
+        }
+    }
+
+    /// The next record's opcode and body length.
+    pub fn prefix(&mut self) -> Result<(u8, u64)> {
+        let mut p = [0u8; 9];
+        self.read_exact(&mut p)?;
+        Ok((
+            p[0],
+            u64::from_le_bytes(p[1..].try_into().expect("8 bytes")),
+        ))
+    }
+
+    /// Fails unless a body of `len` bytes fits in the rest of the file.
+    pub fn check_len(&self, opcode: u8, len: u64) -> Result<()> {
+        let left = self.size.saturating_sub(self.pos);
+        if len > left {
+            return Err(self.truncated(format!(
+                "record at offset {} (opcode 0x{opcode:02x}) claims {len} bytes, {left} remain",
+                self.pos - 9
+            )));
+        }
+        Ok(())
+    }
+
+    /// Reads a record body of `len` bytes into `buf` (replacing its content).
+    pub fn body(&mut self, opcode: u8, len: u64, buf: &mut Vec<u8>) -> Result<()> {
+        buf.clear();
+        self.append(opcode, len, buf)
+    }
+
+    /// Reads the next `len` bytes of a record's body onto the end of `buf`; `len` is checked
+    /// against the rest of the file before anything is allocated.
+    pub fn append(&mut self, opcode: u8, len: u64, buf: &mut Vec<u8>) -> Result<()> {
+        self.check_len(opcode, len)?;
+        buf.try_reserve_exact(len as usize)
+            .map_err(|_| self.truncated(format!("record of {len} bytes")))?;
+        let n = (&mut self.reader)
+            .take(len)
+            .read_to_end(buf)
+            .map_err(|e| io_err(self.path, e))?;
+        self.pos += n as u64;
+        if n as u64 != len {
+            return Err(self.truncated("unexpected end of file".into()));
+        }
+        Ok(())
+    }
+
+    /// Reads the header at the start of a chunk record body of `len` bytes: its bytes, parsed.
+    /// Its compressed size must fit in the record and its uncompressed size in
+    /// [`MAX_CHUNK_BYTES`].
+    pub fn chunk_head(&mut self, len: u64) -> Result<(Vec<u8>, ChunkHeader)> {
+        const FIXED: u64 = 8 + 8 + 8 + 4; // start and end time, uncompressed size, CRC
+        let offset = self.pos - 9;
+        let bad = |what: &str| {
+            mcap_err(
+                self.path,
+                "reading MCAP records",
+                format!("chunk at offset {offset}: {what}"),
+            )
+        };
+        if len < FIXED + 4 + 8 {
+            return Err(bad("record shorter than a chunk header"));
+        }
+        let mut head = vec![0u8; (FIXED + 4) as usize];
+        self.read_exact(&mut head)?;
+        let name_len = u32::from_le_bytes(head[FIXED as usize..].try_into().expect("4 bytes"));
+        let head_len = FIXED + 4 + u64::from(name_len) + 8;
+        if head_len > len {
+            return Err(bad("compression name longer than the record"));
+        }
+        head.resize(head_len as usize, 0);
+        self.read_exact(&mut head[(FIXED + 4) as usize..])?;
+        let header = ChunkHeader::read_le(&mut std::io::Cursor::new(&head))
+            .map_err(|e| bad(&format!("bad chunk header: {e}")))?;
+        if header.compressed_size > len - head_len {
+            return Err(bad(&format!(
+                "compressed size {} exceeds the record",
+                header.compressed_size
+            )));
+        }
+        if header.uncompressed_size > MAX_CHUNK_BYTES {
+            return Err(bad(&format!(
+                "claims {} uncompressed bytes, more than the limit of {MAX_CHUNK_BYTES}",
+                header.uncompressed_size
+            )));
+        }
+        Ok((head, header))
+    }
+}
+
+/// "not a regular file" for an input that is a directory, FIFO, device or socket.
+pub(crate) fn not_a_regular_file(path: &Path, meta: &std::fs::Metadata) -> Error {
+    Error::InvalidInput(format!(
+        "{}: is {}, not a regular file",
+        path.display(),
+        super::file_kind(meta)
+    ))
+}
+
+/// Calls `f` on every record of the data section of `path` in file order, and on the records
+/// inside each chunk in their order, decompressing chunks one at a time (memory bounded by the
+/// largest chunk and [`MAX_CHUNK_BYTES`]). Stops at the data-end record; the summary section is
+/// not visited. A truncated or corrupt file (a record longer than what follows it, a chunk whose
+/// CRC or size does not match, a chunk inside a chunk) is an [`Error::Format`] naming the file
+/// and the record's offset.
+pub fn for_each_record(path: &Path, mut f: impl FnMut(Record<'_>) -> Result<()>) -> Result<()> {
+    let mut src = Source::open(path, 1 << 20)?;
+    let mut decoder = ChunkDecoder::new().map_err(|e| mcap_err(path, "reading MCAP records", e))?;
+    let mut body = Vec::new();
+    loop {
+        let (opcode, len) = src.prefix()?;
+        let offset = src.pos - 9;
+        match opcode {
+            op::DATA_END => return Ok(()),
+            op::FOOTER => {
+                return Err(mcap_err(
+                    path,
+                    "reading MCAP records",
+                    "no data-end record (truncated MCAP?)",
+                ));
+            }
+            op::CHUNK => {
+                src.check_len(opcode, len)?;
+                let (head, _) = src.chunk_head(len)?;
+                body.clear();
+                body.extend_from_slice(&head);
+                src.append(opcode, len - head.len() as u64, &mut body)?;
+                let in_chunk = |e: String| mcap_err(path, &format!("chunk at offset {offset}"), e);
+                let (_, records) = decoder.decode(&body).map_err(in_chunk)?;
+                for r in mcap_chunk::records(records) {
+                    let (_, opcode, b) = r.map_err(in_chunk)?;
+                    mcap_chunk::check_chunk_opcode(opcode).map_err(in_chunk)?;
+                    let record = mcap::parse_record(opcode, b).map_err(|e| {
+                        in_chunk(format!("bad record (opcode 0x{opcode:02x}): {e}"))
+                    })?;
+                    f(record)?;
+                }
+            }
+            _ => {
+                src.body(opcode, len, &mut body)?;
+                let record = mcap::parse_record(opcode, &body).map_err(|e| {
+                    mcap_err(
+                        path,
+                        &format!("record at offset {offset} (opcode 0x{opcode:02x})"),
+                        e,
+                    )
+                })?;
+                f(record)?;
+            }
+        }
+    }
+}
+
+/// The summary section of `path`; `None` when the file has none or it cannot be read (a log cut
+/// short has no footer: the caller then scans the records, which reports what is wrong). No
+/// record of the summary may claim more bytes than the file holds.
+pub(crate) fn read_summary(path: &Path) -> Result<Option<mcap::Summary>> {
+    let mut file = File::open(path).map_err(|e| io_err(path, e))?;
+    let size = file.metadata().map_err(|e| io_err(path, e))?.len();
+    let mut reader = SummaryReader::new_with_options(
+        SummaryReaderOptions::default()
+            .with_file_size(size)
+            .with_record_length_limit(usize::try_from(size).unwrap_or(usize::MAX)),
+    );
+    while let Some(event) = reader.next_event() {
+        let Ok(event) = event else { return Ok(None) };
+        match event {
+            SummaryReadEvent::ReadRequest(need) => {
+                let n = file
+                    .read(reader.insert(need))
+                    .map_err(|e| io_err(path, e))?;
+                reader.notify_read(n);
+            }
+            SummaryReadEvent::SeekRequest(to) => {
+                let pos = file.seek(to).map_err(|e| io_err(path, e))?;
+                reader.notify_seeked(pos);
+            }
+        }
+    }
+    Ok(reader.finish())
+}
