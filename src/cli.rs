@@ -263,11 +263,18 @@ pub struct RegisterArgs {
     #[arg(long, default_value_t = OdometryConfig::default().min_inliers)]
     pub min_inliers: usize,
     /// A registration with lower ICP fitness is flagged as failed.
-    #[arg(long, default_value_t = OdometryConfig::default().min_fitness)]
+    #[arg(long, default_value_t = OdometryConfig::default().min_fitness, value_parser = parse_fraction)]
     pub min_fitness: f64,
     /// Name of the world frame (the first cloud's sensor frame) in /tf and /mireg/pose.
     #[arg(long, default_value = "world")]
     pub world_frame: String,
+    /// A cloud with more points is flagged (too_many_points) instead of registered.
+    #[arg(long, value_name = "N", default_value_t = crate::register::DEFAULT_MAX_POINTS_PER_CLOUD)]
+    pub max_points: usize,
+    /// Clouds held at most to restore log-time order in a log whose chunk index does not prove
+    /// its order; a cloud later out of order than this is an error.
+    #[arg(long, value_name = "N", default_value_t = crate::register::REORDER_WINDOW)]
+    pub reorder_window: usize,
     /// Replace an existing output file.
     #[arg(long)]
     pub force: bool,
@@ -277,6 +284,16 @@ pub struct RegisterArgs {
     /// Print the summary as JSON on stdout.
     #[arg(long)]
     pub json: bool,
+}
+
+/// A number in [0, 1] (NaN is refused: it would disable the check it sets).
+fn parse_fraction(s: &str) -> std::result::Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|e| format!("{s:?}: {e}"))?;
+    if (0.0..=1.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("{s:?} is not a fraction in [0, 1]"))
+    }
 }
 
 fn parse_pair(s: &str) -> std::result::Result<(usize, usize), String> {
@@ -446,8 +463,17 @@ fn run_pair(args: &PairArgs) -> Result<()> {
     } else {
         write_pair_text(&mut out, &result, errors)?;
     }
-    Ok(())
+    match result.failure {
+        None => Ok(()),
+        Some(reason) => Err(RegistrationFailed(reason.as_str().to_string()).into()),
+    }
 }
+
+/// `mireg pair` ran but its registration failed the checks (the result was still printed):
+/// exit code 1, where errors exit 2.
+#[derive(Debug, thiserror::Error)]
+#[error("registration failed: {0}")]
+pub struct RegistrationFailed(pub String);
 
 fn matrix_rows(m: &Isometry3<f64>) -> Vec<Vec<f64>> {
     let h = m.to_homogeneous();
@@ -562,6 +588,8 @@ fn run_register(args: &RegisterArgs) -> Result<()> {
         world_frame: args.world_frame.clone(),
         command_line: command_line(),
         progress: !args.quiet,
+        max_points_per_cloud: args.max_points,
+        reorder_window: args.reorder_window,
     };
     let summary = register_log(&opts)?;
     if args.json {
@@ -600,6 +628,8 @@ fn run_default() -> Result<()> {
         world_frame: "world".into(),
         command_line: command_line(),
         progress: true,
+        max_points_per_cloud: crate::register::DEFAULT_MAX_POINTS_PER_CLOUD,
+        reorder_window: crate::register::REORDER_WINDOW,
     };
     let summary = register_log(&opts)?;
     print_summary(&summary);
@@ -617,14 +647,15 @@ fn print_summary(s: &RegisterSummary) {
         s.output.display()
     );
     println!(
-        "failed frames {} ({:.1} %), mean inliers {:.1}, {:.2} frames/s ({:.2} s), {} input messages copied, poses on {} and /mireg/pose",
+        "failed frames {} ({:.1} %), mean inliers {:.1}, {:.2} frames/s ({:.2} s), {} input messages copied, poses on {} and {}",
         s.failed_frames,
         100.0 * s.failed_frames as f64 / s.frames.max(1) as f64,
         s.mean_inliers,
         s.frames_per_s,
         s.elapsed_s,
         s.messages_copied,
-        s.tf_topic
+        s.tf_topic,
+        s.pose_topic
     );
     if let Some(r) = &s.reference {
         println!(

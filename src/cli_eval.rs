@@ -9,8 +9,7 @@ use clap::{Args, ValueEnum};
 use crate::io::atomic_file::{PendingFile, same_file};
 use crate::io::mcap_log::list_channels;
 use crate::trajectory::{
-    self, DEFAULT_ESTIMATE_TOPIC, DEFAULT_GROUND_TRUTH_TOPIC, DEFAULT_STATS_TOPIC, Evaluation,
-    Trajectory,
+    self, DEFAULT_GROUND_TRUTH_TOPIC, DEFAULT_STATS_TOPIC, Evaluation, Trajectory,
 };
 
 /// Format of a reference trajectory file (`--gt-format`).
@@ -47,9 +46,10 @@ pub struct EvaluateArgs {
     /// Format of --gt.
     #[arg(long, value_enum, default_value_t = TrajectoryFormat::Tum, requires = "gt")]
     pub gt_format: TrajectoryFormat,
-    /// Estimated PoseStamped topic in INPUT.
-    #[arg(long, value_name = "TOPIC", default_value = DEFAULT_ESTIMATE_TOPIC)]
-    pub est_topic: String,
+    /// Estimated PoseStamped topic in INPUT [default: the newest run's, /mireg/pose, or
+    /// /mireg_N/pose for a log registered N times].
+    #[arg(long, value_name = "TOPIC")]
+    pub est_topic: Option<String>,
     /// Largest stamp difference for pairing an estimate with a reference pose, in seconds.
     #[arg(long, value_name = "SECONDS", default_value_t = 0.01)]
     pub max_dt: f64,
@@ -73,9 +73,10 @@ pub struct ExportArgs {
     /// Output file (replaced if it exists) [default: stdout].
     #[arg(short, long, value_name = "FILE")]
     pub output: Option<PathBuf>,
-    /// PoseStamped topic to export.
-    #[arg(long, value_name = "TOPIC", default_value = DEFAULT_ESTIMATE_TOPIC)]
-    pub topic: String,
+    /// PoseStamped topic to export [default: the newest run's, /mireg/pose, or /mireg_N/pose
+    /// for a log registered N times].
+    #[arg(long, value_name = "TOPIC")]
+    pub topic: Option<String>,
 }
 
 /// CSV header of `mireg evaluate --csv`.
@@ -104,12 +105,31 @@ fn reference_name(args: &EvaluateArgs, topic: Option<&str>) -> String {
     }
 }
 
+/// The estimate and statistics topics of a log: `est_topic` when given (its run's statistics
+/// when it is a mireg topic), else the newest mireg run's.
+fn run_topics(
+    channels: &[crate::io::mcap_log::ChannelInfo],
+    est_topic: Option<&str>,
+) -> (String, String) {
+    let ns = match est_topic {
+        Some(t) => t
+            .strip_suffix("/pose")
+            .filter(|ns| ns.starts_with(trajectory::MIREG_NAMESPACE))
+            .map(str::to_string),
+        None => trajectory::newest_mireg_namespace(channels),
+    };
+    let ns = ns.unwrap_or_else(|| trajectory::MIREG_NAMESPACE.to_string());
+    let est = est_topic.map_or_else(|| format!("{ns}/pose"), str::to_string);
+    (est, format!("{ns}/stats"))
+}
+
 /// Loads estimate, reference and flags as `mireg evaluate` does; returns the evaluation and
 /// the reference's name.
 pub fn evaluate_log(args: &EvaluateArgs) -> Result<(Evaluation, String)> {
     let input = &args.input;
     let max_dt = max_dt_ns(args.max_dt)?;
     let channels = list_channels(input)?;
+    let (est_topic, stats_topic) = run_topics(&channels, args.est_topic.as_deref());
     let (estimate, reference, name) = match &args.gt {
         Some(path) => {
             let reference = match args.gt_format {
@@ -120,7 +140,7 @@ pub fn evaluate_log(args: &EvaluateArgs) -> Result<(Evaluation, String)> {
             if reference.is_empty() {
                 bail!("{}: no poses", path.display());
             }
-            let estimate = trajectory::read_mcap_pose_topic(input, &args.est_topic)?;
+            let estimate = trajectory::read_mcap_pose_topic(input, &est_topic)?;
             (estimate, reference, reference_name(args, None))
         }
         None => {
@@ -145,7 +165,7 @@ pub fn evaluate_log(args: &EvaluateArgs) -> Result<(Evaluation, String)> {
                     DEFAULT_GROUND_TRUTH_TOPIC.to_string()
                 }
             };
-            let mut v = trajectory::read_mcap_pose_topics(input, &[&args.est_topic, &topic])?;
+            let mut v = trajectory::read_mcap_pose_topics(input, &[&est_topic, &topic])?;
             let reference = v.pop().unwrap_or_default();
             let estimate = v.pop().unwrap_or_default();
             if reference.is_empty() {
@@ -155,13 +175,9 @@ pub fn evaluate_log(args: &EvaluateArgs) -> Result<(Evaluation, String)> {
         }
     };
     if estimate.is_empty() {
-        bail!(
-            "{}: topic {} has no messages",
-            input.display(),
-            args.est_topic
-        );
+        bail!("{}: topic {} has no messages", input.display(), est_topic);
     }
-    let flags = trajectory::read_frame_flags(input, DEFAULT_STATS_TOPIC)?;
+    let flags = trajectory::read_frame_flags(input, &stats_topic)?;
     let ev = trajectory::evaluate(&estimate, &reference, flags.as_deref(), max_dt)
         .with_context(|| format!("evaluating {} against {name}", input.display()))?;
     Ok((ev, name))
@@ -302,7 +318,7 @@ pub fn run_evaluate(args: &EvaluateArgs) -> Result<()> {
 
 fn evaluate_to_stdout(args: &EvaluateArgs) -> Result<()> {
     let (ev, reference) = evaluate_log(args)?;
-    let estimate = args.est_topic.clone();
+    let (estimate, _) = run_topics(&list_channels(&args.input)?, args.est_topic.as_deref());
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
     if args.csv {
@@ -326,13 +342,10 @@ fn write_trajectory(t: &Trajectory, format: ExportFormat, out: &mut impl Write) 
 
 /// Runs `mireg export`.
 pub fn run_export(args: &ExportArgs) -> Result<()> {
-    let t = trajectory::read_mcap_pose_topic(&args.input, &args.topic)?;
+    let (topic, _) = run_topics(&list_channels(&args.input)?, args.topic.as_deref());
+    let t = trajectory::read_mcap_pose_topic(&args.input, &topic)?;
     if t.is_empty() {
-        bail!(
-            "{}: topic {} has no messages",
-            args.input.display(),
-            args.topic
-        );
+        bail!("{}: topic {topic} has no messages", args.input.display());
     }
     match &args.output {
         Some(path) => {

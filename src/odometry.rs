@@ -83,6 +83,12 @@ impl Odometry {
     /// A new trajectory; fails if the pairwise configuration is invalid.
     pub fn new(config: OdometryConfig) -> Result<Self> {
         config.pair.resolved()?;
+        if !(0.0..=1.0).contains(&config.min_fitness) {
+            return Err(crate::Error::InvalidInput(format!(
+                "min_fitness must be a fraction in [0, 1], got {}",
+                config.min_fitness
+            )));
+        }
         Ok(Self {
             config,
             previous: None,

@@ -439,8 +439,11 @@ pub enum FailureReason {
     TooFewInliers,
     /// Fitness after ICP below the caller's minimum.
     LowFitness,
-    /// The cloud could not be prepared (e.g. coordinates so large the voxel grid overflows).
+    /// The cloud could not be decoded or prepared (e.g. a missing field, or coordinates so large
+    /// the voxel grid overflows).
     InvalidCloud,
+    /// The cloud has more points than the caller's bound (`mireg register --max-points`).
+    TooManyPoints,
 }
 
 impl FailureReason {
@@ -453,6 +456,7 @@ impl FailureReason {
             FailureReason::TooFewInliers => "too_few_inliers",
             FailureReason::LowFitness => "low_fitness",
             FailureReason::InvalidCloud => "invalid_cloud",
+            FailureReason::TooManyPoints => "too_many_points",
         }
     }
 }

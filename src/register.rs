@@ -19,15 +19,15 @@ use crate::io::log_order::{ChunkTimes, Reorder};
 use crate::io::mcap_log::{ChannelInfo, InputCatalog, OutputLog, pass_through};
 use crate::io::{foxglove_msgs, ros2};
 use crate::odometry::{FrameEstimate, Odometry, OdometryConfig};
-use crate::pipeline::{PrepareScratch, PreparedFrame, prepare_frame, prepare_frame_with};
-use crate::trajectory::{Trajectory, evaluate};
+use crate::pipeline::{
+    FailureReason, PrepareScratch, PreparedFrame, prepare_frame, prepare_frame_with,
+};
+use crate::trajectory::{Trajectory, evaluate, free_mireg_namespace};
 use crate::{Error, Result};
 
 /// Frames in flight between stages (each queue). Bounds memory.
 pub const QUEUE_CAPACITY: usize = 2;
-/// Cloud messages held at most to restore log-time order when the file's chunk index does not
-/// prove its order ([`Reorder`]); a file whose chunks are time-ordered holds only its current
-/// chunk's clouds.
+/// Default of [`RegisterOptions::reorder_window`]: 16 clouds.
 pub const REORDER_WINDOW: usize = 16;
 /// Frames between two returns of the allocator's free memory to the system
 /// ([`crate::heap::trim`]), which keeps the peak RSS of a long log within a few percent of a short
@@ -56,7 +56,20 @@ pub struct RegisterOptions {
     pub command_line: String,
     /// Show a progress bar on stderr (only drawn when stderr is a terminal).
     pub progress: bool,
+    /// A cloud with more points is not registered but flagged (`too_many_points`), so that one
+    /// huge message cannot take the run's memory and time. Default
+    /// [`DEFAULT_MAX_POINTS_PER_CLOUD`].
+    pub max_points_per_cloud: usize,
+    /// Cloud messages held at most to restore log-time order when the file's chunk index does not
+    /// prove its order ([`Reorder`]); a file whose chunks are time-ordered holds only its current
+    /// chunk's clouds. A cloud that arrives after a later one was registered is an error naming
+    /// both log times. Default [`REORDER_WINDOW`].
+    pub reorder_window: usize,
 }
+
+/// Default bound on points per cloud: 4 000 000, 15× an Ouster OS1-128 scan (262 144 points) and
+/// 4× a 1280×720 depth image; decoded, such a cloud takes 96 MB.
+pub const DEFAULT_MAX_POINTS_PER_CLOUD: usize = 4_000_000;
 
 /// Default output path: `NAME.mireg.mcap` next to `NAME.mcap`.
 pub fn default_output(input: &Path) -> PathBuf {
@@ -91,6 +104,9 @@ pub struct RegisterSummary {
     pub topic: String,
     /// Topic our transforms went to.
     pub tf_topic: String,
+    /// Topic of our poses (`/mireg/pose`; `/mireg_N/pose` when the input already had mireg
+    /// topics).
+    pub pose_topic: String,
     /// Frames processed.
     pub frames: usize,
     /// Frames whose global registration failed (flagged; pose from the fallback).
@@ -181,15 +197,30 @@ fn choose_topic(
                 .collect::<Vec<_>>()
                 .join(", ")
         ))),
-        [one] => Ok((one.topic.clone(), cloud_kind(one).expect("filtered"))),
-        many => Err(Error::InvalidInput(format!(
-            "{}: several point cloud topics, choose one with --topic: {}",
-            path.display(),
-            many.iter()
-                .map(|c| c.topic.as_str())
-                .collect::<Vec<_>>()
-                .join(", ")
-        ))),
+        // Several channels on one topic (e.g. two recorder sessions) are one stream.
+        [first, rest @ ..]
+            if rest
+                .iter()
+                .all(|c| c.topic == first.topic && cloud_kind(c) == cloud_kind(first)) =>
+        {
+            Ok((first.topic.clone(), cloud_kind(first).expect("filtered")))
+        }
+        many => {
+            let topics: std::collections::BTreeSet<&str> =
+                many.iter().map(|c| c.topic.as_str()).collect();
+            let detail = if topics.len() == 1 {
+                format!(
+                    "topic {:?} has channels of different point cloud types; mireg registers one type per run",
+                    many[0].topic
+                )
+            } else {
+                format!(
+                    "several point cloud topics, choose one with --topic: {}",
+                    topics.into_iter().collect::<Vec<_>>().join(", ")
+                )
+            };
+            Err(Error::InvalidInput(format!("{}: {detail}", path.display())))
+        }
     }
 }
 
@@ -200,8 +231,8 @@ struct CloudMsg {
 }
 
 struct PreparedMsg {
-    /// Why the cloud could not be prepared (the frame is then empty and flagged).
-    invalid: Option<String>,
+    /// Why the cloud could not be decoded or prepared (the frame is then empty and flagged).
+    invalid: Option<(FailureReason, String)>,
     log_time: u64,
     publish_time: u64,
     header: ros2::Header,
@@ -210,7 +241,7 @@ struct PreparedMsg {
 }
 
 struct FrameOut {
-    invalid: Option<String>,
+    invalid: Option<(FailureReason, String)>,
     log_time: u64,
     publish_time: u64,
     header: ros2::Header,
@@ -220,14 +251,20 @@ struct FrameOut {
     est: FrameEstimate,
 }
 
-fn decode_error(path: &Path, topic: &str, log_time: u64, e: ros2::DecodeError) -> Error {
-    Error::Format {
-        path: path.to_path_buf(),
-        detail: format!(
-            "message on {topic} at log time {log_time} ns: field {}: {}",
-            e.field, e.detail
-        ),
-    }
+/// Why a cloud message could not be decoded, naming topic, log time and field.
+fn decode_detail(topic: &str, log_time: u64, e: &ros2::DecodeError) -> String {
+    format!(
+        "message on {topic} at log time {log_time} ns: field {}: {}",
+        e.field, e.detail
+    )
+}
+
+/// The header stamp given to a cloud that could not be decoded: its log time.
+fn stamp_of_log_time(log_time: u64) -> ros2::Time {
+    i64::try_from(log_time)
+        .ok()
+        .and_then(ros2::Time::from_ns)
+        .unwrap_or_default()
 }
 
 /// JSON Schema of the `/mireg/stats` messages.
@@ -266,7 +303,7 @@ fn frame_stats(out: &FrameOut) -> serde_json::Value {
         "stamp_ns": out.header.stamp.to_ns(),
         "success": e.success,
         "failure_reason": e.failure.map(|f| f.as_str()),
-        "failure_detail": out.invalid,
+        "failure_detail": out.invalid.as_ref().map(|i| &i.1),
         "fallback": e.fallback.map(|f| match f {
             crate::odometry::Fallback::ConstantVelocityIcp => "constant_velocity_icp",
             crate::odometry::Fallback::ConstantVelocity => "constant_velocity",
@@ -305,7 +342,13 @@ struct Outputs {
 impl Outputs {
     /// Registers our channels: ROS 2 messages for ROS 2 inputs, foxglove protobuf messages for
     /// foxglove inputs (so both open natively in Foxglove and Rerun).
-    fn create(log: &mut OutputLog, kind: CloudKind, tf_topic: &str) -> Result<Self> {
+    fn create(
+        log: &mut OutputLog,
+        kind: CloudKind,
+        tf_topic: &str,
+        namespace: &str,
+    ) -> Result<Self> {
+        let pose_topic = format!("{namespace}/pose");
         let (tf, pose) = match kind {
             CloudKind::Ros2 => (
                 log.add_channel(
@@ -316,7 +359,7 @@ impl Outputs {
                     ros2::MESSAGE_ENCODING,
                 )?,
                 log.add_channel(
-                    "/mireg/pose",
+                    &pose_topic,
                     ros2::POSE_STAMPED_SCHEMA_NAME,
                     ros2::SCHEMA_ENCODING,
                     ros2::POSE_STAMPED_SCHEMA.as_bytes(),
@@ -337,7 +380,7 @@ impl Outputs {
                         foxglove_msgs::MESSAGE_ENCODING,
                     )?,
                     log.add_channel(
-                        "/mireg/pose",
+                        &pose_topic,
                         &p.name,
                         &p.encoding,
                         &p.data,
@@ -348,7 +391,7 @@ impl Outputs {
         };
         let schema = serde_json::to_string(&stats_json_schema()).expect("schema JSON");
         let stats = log.add_channel(
-            "/mireg/stats",
+            &format!("{namespace}/stats"),
             "mireg.FrameStats",
             "jsonschema",
             schema.as_bytes(),
@@ -437,12 +480,14 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     let catalog = InputCatalog::read(input)?;
     let channels = catalog.channel_infos();
     let (topic, kind) = choose_topic(input, &channels, opts.topic.as_deref())?;
+    // A log registered before keeps its mireg topics; this run's go to the next namespace
+    // (`/mireg_2/…`), so that no topic mixes two runs.
+    let namespace = free_mireg_namespace(channels.iter().map(|c| c.topic.as_str()));
     let tf_topic = if channels.iter().any(|c| c.topic == "/tf") {
-        "/mireg/tf"
+        format!("{namespace}/tf")
     } else {
-        "/tf"
-    }
-    .to_string();
+        "/tf".to_string()
+    };
     let reference_topic = channels
         .iter()
         .find(|c| {
@@ -460,7 +505,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     // The input's schemas and channels keep their ids (its chunks are copied as they are); ours
     // get ids above them.
     log.declare_input(input, &catalog)?;
-    let ch = Outputs::create(&mut log, kind, &tf_topic)?;
+    let ch = Outputs::create(&mut log, kind, &tf_topic, &namespace)?;
     let cloud_channels: Vec<u16> = channels
         .iter()
         .filter(|c| c.topic == topic)
@@ -494,6 +539,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     let mut reference: Vec<(i64, Isometry3<f64>)> = Vec::new();
     let mut copied = 0u64;
     let config = &opts.config;
+    let max_points = opts.max_points_per_cloud;
 
     std::thread::scope(|scope| -> Result<()> {
         let (cloud_tx, cloud_rx): (SyncSender<CloudMsg>, Receiver<CloudMsg>) =
@@ -506,32 +552,52 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
 
         scope.spawn(move || {
             let mut scratch = PrepareScratch::default();
+            // The frame id of a cloud that cannot be decoded: the previous cloud's.
+            let mut last_frame_id = String::new();
             for msg in cloud_rx {
                 let t = Instant::now();
                 let decoded = kind.decode(&msg.data);
                 // The message bytes are not needed past decoding: don't hold them through prepare.
                 drop(msg.data);
-                let r = decoded
-                    .map_err(|e| decode_error(input, topic_ref, msg.log_time, e))
-                    .and_then(|cloud| {
-                        let decode_s = t.elapsed().as_secs_f64();
-                        // A cloud the pipeline cannot take (e.g. a glitch at 1e38 m) is one bad
-                        // frame: flag it, keep going.
-                        let prepared =
-                            prepare_frame_with(&cloud.points, &config.pair, &mut scratch);
-                        let (frame, invalid) = match prepared {
-                            Ok(f) => (f, None),
-                            Err(e) => (prepare_frame(&[], &config.pair)?, Some(e.to_string())),
+                let decode_s = t.elapsed().as_secs_f64();
+                // A cloud that cannot be decoded, is too large, or that the pipeline cannot take
+                // (e.g. a glitch at 1e38 m) is one bad frame: flag it, keep going.
+                let (header, prepared) = match decoded {
+                    Err(e) => {
+                        let detail = decode_detail(topic_ref, msg.log_time, &e);
+                        let header = ros2::Header {
+                            stamp: stamp_of_log_time(msg.log_time),
+                            frame_id: last_frame_id.clone(),
                         };
-                        Ok(PreparedMsg {
-                            invalid,
-                            log_time: msg.log_time,
-                            publish_time: msg.publish_time,
-                            header: cloud.header,
-                            decode_s,
-                            frame,
-                        })
-                    });
+                        (header, Err((FailureReason::InvalidCloud, detail)))
+                    }
+                    Ok(cloud) if cloud.points.len() > max_points => {
+                        let detail = format!(
+                            "{} points, more than the bound of {max_points} (--max-points)",
+                            cloud.points.len()
+                        );
+                        (cloud.header, Err((FailureReason::TooManyPoints, detail)))
+                    }
+                    Ok(cloud) => {
+                        let prepared =
+                            prepare_frame_with(&cloud.points, &config.pair, &mut scratch)
+                                .map_err(|e| (FailureReason::InvalidCloud, e.to_string()));
+                        (cloud.header, prepared)
+                    }
+                };
+                last_frame_id.clone_from(&header.frame_id);
+                let r = match prepared {
+                    Ok(f) => Ok((f, None)),
+                    Err(invalid) => prepare_frame(&[], &config.pair).map(|f| (f, Some(invalid))),
+                }
+                .map(|(frame, invalid)| PreparedMsg {
+                    invalid,
+                    log_time: msg.log_time,
+                    publish_time: msg.publish_time,
+                    header,
+                    decode_s,
+                    frame,
+                });
                 let failed = r.is_err();
                 if prep_tx.send(r).is_err() || failed {
                     break;
@@ -548,8 +614,8 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                     let prep = m.frame.timings;
                     let t = Instant::now();
                     let mut est = odometry.push(m.frame)?;
-                    if m.invalid.is_some() {
-                        est.failure = Some(crate::pipeline::FailureReason::InvalidCloud);
+                    if let Some((reason, _)) = &m.invalid {
+                        est.failure = Some(*reason);
                     }
                     Ok(FrameOut {
                         invalid: m.invalid,
@@ -586,12 +652,22 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
 
         // Clouds are handed on in log-time order: at once where the chunk index proves nothing
         // earlier follows, else after a window of REORDER_WINDOW clouds.
-        let mut pending = Reorder::new(REORDER_WINDOW, chunk_times);
+        let reorder_window = opts.reorder_window;
+        let mut pending = Reorder::new(reorder_window, chunk_times);
         let mut cloud_tx = Some(cloud_tx);
         // Input chunks are copied byte for byte; only messages on the cloud and reference
         // channels come here, in file order.
         let read = pass_through(input, &mut log, &wanted, |log, header, data| {
             if cloud_channels.contains(&header.channel_id) {
+                if let Some(handed) = pending.too_late(header.log_time) {
+                    return Err(Error::Format {
+                        path: input.to_path_buf(),
+                        detail: format!(
+                            "cloud on {topic} at log time {} ns comes after the cloud at log time {handed} ns was registered: the log is out of log-time order by more than the reorder window of {reorder_window} clouds; rerun with a larger --reorder-window (each holds one cloud in memory)",
+                            header.log_time
+                        ),
+                    });
+                }
                 pending.push(
                     header.log_time,
                     CloudMsg {
@@ -653,6 +729,9 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     meta.insert("command_line".to_string(), opts.command_line.clone());
     meta.insert("input".to_string(), input.display().to_string());
     meta.insert("topic".to_string(), topic.clone());
+    meta.insert("pose_topic".to_string(), format!("{namespace}/pose"));
+    meta.insert("stats_topic".to_string(), format!("{namespace}/stats"));
+    meta.insert("tf_topic".to_string(), tf_topic.clone());
     log.write_metadata("mireg", meta)?;
     log.finish()?;
 
@@ -676,6 +755,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         output: opts.output.clone(),
         topic,
         tf_topic,
+        pose_topic: format!("{namespace}/pose"),
         frames,
         failed_frames,
         mean_inliers,

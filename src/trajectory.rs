@@ -29,6 +29,56 @@ use crate::{Error, Result};
 pub const DEFAULT_ESTIMATE_TOPIC: &str = "/mireg/pose";
 /// Topic of the per-frame statistics (JSON) written by `mireg register`.
 pub const DEFAULT_STATS_TOPIC: &str = "/mireg/stats";
+/// Namespace of the topics of `mireg register` (`/mireg/pose`, `/mireg/stats`, `/mireg/tf`).
+pub const MIREG_NAMESPACE: &str = "/mireg";
+
+/// The namespace of run `n` (1-based): `/mireg` for the first, `/mireg_2`, `/mireg_3`, … for
+/// logs registered again, so that a new run never mixes its poses with the input's.
+pub fn mireg_namespace(n: u32) -> String {
+    if n <= 1 {
+        MIREG_NAMESPACE.to_string()
+    } else {
+        format!("{MIREG_NAMESPACE}_{n}")
+    }
+}
+
+/// The run number of a `…/pose` or `…/stats` topic in a mireg namespace (`/mireg/pose` → 1,
+/// `/mireg_3/stats` → 3); `None` for any other topic.
+fn mireg_run_of(topic: &str) -> Option<u32> {
+    let rest = topic.strip_prefix(MIREG_NAMESPACE)?;
+    let (n, leaf) = rest.split_once('/')?;
+    if !matches!(leaf, "pose" | "stats" | "tf") {
+        return None;
+    }
+    match n.strip_prefix('_') {
+        None if n.is_empty() => Some(1),
+        Some(d) if !d.starts_with('0') => d.parse().ok().filter(|&k| k >= 2),
+        _ => None,
+    }
+}
+
+/// The namespace for a new run over a log with these topics: the first whose `pose`, `stats`
+/// and `tf` topics are all absent.
+pub fn free_mireg_namespace<'a>(topics: impl IntoIterator<Item = &'a str>) -> String {
+    let last = topics
+        .into_iter()
+        .filter_map(mireg_run_of)
+        .max()
+        .unwrap_or(0);
+    mireg_namespace(last + 1)
+}
+
+/// The namespace of the newest mireg run in a log (the highest run number with a `pose` topic);
+/// `None` when no run wrote one.
+pub fn newest_mireg_namespace(channels: &[ChannelInfo]) -> Option<String> {
+    channels
+        .iter()
+        .filter(|c| c.topic.ends_with("/pose"))
+        .filter_map(|c| mireg_run_of(&c.topic))
+        .max()
+        .map(mireg_namespace)
+}
+
 /// Reference topic used by `mireg evaluate` when the log has it.
 pub const DEFAULT_GROUND_TRUTH_TOPIC: &str = "/ground_truth/pose";
 /// Default association tolerance \[ns\] (10 ms, `evo`'s default `--t_max_diff`).

@@ -85,7 +85,7 @@ fn args(input: &Path) -> EvaluateArgs {
         gt_topic: None,
         gt: None,
         gt_format: TrajectoryFormat::Tum,
-        est_topic: "/mireg/pose".into(),
+        est_topic: Some("/mireg/pose".into()),
         max_dt: 0.01,
         csv: false,
         json: false,

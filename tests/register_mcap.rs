@@ -35,6 +35,8 @@ fn options(input: &Path, output: &Path, voxel: f64) -> RegisterOptions {
         world_frame: "world".into(),
         command_line: "test".into(),
         progress: false,
+        max_points_per_cloud: mireg::register::DEFAULT_MAX_POINTS_PER_CLOUD,
+        reorder_window: mireg::register::REORDER_WINDOW,
     }
 }
 

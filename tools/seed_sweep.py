@@ -63,7 +63,11 @@ def main() -> int:
             for seed in range(1, args.seeds + 1):
                 cmd = [args.mireg, "pair", src_path, tgt_path, "--voxel", str(pair.voxel),
                        "--seed", str(seed), "--json", *args.extra]
-                out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
+                # exit 1: the registration failed its checks, its result still printed.
+                proc = subprocess.run(cmd, capture_output=True, text=True)
+                if proc.returncode not in (0, 1):
+                    raise SystemExit(f"{' '.join(cmd)}: exit {proc.returncode}: {proc.stderr}")
+                out = proc.stdout
                 T = np.array(json.loads(out)["target_from_source"])
                 e = C.evaluate(pair, T, P)
                 total += 1

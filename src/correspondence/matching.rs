@@ -19,6 +19,8 @@
 //! software routine.)
 
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
+
+use super::duplicates::Unique;
 use rayon::prelude::*;
 use std::num::NonZeroUsize;
 
@@ -130,8 +132,47 @@ fn search(
     radius_sq: Option<f32>,
 ) -> Vec<Scan> {
     match method {
-        MatchMethod::BruteForce => scan_all(queries, &Database::new(database), radius_sq),
+        MatchMethod::BruteForce => scan_distinct(queries, database, radius_sq),
         MatchMethod::KdTree => kd_scan_all(&build_tree(database), queries, radius_sq),
+    }
+}
+
+/// [`scan_all`] over each distinct query and, without a radius, each distinct database
+/// descriptor once ([`Unique`]): the same results, without the quadratic cost of many equal
+/// descriptors. A group's representative is its lowest index, which the scan's tie-break would
+/// pick among the equal distances; a group of two or more is its own second nearest.
+fn scan_distinct(queries: &[Fpfh], database: &[Fpfh], radius_sq: Option<f32>) -> Vec<Scan> {
+    let db_groups = if radius_sq.is_none() {
+        Unique::of(database)
+    } else {
+        None
+    };
+    let query_groups = Unique::of(queries);
+    let distinct_queries;
+    let qs = match &query_groups {
+        Some(u) => {
+            distinct_queries = u.descriptors(queries);
+            &distinct_queries[..]
+        }
+        None => queries,
+    };
+    let scans = match &db_groups {
+        None => scan_all(qs, &Database::new(database), radius_sq),
+        Some(g) => {
+            let mut scans = scan_all(qs, &Database::new(&g.descriptors(database)), None);
+            for s in &mut scans {
+                let group = s.best_index as usize;
+                if g.size[group] >= 2 {
+                    s.second_sq = s.best_sq;
+                }
+                s.best_index = g.first[group];
+            }
+            scans
+        }
+    };
+    match query_groups {
+        None => scans,
+        Some(u) => u.group.iter().map(|&g| scans[g as usize]).collect(),
     }
 }
 

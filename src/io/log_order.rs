@@ -86,6 +86,8 @@ pub struct Reorder<T> {
     bound: Option<u64>,
     pending: BTreeMap<(u64, u64), T>,
     arrivals: u64,
+    /// Log time of the last item handed on.
+    handed: Option<u64>,
 }
 
 impl<T> Reorder<T> {
@@ -98,7 +100,15 @@ impl<T> Reorder<T> {
             bound: None,
             pending: BTreeMap::new(),
             arrivals: 0,
+            handed: None,
         }
+    }
+
+    /// The log time of the last item handed on, when it is later than `log_time`: an item read
+    /// now at `log_time` could no longer go in order (the file is out of order by more than the
+    /// window). `None` when it still can.
+    pub fn too_late(&self, log_time: u64) -> Option<u64> {
+        self.handed.filter(|&h| log_time < h)
     }
 
     /// Notes a message read at `log_time`. Call it in file order for every message read, or for
@@ -131,6 +141,7 @@ impl<T> Reorder<T> {
         let &(log_time, _) = self.pending.keys().next()?;
         let proven = self.bound.is_some_and(|bound| log_time <= bound);
         if proven || self.pending.len() > self.window {
+            self.handed = Some(log_time);
             self.pending.pop_first().map(|(_, item)| item)
         } else {
             None
@@ -171,6 +182,20 @@ mod tests {
         }
         out.extend(r.into_remaining());
         (out, most)
+    }
+
+    #[test]
+    fn an_item_behind_what_was_handed_on_is_too_late() {
+        let mut r = Reorder::new(2, None);
+        assert_eq!(r.too_late(0), None);
+        for t in [50, 40, 30] {
+            r.push(t, t);
+        }
+        assert_eq!(r.pop_ready(), Some(30)); // three pending, window two
+        assert_eq!(r.pop_ready(), None);
+        assert_eq!(r.too_late(20), Some(30));
+        assert_eq!(r.too_late(30), None, "equal times keep arrival order");
+        assert_eq!(r.too_late(45), None);
     }
 
     #[test]
