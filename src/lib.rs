@@ -10,6 +10,7 @@ pub mod cli;
 pub mod correspondence;
 pub mod error;
 pub mod features;
+pub mod fuzzing;
 pub mod geometry;
 pub mod heap;
 pub mod io;

@@ -232,7 +232,10 @@ pub fn for_each_record(path: &Path, mut f: impl FnMut(Record<'_>) -> Result<()>)
         let (opcode, len) = src.prefix()?;
         let offset = src.pos - 9;
         match opcode {
-            op::DATA_END => return Ok(()),
+            op::DATA_END => {
+                src.body(opcode, len, &mut body)?;
+                return Ok(());
+            }
             op::FOOTER => {
                 return Err(mcap_err(
                     path,

@@ -1,0 +1,156 @@
+//! Writes the seed corpora of the fuzz targets into `fuzz/corpus/TARGET/` (committed; replayed
+//! by `cargo test`, see tests/fuzz_replay.rs): real messages of the seed log
+//! ([`mireg::fuzzing::small_log`]) and small valid files of every format the targets read.
+//!
+//! `cargo run --example make_fuzz_corpus` (from the repository root).
+
+use std::path::Path;
+
+use mcap::records::Record;
+use mireg::fuzzing::small_log;
+use mireg::io::ros2;
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion};
+
+fn put(target: &str, name: &str, bytes: &[u8]) {
+    let dir = Path::new("fuzz/corpus").join(target);
+    std::fs::create_dir_all(&dir).expect("corpus folder");
+    std::fs::write(dir.join(name), bytes).expect("seed written");
+}
+
+fn main() {
+    let chunked = |c| {
+        mcap::WriteOptions::new()
+            .chunk_size(Some(4 << 10))
+            .compression(c)
+    };
+    let logs = [
+        (
+            "zstd.mcap",
+            small_log(2, chunked(Some(mcap::Compression::Zstd))),
+        ),
+        (
+            "lz4.mcap",
+            small_log(2, chunked(Some(mcap::Compression::Lz4))),
+        ),
+        ("plain.mcap", small_log(2, chunked(None))),
+        (
+            "unchunked.mcap",
+            small_log(2, mcap::WriteOptions::new().use_chunks(false)),
+        ),
+    ];
+    for (name, bytes) in &logs {
+        put("mcap_records", name, bytes);
+        put("register_input", name, bytes);
+    }
+    // Real messages of the seed log, one of each kind.
+    let dir = tempfile::tempdir().expect("temporary directory");
+    let path = dir.path().join("seed.mcap");
+    std::fs::write(&path, &logs[2].1).expect("seed log");
+    let mut topics = std::collections::BTreeMap::new();
+    let mut seen = std::collections::BTreeSet::new();
+    mireg::io::mcap_read::for_each_record(&path, |r| {
+        match r {
+            Record::Channel(c) => {
+                topics.insert(c.id, c.topic);
+            }
+            Record::Message { header, data } => {
+                let topic = topics[&header.channel_id].as_str();
+                if seen.insert(topic.to_string()) {
+                    match topic {
+                        "/points" => put("point_cloud2", "seed_cloud.cdr", &data),
+                        "/ground_truth/pose" => put("pose_messages", "pose_stamped.cdr", &data),
+                        _ => {}
+                    }
+                }
+            }
+            _ => {}
+        }
+        Ok(())
+    })
+    .expect("seed log reads");
+    let header = ros2::Header {
+        stamp: ros2::Time { sec: 1, nanosec: 2 },
+        frame_id: "lidar".into(),
+    };
+    let pts = [
+        Point3::new(1.0, 2.0, 3.0),
+        Point3::new(-1.0, 0.5, f64::NAN),
+        Point3::new(0.0, 0.0, 1.0),
+    ];
+    put(
+        "point_cloud2",
+        "three_with_intensity.cdr",
+        &ros2::encode_point_cloud2(&header, &pts, Some(&[1.0, 2.0, 3.0])),
+    );
+    let pose = Isometry3::from_parts(
+        Translation3::new(1.0, -2.0, 0.5),
+        UnitQuaternion::from_euler_angles(0.1, 0.2, 0.3),
+    );
+    put(
+        "pose_messages",
+        "tf_message.cdr",
+        &ros2::encode_tf_message(&[ros2::TransformStamped {
+            header: header.clone(),
+            child_frame_id: "base".into(),
+            transform: pose,
+        }]),
+    );
+    put(
+        "foxglove_point_cloud",
+        "cloud.pb",
+        &mireg::fuzzing::foxglove_seed_cloud(),
+    );
+    put(
+        "pose_messages",
+        "pose_in_frame.pb",
+        &mireg::io::foxglove_msgs::encode_pose_in_frame(5, "world", &pose),
+    );
+    // Point cloud files of `mireg pair`.
+    let ply = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n0 0 0\n1 0 0\n0 1 0.5\n";
+    put("cloud_files", "tiny.ply", ply.as_bytes());
+    let mut bin_ply = b"ply\nformat binary_little_endian 1.0\nelement vertex 2\nproperty double x\nproperty double y\nproperty double z\nend_header\n".to_vec();
+    for v in [0.0f64, 1.0, 2.0, 3.0, 4.0, 5.0] {
+        bin_ply.extend(v.to_le_bytes());
+    }
+    put("cloud_files", "tiny_binary.ply", &bin_ply);
+    let pcd = "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 2\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 2\nDATA ascii\n0 0 0\n1 2 3\n";
+    put("cloud_files", "tiny.pcd", pcd.as_bytes());
+    let mut npy = b"\x93NUMPY\x01\x00".to_vec();
+    let head = "{'descr': '<f8', 'fortran_order': False, 'shape': (2, 3), }";
+    let pad = 64 - (10 + head.len() + 1) % 64;
+    let head = format!("{head}{}\n", " ".repeat(pad));
+    npy.extend((head.len() as u16).to_le_bytes());
+    npy.extend(head.as_bytes());
+    for v in [0.0f64, 1.0, 2.0, 3.0, 4.0, 5.0] {
+        npy.extend(v.to_le_bytes());
+    }
+    put("cloud_files", "tiny.npy", &npy);
+    let kitti: Vec<u8> = [1.0f32, 2.0, 3.0, 0.5, -1.0, 0.0, 2.0, 0.1]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    put("cloud_files", "tiny.bin", &kitti);
+    // Pose files.
+    put(
+        "pose_files",
+        "matrix.txt",
+        b"1 0 0 0.5\n0 1 0 0\n0 0 1 0\n0 0 0 1\n",
+    );
+    put(
+        "pose_files",
+        "trajectory.log",
+        b"0 0 1\n1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n",
+    );
+    put(
+        "pose_files",
+        "bun.conf",
+        b"camera 0 0 0 0 0 0 1\nbmesh bun000.ply 0 0 0 0 0 0 1\n",
+    );
+    put(
+        "pose_files",
+        "est.tum",
+        b"1.5 0 0 0 0 0 0 1\n1.6 0.1 0 0 0 0 0 1\n",
+    );
+    put("pose_files", "poses.kitti", b"1 0 0 0 0 1 0 0 0 0 1 0\n");
+    println!("corpus written to fuzz/corpus/");
+}

@@ -1,0 +1,3 @@
+#![no_main]
+//! `mireg::fuzzing::pose_files` under libFuzzer.
+libfuzzer_sys::fuzz_target!(|data: &[u8]| mireg::fuzzing::pose_files(data));

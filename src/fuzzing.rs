@@ -1,0 +1,277 @@
+//! Entry points of the fuzz targets (`fuzz/`, cargo-fuzz) and of their replay in `cargo test`
+//! (`tests/fuzz_replay.rs`): one function per input surface, taking arbitrary bytes. Each must
+//! return — an `Err` is the expected answer to bad input — and never panic, abort, hang or
+//! allocate beyond what the input can justify; a fuzzer flags any of those as a crash.
+//!
+//! [`TARGETS`] lists them by the names of their fuzz targets and corpus folders.
+
+use std::path::{Path, PathBuf};
+
+use crate::io::{cloud_file, foxglove_msgs, pose_file, ros2};
+use crate::odometry::OdometryConfig;
+use crate::pipeline::PairConfig;
+use crate::register::{REORDER_WINDOW, RegisterOptions, register_log};
+
+/// A fuzzed file surface: name (fuzz target and corpus folder) and entry point.
+pub type Target = (&'static str, fn(&[u8]));
+
+/// Every fuzz target.
+pub const TARGETS: &[Target] = &[
+    ("point_cloud2", point_cloud2),
+    ("foxglove_point_cloud", foxglove_point_cloud),
+    ("pose_messages", pose_messages),
+    ("mcap_records", mcap_records),
+    ("register_input", register_input),
+    ("cloud_files", cloud_files),
+    ("pose_files", pose_files),
+];
+
+/// `sensor_msgs/msg/PointCloud2` (cdr) decoding; a decoded cloud holds only finite points.
+pub fn point_cloud2(data: &[u8]) {
+    if let Ok(c) = ros2::decode_point_cloud2(data) {
+        assert!(
+            c.points
+                .iter()
+                .all(|p| p.coords.iter().all(|v| v.is_finite()))
+        );
+    }
+}
+
+/// `foxglove.PointCloud` (protobuf) decoding.
+pub fn foxglove_point_cloud(data: &[u8]) {
+    if let Ok(c) = foxglove_msgs::decode_foxglove_point_cloud(data) {
+        assert!(
+            c.points
+                .iter()
+                .all(|p| p.coords.iter().all(|v| v.is_finite()))
+        );
+    }
+}
+
+/// `geometry_msgs/msg/PoseStamped` and `tf2_msgs/msg/TFMessage` (cdr) decoding.
+pub fn pose_messages(data: &[u8]) {
+    let _ = ros2::decode_pose_stamped(data);
+    let _ = ros2::decode_tf_message(data);
+}
+
+/// A scratch file for inputs that are read from a path: in a temporary directory of this
+/// process, one per thread (the replay test runs targets in parallel).
+fn scratch(name: &str) -> PathBuf {
+    thread_local! {
+        static DIR: tempfile::TempDir = tempfile::tempdir().expect("temporary directory");
+    }
+    DIR.with(|d| d.path().join(name))
+}
+
+fn write(path: &Path, data: &[u8]) {
+    std::fs::write(path, data).expect("scratch file written");
+}
+
+/// MCAP as `mireg evaluate` and `export` read it: the catalogue (summary, or a scan without
+/// one), every record in file order, and the pose and statistics topics.
+pub fn mcap_records(data: &[u8]) {
+    let path = scratch("in.mcap");
+    write(&path, data);
+    let _ = crate::io::mcap_log::list_channels(&path);
+    let _ = crate::io::mcap_read::for_each_record(&path, |_| Ok(()));
+    let _ = crate::trajectory::read_mcap_pose_topic(&path, "/mireg/pose");
+    let _ = crate::trajectory::read_frame_flags(&path, "/mireg/stats");
+}
+
+/// The whole `mireg register` path: catalogue, chunk index, pass-through with validation, cloud
+/// decoding and registration, output. On error no output may be left behind.
+pub fn register_input(data: &[u8]) {
+    let input = scratch("in.mcap");
+    let output = scratch("out.mcap");
+    write(&input, data);
+    let _ = std::fs::remove_file(&output);
+    let opts = RegisterOptions {
+        input,
+        output: output.clone(),
+        topic: None,
+        config: OdometryConfig {
+            pair: PairConfig {
+                voxel_size_m: 0.05,
+                max_hypotheses: 1000,
+                ..Default::default()
+            },
+            ..Default::default()
+        },
+        force: true,
+        world_frame: "world".into(),
+        command_line: "fuzz".into(),
+        progress: false,
+        // Small bounds: a fuzzer's inputs are small, and its time is better spent elsewhere.
+        max_points_per_cloud: 20_000,
+        reorder_window: REORDER_WINDOW,
+    };
+    if register_log(&opts).is_err() {
+        assert!(!output.exists(), "an error left an output behind");
+    }
+}
+
+/// The point cloud files of `mireg pair`: PLY, PCD, NumPy `.npy`, KITTI `.bin`.
+pub fn cloud_files(data: &[u8]) {
+    let p = Path::new("fuzz");
+    let _ = cloud_file::parse_ply(data, p);
+    let _ = cloud_file::parse_pcd(data, p);
+    let _ = cloud_file::parse_npy(data, p);
+    let _ = cloud_file::parse_kitti_bin(data, p);
+}
+
+/// The pose files of `mireg pair --gt` and `mireg evaluate --gt`: 4×4 matrices, Redwood `.log`,
+/// Stanford `bun.conf`, TUM, KITTI.
+pub fn pose_files(data: &[u8]) {
+    let Ok(text) = std::str::from_utf8(data) else {
+        return;
+    };
+    let p = Path::new("fuzz");
+    let _ = pose_file::parse_matrix4(text, p);
+    let _ = pose_file::parse_log(text, p);
+    let _ = pose_file::parse_bunny_conf(text, p);
+    let _ = crate::trajectory::parse_tum(text, p);
+    let _ = crate::trajectory::parse_kitti(text, p);
+}
+
+/// A small valid `mireg register` input, the seed of the MCAP corpora and of the hostile-input
+/// suite: `frames` clouds of a room with boxes (≈1 200 points, voxel 0.05 m works) on
+/// `/points` (ROS 2 PointCloud2), seen from a camera moving 4 cm and 1.1° per frame 0.1 s apart,
+/// its reference poses on `/ground_truth/pose`, a JSON channel, a metadata record and an
+/// attachment. `options` sets compression, chunking and indexes.
+pub fn small_log(frames: usize, options: mcap::WriteOptions) -> Vec<u8> {
+    use mcap::records::MessageHeader;
+    use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+    use rand::{RngExt, SeedableRng};
+    use std::collections::BTreeMap;
+
+    let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(5);
+    let mut world = Vec::new();
+    for _ in 0..700 {
+        let (u, v): (f64, f64) = (rng.random_range(-2.0..2.0), rng.random_range(0.0..2.0));
+        world.push(match rng.random_range(0..3u32) {
+            0 => Point3::new(u, v - 1.0, 3.0),
+            1 => Point3::new(-2.0, v - 1.0, u + 3.0),
+            _ => Point3::new(u, 1.0, v * 1.5 + 1.0),
+        });
+    }
+    for k in 0..4 {
+        let c = Vector3::new(
+            rng.random_range(-1.5..1.5),
+            rng.random_range(-0.5..0.5),
+            rng.random_range(1.5..2.8),
+        );
+        for _ in 0..120 {
+            let d = Vector3::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+            );
+            let mut e: Vector3<f64> = d * 0.3;
+            let axis = (k + rng.random_range(0..3usize)) % 3;
+            e[axis] = 0.3 * e[axis].signum();
+            world.push(Point3::from(c + e));
+        }
+    }
+    let mut out = std::io::Cursor::new(Vec::new());
+    let mut w = options.profile("ros2").create(&mut out).expect("writer");
+    let cloud_schema = w
+        .add_schema(
+            ros2::POINT_CLOUD2_SCHEMA_NAME,
+            ros2::SCHEMA_ENCODING,
+            ros2::POINT_CLOUD2_SCHEMA.as_bytes(),
+        )
+        .expect("schema");
+    let clouds = w
+        .add_channel(cloud_schema, "/points", "cdr", &BTreeMap::new())
+        .expect("channel");
+    let pose_schema = w
+        .add_schema(
+            ros2::POSE_STAMPED_SCHEMA_NAME,
+            ros2::SCHEMA_ENCODING,
+            ros2::POSE_STAMPED_SCHEMA.as_bytes(),
+        )
+        .expect("schema");
+    let poses = w
+        .add_channel(pose_schema, "/ground_truth/pose", "cdr", &BTreeMap::new())
+        .expect("channel");
+    let json = w
+        .add_schema("Note", "jsonschema", br#"{"type":"object"}"#)
+        .expect("schema");
+    let notes = w
+        .add_channel(json, "/notes", "json", &BTreeMap::new())
+        .expect("channel");
+    w.write_metadata(&mcap::records::Metadata {
+        name: "robot".into(),
+        metadata: BTreeMap::from([("id".into(), "r2".into())]),
+    })
+    .expect("metadata");
+    w.attach(&mcap::Attachment {
+        log_time: 1,
+        create_time: 2,
+        name: "calib.yaml".into(),
+        media_type: "application/yaml".into(),
+        data: std::borrow::Cow::Borrowed(b"fx: 525\n"),
+    })
+    .expect("attachment");
+    let t0 = 1_700_000_000_000_000_000u64;
+    for k in 0..frames {
+        let t = t0 + k as u64 * 100_000_000;
+        let world_from_camera = Isometry3::from_parts(
+            Translation3::new(0.04 * k as f64, 0.0, 0.01 * k as f64),
+            UnitQuaternion::from_euler_angles(0.0, 0.02 * k as f64, 0.0),
+        );
+        let header = ros2::Header {
+            stamp: ros2::Time::from_ns(t as i64).expect("in range"),
+            frame_id: "camera".into(),
+        };
+        let camera_from_world = world_from_camera.inverse();
+        let pts: Vec<Point3<f64>> = world.iter().map(|p| camera_from_world * p).collect();
+        let m = |channel_id, sequence| MessageHeader {
+            channel_id,
+            sequence,
+            log_time: t,
+            publish_time: t,
+        };
+        let cloud = ros2::encode_point_cloud2(&header, &pts, None);
+        w.write_to_known_channel(&m(clouds, k as u32), &cloud)
+            .expect("cloud");
+        let reference = ros2::Header {
+            frame_id: "world".into(),
+            ..header
+        };
+        let pose = ros2::encode_pose_stamped(&reference, &world_from_camera);
+        w.write_to_known_channel(&m(poses, k as u32), &pose)
+            .expect("pose");
+        let note = format!(r#"{{"k":{k}}}"#);
+        w.write_to_known_channel(&m(notes, k as u32), note.as_bytes())
+            .expect("note");
+    }
+    w.finish().expect("finish");
+    drop(w);
+    out.into_inner()
+}
+
+/// A small `foxglove.PointCloud` (protobuf): three points, FLOAT32 x, y, z at offsets 0, 4, 8.
+pub fn foxglove_seed_cloud() -> Vec<u8> {
+    use foxglove::schemas::packed_element_field::NumericType;
+    use foxglove::schemas::{PackedElementField, PointCloud, Timestamp};
+    use prost::Message;
+    let field = |name: &str, offset| PackedElementField {
+        name: name.into(),
+        offset,
+        r#type: NumericType::Float32 as i32,
+    };
+    let data: Vec<u8> = [1.0f32, 2.0, 3.0, -1.0, 0.5, 2.0, 0.0, 0.0, 1.0]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    PointCloud {
+        timestamp: Some(Timestamp::new(1_700_000_000, 5)),
+        frame_id: "lidar".into(),
+        pose: None,
+        point_stride: 12,
+        fields: vec![field("x", 0), field("y", 4), field("z", 8)],
+        data: data.into(),
+    }
+    .encode_to_vec()
+}

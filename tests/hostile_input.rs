@@ -1,0 +1,818 @@
+//! Hostile input: each class of bad input the hardening issue found, generated here (or
+//! committed under `fuzz/regressions/` when minimised, where `cargo test` also replays it
+//! through every fuzz target), with the documented outcome asserted —
+//! a typed error naming the file (and the offset or message), or a flagged frame with its
+//! reason — and never a panic, an abort, a half-written output, or a changed input.
+//!
+//! Test names say the failure they prevent.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use mcap::records::{MessageHeader, Record};
+use mireg::fuzzing::small_log;
+use mireg::io::mcap_read::for_each_record;
+use mireg::odometry::OdometryConfig;
+use mireg::pipeline::PairConfig;
+use mireg::register::{
+    DEFAULT_MAX_POINTS_PER_CLOUD, REORDER_WINDOW, RegisterOptions, register_log,
+};
+use rand::{RngExt, SeedableRng};
+
+fn mireg(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_mireg"))
+        .args(args)
+        .output()
+        .expect("mireg runs")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn regression(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("fuzz/regressions/mcap_records")
+        .join(name)
+}
+
+fn fixture() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/icl_livingroom1.mcap")
+}
+
+fn options(input: &Path, output: &Path) -> RegisterOptions {
+    RegisterOptions {
+        input: input.to_path_buf(),
+        output: output.to_path_buf(),
+        topic: None,
+        config: OdometryConfig {
+            pair: PairConfig {
+                voxel_size_m: 0.05,
+                seed: 1,
+                ..Default::default()
+            },
+            ..Default::default()
+        },
+        force: true,
+        world_frame: "world".into(),
+        command_line: "test".into(),
+        progress: false,
+        max_points_per_cloud: DEFAULT_MAX_POINTS_PER_CLOUD,
+        reorder_window: REORDER_WINDOW,
+    }
+}
+
+/// The small seed log, zstd chunks of 8 KiB (several chunks, with message indexes and summary).
+fn small(frames: usize) -> Vec<u8> {
+    small_log(
+        frames,
+        mcap::WriteOptions::new()
+            .chunk_size(Some(8 << 10))
+            .compression(Some(mcap::Compression::Zstd)),
+    )
+}
+
+/// Names of the files in `dir`.
+fn listing(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+/// Top-level records of an MCAP: (offset, opcode, body length).
+fn top_level_records(bytes: &[u8]) -> Vec<(usize, u8, usize)> {
+    let mut out = Vec::new();
+    let mut at = 8;
+    while at + 9 <= bytes.len() - 8 {
+        let len = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
+        out.push((at, bytes[at], len));
+        at += 9 + len;
+    }
+    out
+}
+
+/// A log's messages as (topic, log time, payload), its schemas and channels, in file order.
+struct Messages {
+    channels: BTreeMap<u16, (String, String, String, Vec<u8>, String)>,
+    messages: Vec<(u16, u64, Vec<u8>)>,
+}
+
+fn messages(path: &Path) -> Messages {
+    let mut schemas = BTreeMap::new();
+    let mut m = Messages {
+        channels: BTreeMap::new(),
+        messages: Vec::new(),
+    };
+    for_each_record(path, |r| {
+        match r {
+            Record::Schema { header, data } => {
+                schemas.insert(header.id, (header.name, header.encoding, data.to_vec()));
+            }
+            Record::Channel(c) => {
+                let (n, e, d) = schemas[&c.schema_id].clone();
+                m.channels
+                    .insert(c.id, (c.topic, n, e, d, c.message_encoding));
+            }
+            Record::Message { header, data } => {
+                m.messages
+                    .push((header.channel_id, header.log_time, data.to_vec()))
+            }
+            _ => {}
+        }
+        Ok(())
+    })
+    .unwrap();
+    m
+}
+
+/// Writes `m`'s messages in the order `order` (indexes into `m.messages`), with writer options.
+fn rewrite(m: &Messages, order: &[usize], opts: mcap::WriteOptions) -> Vec<u8> {
+    let mut out = std::io::Cursor::new(Vec::new());
+    let mut w = opts.profile("ros2").create(&mut out).unwrap();
+    let mut ids = BTreeMap::new();
+    for (&id, (topic, name, enc, data, menc)) in &m.channels {
+        let s = w.add_schema(name, enc, data).unwrap();
+        ids.insert(id, w.add_channel(s, topic, menc, &BTreeMap::new()).unwrap());
+    }
+    for (k, &i) in order.iter().enumerate() {
+        let (c, t, data) = &m.messages[i];
+        let header = MessageHeader {
+            channel_id: ids[c],
+            sequence: k as u32,
+            log_time: *t,
+            publish_time: *t,
+        };
+        w.write_to_known_channel(&header, data).unwrap();
+    }
+    w.finish().unwrap();
+    drop(w);
+    out.into_inner()
+}
+
+/// The JSON objects on `/mireg/stats` of a registered log.
+fn stats(path: &Path) -> Vec<serde_json::Value> {
+    let m = messages(path);
+    m.messages
+        .iter()
+        .filter(|(c, _, _)| m.channels[c].0 == "/mireg/stats")
+        .map(|(_, _, d)| serde_json::from_slice(d).unwrap())
+        .collect()
+}
+
+// ---------------------------------------------------------------------------------------------
+// Finding 1: record lengths
+// ---------------------------------------------------------------------------------------------
+
+/// A 37-byte file whose header record claims 2^60 bytes aborted `evaluate` and `export` (and
+/// `register` without a readable summary) with "memory allocation of … bytes failed".
+#[test]
+fn record_length_past_the_end_is_an_error_not_an_abort() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = regression("record_length_2e60.mcap");
+    let out = dir.path().join("out.mcap");
+    let runs = [
+        mireg(&[
+            "register",
+            input.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ]),
+        mireg(&["evaluate", input.to_str().unwrap()]),
+        mireg(&["export", input.to_str().unwrap(), "--format", "tum"]),
+    ];
+    for run in &runs {
+        let e = stderr(run);
+        assert_eq!(run.status.code(), Some(2), "{e}");
+        assert!(e.contains("record_length_2e60.mcap"), "{e}");
+        assert!(e.contains("claims 1152921504606846976 bytes"), "{e}");
+    }
+    assert!(listing(dir.path()).is_empty());
+    // The same lie after a valid start, in a log whose summary is cut off.
+    let mut bytes = small(2);
+    let recs = top_level_records(&bytes);
+    let data_end = recs
+        .iter()
+        .position(|r| r.1 == mcap::records::op::DATA_END)
+        .unwrap();
+    let (at, _, _) = recs[data_end / 2];
+    bytes.truncate(at);
+    bytes.push(0x05);
+    bytes.extend((1u64 << 60).to_le_bytes());
+    bytes.extend([0u8; 20]);
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes).unwrap();
+    for r in [
+        mireg::io::mcap_log::list_channels(&cut).map(|_| ()),
+        for_each_record(&cut, |_| Ok(())),
+        register_log(&options(&cut, &out)).map(|_| ()),
+    ] {
+        let e = r.unwrap_err().to_string();
+        assert!(e.contains("cut.mcap") && e.contains("claims"), "{e}");
+    }
+    assert!(!out.exists());
+}
+
+/// Every cut of a valid log at a record boundary, and inside each record, is an error naming the
+/// file (or, once the data section is complete, a full output): never a panic or an output left
+/// by an error.
+#[test]
+fn truncation_at_every_record_boundary_fails_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let bytes = small(2);
+    let input = dir.path().join("cut.mcap");
+    let out = dir.path().join("out.mcap");
+    let data_end = top_level_records(&bytes)
+        .iter()
+        .find(|r| r.1 == mcap::records::op::DATA_END)
+        .map(|r| r.0 + 9 + r.2)
+        .unwrap();
+    for (at, _, len) in top_level_records(&bytes) {
+        for cut in [at, at + 5, at + 9 + len / 2] {
+            std::fs::write(&input, &bytes[..cut]).unwrap();
+            let _ = std::fs::remove_file(&out);
+            let scanned = for_each_record(&input, |_| Ok(()));
+            let registered = register_log(&options(&input, &out));
+            if cut < data_end {
+                let e = scanned.unwrap_err().to_string();
+                assert!(e.contains("cut.mcap"), "cut at {cut}: {e}");
+                let e = registered.unwrap_err().to_string();
+                assert!(e.contains("cut.mcap"), "cut at {cut}: {e}");
+                assert!(!out.exists(), "cut at {cut}: output left behind");
+            } else {
+                assert!(scanned.is_ok() && registered.is_ok(), "cut at {cut}");
+            }
+            assert!(
+                listing(dir.path())
+                    .iter()
+                    .all(|n| n == "cut.mcap" || n == "out.mcap")
+            );
+        }
+    }
+}
+
+/// Single random byte changes of a valid log (as the campaign's 1 500 mutations, 14 of which
+/// crashed): each read path returns, with or without chunk CRCs to catch the change first.
+#[test]
+fn random_byte_changes_never_crash_a_reader() {
+    let with_crc = small(2);
+    // Uncompressed chunks whose CRC is 0 (not checked): changes reach the record parsers.
+    let mut without_crc = small_log(
+        2,
+        mcap::WriteOptions::new()
+            .chunk_size(Some(8 << 10))
+            .compression(None),
+    );
+    for (at, op, _) in top_level_records(&without_crc.clone()) {
+        if op == mcap::records::op::CHUNK {
+            without_crc[at + 9 + 24..at + 9 + 28].fill(0); // uncompressed_crc
+        }
+    }
+    let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(13);
+    for (k, base) in [with_crc, without_crc].iter().enumerate() {
+        for n in 0..600 {
+            let mut b = base.clone();
+            let i = rng.random_range(8..b.len() - 8);
+            b[i] = match n % 3 {
+                0 => b[i] ^ (1 << rng.random_range(0..8)),
+                1 => 0xff,
+                _ => rng.random(),
+            };
+            mireg::fuzzing::mcap_records(&b);
+            if n % 20 == k {
+                mireg::fuzzing::register_input(&b);
+            }
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Findings 2–5: outputs
+// ---------------------------------------------------------------------------------------------
+
+/// `mireg export out.mcap -o out.mcap` replaced the log by TUM text (also through a hard link).
+#[test]
+fn export_never_overwrites_its_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("a.mcap");
+    std::fs::write(&log, small(2)).unwrap();
+    let reg = dir.path().join("r.mcap");
+    register_log(&options(&log, &reg)).unwrap();
+    let before = std::fs::read(&reg).unwrap();
+    let link = dir.path().join("link.mcap");
+    std::fs::hard_link(&reg, &link).unwrap();
+    for target in [&reg, &link] {
+        let run = mireg(&[
+            "export",
+            reg.to_str().unwrap(),
+            "--format",
+            "tum",
+            "-o",
+            target.to_str().unwrap(),
+        ]);
+        assert_eq!(run.status.code(), Some(2));
+        assert!(stderr(&run).contains("is the input"), "{}", stderr(&run));
+        assert_eq!(std::fs::read(&reg).unwrap(), before);
+    }
+}
+
+/// `export` wrote in place: on a full disk a truncated file stayed at the target, and the error
+/// said "(output stream)". A file size limit (`RLIMIT_FSIZE`, with `SIGXFSZ` ignored) fails the
+/// writes the same way a full disk does.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+#[test]
+fn export_on_a_full_disk_leaves_no_file_and_names_it() {
+    use std::os::unix::process::CommandExt;
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("a.mcap");
+    std::fs::write(&log, small(40)).unwrap();
+    let reg = dir.path().join("r.mcap");
+    register_log(&options(&log, &reg)).unwrap();
+    let est = dir.path().join("est.tum");
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_mireg"));
+    cmd.args([
+        "export",
+        reg.to_str().unwrap(),
+        "--format",
+        "tum",
+        "-o",
+        est.to_str().unwrap(),
+    ]);
+    // SAFETY: only async-signal-safe calls (setrlimit, signal) between fork and exec.
+    unsafe {
+        cmd.pre_exec(|| {
+            let limit = libc::rlimit {
+                rlim_cur: 1000,
+                rlim_max: 1000,
+            };
+            libc::setrlimit(libc::RLIMIT_FSIZE, &limit);
+            libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+            Ok(())
+        });
+    }
+    let run = cmd.output().unwrap();
+    let e = stderr(&run);
+    assert_eq!(run.status.code(), Some(2), "{e}");
+    assert!(e.contains("est.tum") && !e.contains("output stream"), "{e}");
+    assert_eq!(listing(dir.path()), ["a.mcap", "r.mcap"]);
+}
+
+/// `register -o FIFO --force` replaced the FIFO (as root, `-o /dev/null --force` replaced
+/// /dev/null) with a regular file.
+#[cfg(unix)]
+#[test]
+fn force_never_replaces_a_special_file() {
+    use std::os::unix::fs::FileTypeExt;
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("in.mcap");
+    std::fs::write(&input, small(2)).unwrap();
+    let log = dir.path().join("a.mcap");
+    register_log(&options(&input, &log)).unwrap();
+    let fifo = dir.path().join("fifo");
+    let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+    // SAFETY: a valid NUL-terminated path.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o644) }, 0);
+    for args in [
+        vec![
+            "register",
+            log.to_str().unwrap(),
+            "-o",
+            fifo.to_str().unwrap(),
+            "--force",
+        ],
+        vec![
+            "export",
+            log.to_str().unwrap(),
+            "--format",
+            "tum",
+            "-o",
+            fifo.to_str().unwrap(),
+        ],
+    ] {
+        let run = mireg(&args);
+        assert_eq!(run.status.code(), Some(2), "{}", stderr(&run));
+        assert!(stderr(&run).contains("is a FIFO"), "{}", stderr(&run));
+        assert!(std::fs::metadata(&fifo).unwrap().file_type().is_fifo());
+    }
+    let dir_out = dir.path().join("sub");
+    std::fs::create_dir(&dir_out).unwrap();
+    let run = mireg(&[
+        "register",
+        log.to_str().unwrap(),
+        "-o",
+        dir_out.to_str().unwrap(),
+        "--force",
+    ]);
+    assert!(stderr(&run).contains("is a directory"), "{}", stderr(&run));
+    assert!(dir_out.is_dir());
+}
+
+/// SIGINT, SIGTERM and SIGKILL left a hidden `.OUT.XXXX.partial` beside the output, preallocated
+/// to the input's size. Now: exit 130 / 143 with one line, and nothing at or beside the target
+/// after any of the three.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+#[test]
+fn interrupted_register_leaves_nothing_behind() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.mcap");
+    for (sig, code) in [
+        (libc::SIGINT, Some(130)),
+        (libc::SIGTERM, Some(143)),
+        (libc::SIGKILL, None),
+    ] {
+        let child = Command::new(env!("CARGO_BIN_EXE_mireg"))
+            .args([
+                "register",
+                fixture().to_str().unwrap(),
+                "-o",
+                out.to_str().unwrap(),
+                "--quiet",
+            ])
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        // Let it get into the pass-through (the whole run takes over a second).
+        std::thread::sleep(std::time::Duration::from_millis(300));
+        // SAFETY: signals a child of this process.
+        unsafe { libc::kill(child.id() as i32, sig) };
+        let run = child.wait_with_output().unwrap();
+        assert_eq!(run.status.code(), code, "signal {sig}: {}", stderr(&run));
+        if code.is_some() {
+            let e = stderr(&run);
+            assert_eq!(e.lines().count(), 1, "{e}");
+            assert!(e.contains("no output written"), "{e}");
+        }
+        assert!(
+            listing(dir.path()).is_empty(),
+            "signal {sig}: {:?}",
+            listing(dir.path())
+        );
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Findings 6–8: re-registration, decompression bombs, message indexes
+// ---------------------------------------------------------------------------------------------
+
+/// Registering a mireg output again added a second set of messages to `/mireg/pose` and
+/// `/mireg/stats`; `export` then wrote two lines per frame.
+#[test]
+fn registering_an_output_again_keeps_the_runs_apart() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("a.mcap");
+    std::fs::write(&log, small(3)).unwrap();
+    let (a, b) = (dir.path().join("a1.mcap"), dir.path().join("a2.mcap"));
+    register_log(&options(&log, &a)).unwrap();
+    let s = register_log(&options(&a, &b)).unwrap();
+    assert_eq!(s.pose_topic, "/mireg_2/pose");
+    let m = messages(&b);
+    let count = |topic: &str| {
+        m.messages
+            .iter()
+            .filter(|(c, _, _)| m.channels[c].0 == topic)
+            .count()
+    };
+    for t in [
+        "/mireg/pose",
+        "/mireg/stats",
+        "/mireg_2/pose",
+        "/mireg_2/stats",
+    ] {
+        assert_eq!(count(t), 3, "{t}");
+    }
+    let run = mireg(&["export", b.to_str().unwrap(), "--format", "tum"]);
+    assert_eq!(String::from_utf8_lossy(&run.stdout).lines().count(), 3);
+    let run = mireg(&["evaluate", b.to_str().unwrap(), "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert_eq!(v["frames"], 3, "{v}");
+}
+
+/// A chunk record whose body is `records` compressed by zstd, claiming `claimed` uncompressed
+/// bytes; `records` is `count` zero bytes streamed through the encoder (never held whole).
+fn zstd_zero_chunk(count: u64, claimed: u64) -> Vec<u8> {
+    let mut enc = zstd::stream::Encoder::new(Vec::new(), 1).unwrap();
+    let zeros = vec![0u8; 1 << 20];
+    let mut left = count;
+    while left > 0 {
+        let n = left.min(zeros.len() as u64) as usize;
+        std::io::Write::write_all(&mut enc, &zeros[..n]).unwrap();
+        left -= n as u64;
+    }
+    let data = enc.finish().unwrap();
+    let mut body = Vec::new();
+    body.extend(0u64.to_le_bytes());
+    body.extend(0u64.to_le_bytes());
+    body.extend(claimed.to_le_bytes());
+    body.extend(0u32.to_le_bytes());
+    body.extend(4u32.to_le_bytes());
+    body.extend(b"zstd");
+    body.extend((data.len() as u64).to_le_bytes());
+    body.extend(data);
+    let mut rec = vec![mcap::records::op::CHUNK];
+    rec.extend((body.len() as u64).to_le_bytes());
+    rec.extend(body);
+    rec
+}
+
+/// Replaces the first chunk record of `log` by `chunk`.
+fn with_first_chunk(log: &[u8], chunk: &[u8]) -> Vec<u8> {
+    let (at, _, len) = top_level_records(log)
+        .into_iter()
+        .find(|r| r.1 == mcap::records::op::CHUNK)
+        .unwrap();
+    [&log[..at], chunk, &log[at + 9 + len..]].concat()
+}
+
+/// A 68 KB log (one chunk of 2 GiB of zeros) took 2.1 GB of memory. A chunk claiming more than
+/// the limit is refused before anything is allocated; one that lies about its size (claims
+/// 1 MiB, holds 64 MiB of zeros) never decompresses past its claim.
+#[test]
+fn decompression_bomb_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = small_log(
+        2,
+        mcap::WriteOptions::new().compression(Some(mcap::Compression::Zstd)),
+    );
+    let bomb = dir.path().join("bomb.mcap");
+    let out = dir.path().join("out.mcap");
+    let claim = mireg::io::mcap_read::MAX_CHUNK_BYTES + 1;
+    std::fs::write(
+        &bomb,
+        with_first_chunk(&base, &zstd_zero_chunk(1 << 20, claim)),
+    )
+    .unwrap();
+    let e = register_log(&options(&bomb, &out)).unwrap_err().to_string();
+    assert!(
+        e.contains("bomb.mcap") && e.contains("more than the limit"),
+        "{e}"
+    );
+    let e = for_each_record(&bomb, |_| Ok(())).unwrap_err().to_string();
+    assert!(e.contains("more than the limit"), "{e}");
+    std::fs::write(
+        &bomb,
+        with_first_chunk(&base, &zstd_zero_chunk(64 << 20, 1 << 20)),
+    )
+    .unwrap();
+    let e = for_each_record(&bomb, |_| Ok(())).unwrap_err().to_string();
+    assert!(e.contains("zstd decompression failed"), "{e}");
+    assert!(register_log(&options(&bomb, &out)).is_err());
+    assert!(!out.exists());
+}
+
+/// Message index records were copied unchecked: one flipped byte gave an output whose index
+/// pointed 68 GB past its chunk.
+#[test]
+fn corrupt_message_index_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = small(3);
+    let out = dir.path().join("out.mcap");
+    let input = dir.path().join("bad_index.mcap");
+    let (at, _, _) = top_level_records(&base)
+        .into_iter()
+        .find(|r| r.1 == mcap::records::op::MESSAGE_INDEX)
+        .unwrap();
+    // channel id (2), byte length of the entries (4), first entry: log time (8), offset (8)
+    for (field, at) in [("offset", at + 9 + 6 + 8 + 4), ("log time", at + 9 + 6 + 3)] {
+        let mut b = base.clone();
+        b[at] ^= 0x10;
+        std::fs::write(&input, &b).unwrap();
+        let e = register_log(&options(&input, &out))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("bad_index.mcap") && e.contains("message index"),
+            "{field}: {e}"
+        );
+        assert!(!out.exists());
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Findings 9–12: clouds, order, sizes, messages
+// ---------------------------------------------------------------------------------------------
+
+/// One undecodable cloud (no `y` field) ended the run with exit code 2; now it is one flagged
+/// frame and the others are registered.
+#[test]
+fn an_undecodable_cloud_is_one_flagged_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = dir.path().join("good.mcap");
+    std::fs::write(&good, small(5)).unwrap();
+    let mut m = messages(&good);
+    let clouds: Vec<usize> = (0..m.messages.len())
+        .filter(|&i| m.channels[&m.messages[i].0].0 == "/points")
+        .collect();
+    // Rename the field "y" (CDR string: length 2, "y\0") of the third cloud.
+    let payload = &mut m.messages[clouds[2]].2;
+    let at = payload
+        .windows(6)
+        .position(|w| w == [2, 0, 0, 0, b'y', 0])
+        .unwrap();
+    payload[at + 4] = b'q';
+    let bad = dir.path().join("bad.mcap");
+    std::fs::write(
+        &bad,
+        rewrite(
+            &m,
+            &(0..m.messages.len()).collect::<Vec<_>>(),
+            mcap::WriteOptions::new(),
+        ),
+    )
+    .unwrap();
+    let out = dir.path().join("out.mcap");
+    let s = register_log(&options(&bad, &out)).unwrap();
+    assert_eq!((s.frames, s.failed_frames), (5, 1));
+    let st = stats(&out);
+    assert_eq!(st[2]["failure_reason"], "invalid_cloud");
+    let detail = st[2]["failure_detail"].as_str().unwrap();
+    assert!(
+        detail.contains("/points") && detail.contains("y"),
+        "{detail}"
+    );
+    assert!(
+        st.iter()
+            .enumerate()
+            .all(|(k, v)| (k == 2) != v["success"].as_bool().unwrap())
+    );
+}
+
+/// 40 clouds in reverse log-time order, with no summary to prove the order, were registered in
+/// file order without a word. Now: an error naming both log times; a window as large as the
+/// disorder registers them in log-time order.
+#[test]
+fn clouds_out_of_order_beyond_the_window_are_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = dir.path().join("good.mcap");
+    std::fs::write(&good, small(20)).unwrap();
+    let m = messages(&good);
+    let order: Vec<usize> = (0..m.messages.len()).rev().collect();
+    let reversed = dir.path().join("reversed.mcap");
+    std::fs::write(
+        &reversed,
+        rewrite(
+            &m,
+            &order,
+            mcap::WriteOptions::new()
+                .emit_summary_records(false)
+                .emit_summary_offsets(false),
+        ),
+    )
+    .unwrap();
+    let out = dir.path().join("out.mcap");
+    let e = register_log(&options(&reversed, &out))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("reversed.mcap") && e.contains("out of log-time order"),
+        "{e}"
+    );
+    assert!(e.contains("--reorder-window"), "{e}");
+    assert!(!out.exists());
+    let mut opts = options(&reversed, &out);
+    opts.reorder_window = 20;
+    let s = register_log(&opts).unwrap();
+    assert_eq!(s.frames, 20);
+    let stamps: Vec<i64> = stats(&out)
+        .iter()
+        .map(|v| v["stamp_ns"].as_i64().unwrap())
+        .collect();
+    assert!(stamps.windows(2).all(|w| w[0] < w[1]), "{stamps:?}");
+}
+
+/// Two clouds of 5 M points took 6.2 GB and over 400 s. A cloud over the bound is flagged
+/// `too_many_points` without being prepared.
+#[test]
+fn a_cloud_over_the_point_bound_is_flagged() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("a.mcap");
+    std::fs::write(&log, small(3)).unwrap();
+    let out = dir.path().join("out.mcap");
+    let mut opts = options(&log, &out);
+    opts.max_points_per_cloud = 1000;
+    let s = register_log(&opts).unwrap();
+    assert_eq!(s.failed_frames, 3);
+    for v in stats(&out) {
+        assert_eq!(v["failure_reason"], "too_many_points", "{v}");
+        assert!(
+            v["failure_detail"]
+                .as_str()
+                .unwrap()
+                .contains("--max-points")
+        );
+    }
+}
+
+/// The unclear messages of finding 12, one by one.
+#[test]
+fn errors_say_what_is_wrong_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().to_str().unwrap();
+    // Shorter than an MCAP header: said "Invalid argument (os error 22)" twice.
+    let short = dir.path().join("short.mcap");
+    std::fs::write(&short, b"\x89MCAP0\r\n").unwrap();
+    let run = mireg(&["register", short.to_str().unwrap()]);
+    let e = stderr(&run);
+    assert!(
+        e.contains("not an MCAP file") && !e.contains("os error"),
+        "{e}"
+    );
+    // A directory: said "input MCAP not found" twice.
+    let run = mireg(&["register", d]);
+    let e = stderr(&run);
+    assert!(
+        e.contains("is a directory") && e.matches("directory").count() == 2,
+        "{e}"
+    );
+    // A missing file: says so once, and what is accepted.
+    let run = mireg(&["register", &format!("{d}/missing.mcap")]);
+    let e = stderr(&run);
+    assert_eq!(e.matches("no such file").count(), 1, "{e}");
+    assert!(e.contains(".mcap"), "{e}");
+    // --min-fitness nan disabled the check.
+    let log = dir.path().join("a.mcap");
+    std::fs::write(&log, small(2)).unwrap();
+    let run = mireg(&["register", log.to_str().unwrap(), "--min-fitness", "nan"]);
+    assert_eq!(run.status.code(), Some(2));
+    assert!(stderr(&run).contains("fraction"), "{}", stderr(&run));
+    // Two channels on one topic listed it twice ("/points, /points") and refused the log.
+    let mut m = messages(&log);
+    let (&id, ch) = m.channels.iter().find(|(_, c)| c.0 == "/points").unwrap();
+    let twin = m.channels.keys().max().unwrap() + 1;
+    let ch = ch.clone();
+    m.channels.insert(twin, ch);
+    let second = m.messages.iter().position(|x| x.0 == id).unwrap();
+    let last = m.messages.iter().rposition(|x| x.0 == id).unwrap();
+    assert_ne!(second, last);
+    m.messages[last].0 = twin;
+    let two = dir.path().join("two.mcap");
+    std::fs::write(
+        &two,
+        rewrite(
+            &m,
+            &(0..m.messages.len()).collect::<Vec<_>>(),
+            mcap::WriteOptions::new(),
+        ),
+    )
+    .unwrap();
+    let s = register_log(&options(&two, &dir.path().join("two_out.mcap"))).unwrap();
+    assert_eq!((s.topic.as_str(), s.frames), ("/points", 2));
+    // A chunk inside a chunk was accepted.
+    let base = small_log(2, mcap::WriteOptions::new().compression(None));
+    let (at, _, len) = top_level_records(&base)
+        .into_iter()
+        .find(|r| r.1 == mcap::records::op::CHUNK)
+        .unwrap();
+    let chunk = &base[at..at + 9 + len];
+    let mut outer_records = chunk.to_vec();
+    outer_records.extend(mcap_message_record());
+    let nested = dir.path().join("nested.mcap");
+    let mut body = Vec::new();
+    body.extend([0u8; 16]);
+    body.extend((outer_records.len() as u64).to_le_bytes());
+    body.extend(0u32.to_le_bytes());
+    body.extend(0u32.to_le_bytes());
+    body.extend((outer_records.len() as u64).to_le_bytes());
+    body.extend(&outer_records);
+    let mut rec = vec![mcap::records::op::CHUNK];
+    rec.extend((body.len() as u64).to_le_bytes());
+    rec.extend(body);
+    std::fs::write(&nested, with_first_chunk(&base, &rec)).unwrap();
+    let e = for_each_record(&nested, |_| Ok(()))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("may not appear inside a chunk"), "{e}");
+    let e = register_log(&options(&nested, &dir.path().join("n.mcap")))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("may not appear inside a chunk"), "{e}");
+}
+
+/// A message record on channel 1 (any payload), for hand-made chunks.
+fn mcap_message_record() -> Vec<u8> {
+    let mut r = vec![mcap::records::op::MESSAGE];
+    r.extend(22u64.to_le_bytes());
+    r.extend(1u16.to_le_bytes());
+    r.extend([0u8; 20]);
+    r
+}
+
+/// `mireg pair` exited 0 after "registration FAILED": now 1, with the result still printed.
+#[test]
+fn a_failed_pair_registration_exits_1() {
+    let dir = tempfile::tempdir().unwrap();
+    let cloud = dir.path().join("two.bin");
+    // Two points: too few to register.
+    let pts: Vec<u8> = [0.0f32, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    std::fs::write(&cloud, pts).unwrap();
+    let c = cloud.to_str().unwrap();
+    let run = mireg(&["pair", c, c, "--voxel", "0.1"]);
+    assert_eq!(run.status.code(), Some(1), "{}", stderr(&run));
+    assert!(String::from_utf8_lossy(&run.stdout).contains("registration FAILED"));
+    assert!(stderr(&run).contains("registration failed"));
+}
