@@ -1,0 +1,107 @@
+//! Writes the hostile logs whose cost docs/HARDENING.md reports, into DIR:
+//! - `bomb_2gib.mcap`: the seed log with its first chunk replaced by 2 GiB of zeros (zstd, ~68 KB);
+//! - `random_5m.mcap`: two clouds of 5 000 000 uniformly random points in a 2 km cube;
+//! - `random_100k.mcap`: two clouds of 100 000 such points (every descriptor zero: the
+//!   matching worst case without the duplicate grouping).
+//!
+//! `cargo run --release --example hostile_logs -- DIR`, then e.g.
+//! `/usr/bin/time -v target/release/mireg register DIR/random_5m.mcap -o /tmp/o.mcap --force`.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+use mcap::records::MessageHeader;
+use mireg::io::ros2;
+use nalgebra::Point3;
+use rand::{RngExt, SeedableRng};
+
+fn random_clouds(points: usize) -> Vec<u8> {
+    let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(1);
+    let mut out = std::io::Cursor::new(Vec::new());
+    let mut w = mcap::WriteOptions::new()
+        .profile("ros2")
+        .create(&mut out)
+        .expect("writer");
+    let s = w
+        .add_schema(
+            ros2::POINT_CLOUD2_SCHEMA_NAME,
+            ros2::SCHEMA_ENCODING,
+            ros2::POINT_CLOUD2_SCHEMA.as_bytes(),
+        )
+        .expect("schema");
+    let c = w
+        .add_channel(s, "/points", "cdr", &BTreeMap::new())
+        .expect("channel");
+    for k in 0..2u64 {
+        let pts: Vec<Point3<f32>> = (0..points)
+            .map(|_| {
+                Point3::new(
+                    rng.random_range(-1000.0..1000.0),
+                    rng.random_range(-1000.0..1000.0),
+                    rng.random_range(-1000.0..1000.0),
+                )
+            })
+            .collect();
+        let t = 1_000_000_000 + k * 100_000_000;
+        let header = ros2::Header {
+            stamp: ros2::Time::from_ns(t as i64).expect("in range"),
+            frame_id: "lidar".into(),
+        };
+        let data = ros2::encode_point_cloud2(&header, &pts, None);
+        let h = MessageHeader {
+            channel_id: c,
+            sequence: k as u32,
+            log_time: t,
+            publish_time: t,
+        };
+        w.write_to_known_channel(&h, &data).expect("message");
+    }
+    w.finish().expect("finish");
+    drop(w);
+    out.into_inner()
+}
+
+/// The seed log with its first chunk replaced by one of `zeros` zero bytes (zstd).
+fn bomb(zeros: u64) -> Vec<u8> {
+    let log = mireg::fuzzing::small_log(
+        2,
+        mcap::WriteOptions::new().compression(Some(mcap::Compression::Zstd)),
+    );
+    let mut enc = zstd::stream::Encoder::new(Vec::new(), 1).expect("encoder");
+    let block = vec![0u8; 1 << 20];
+    for _ in 0..zeros / block.len() as u64 {
+        std::io::Write::write_all(&mut enc, &block).expect("compress");
+    }
+    let data = enc.finish().expect("compress");
+    let mut body = Vec::new();
+    body.extend([0u8; 16]);
+    body.extend(zeros.to_le_bytes());
+    body.extend(0u32.to_le_bytes());
+    body.extend(4u32.to_le_bytes());
+    body.extend(b"zstd");
+    body.extend((data.len() as u64).to_le_bytes());
+    body.extend(data);
+    // The first chunk record after the header.
+    let mut at = 8;
+    loop {
+        let len = u64::from_le_bytes(log[at + 1..at + 9].try_into().expect("8 bytes")) as usize;
+        if log[at] == mcap::records::op::CHUNK {
+            let mut out = log[..at].to_vec();
+            out.push(mcap::records::op::CHUNK);
+            out.extend((body.len() as u64).to_le_bytes());
+            out.extend(&body);
+            out.extend(&log[at + 9 + len..]);
+            return out;
+        }
+        at += 9 + len;
+    }
+}
+
+fn main() {
+    let dir = PathBuf::from(std::env::args().nth(1).expect("usage: hostile_logs DIR"));
+    std::fs::create_dir_all(&dir).expect("output folder");
+    std::fs::write(dir.join("bomb_2gib.mcap"), bomb(2 << 30)).expect("write");
+    std::fs::write(dir.join("random_100k.mcap"), random_clouds(100_000)).expect("write");
+    std::fs::write(dir.join("random_5m.mcap"), random_clouds(5_000_000)).expect("write");
+    println!("wrote {}", dir.display());
+}
