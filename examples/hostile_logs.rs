@@ -67,34 +67,7 @@ fn bomb(zeros: u64) -> Vec<u8> {
         2,
         mcap::WriteOptions::new().compression(Some(mcap::Compression::Zstd)),
     );
-    let mut enc = zstd::stream::Encoder::new(Vec::new(), 1).expect("encoder");
-    let block = vec![0u8; 1 << 20];
-    for _ in 0..zeros / block.len() as u64 {
-        std::io::Write::write_all(&mut enc, &block).expect("compress");
-    }
-    let data = enc.finish().expect("compress");
-    let mut body = Vec::new();
-    body.extend([0u8; 16]);
-    body.extend(zeros.to_le_bytes());
-    body.extend(0u32.to_le_bytes());
-    body.extend(4u32.to_le_bytes());
-    body.extend(b"zstd");
-    body.extend((data.len() as u64).to_le_bytes());
-    body.extend(data);
-    // The first chunk record after the header.
-    let mut at = 8;
-    loop {
-        let len = u64::from_le_bytes(log[at + 1..at + 9].try_into().expect("8 bytes")) as usize;
-        if log[at] == mcap::records::op::CHUNK {
-            let mut out = log[..at].to_vec();
-            out.push(mcap::records::op::CHUNK);
-            out.extend((body.len() as u64).to_le_bytes());
-            out.extend(&body);
-            out.extend(&log[at + 9 + len..]);
-            return out;
-        }
-        at += 9 + len;
-    }
+    mireg::fuzzing::with_first_chunk(&log, &mireg::fuzzing::zstd_zero_chunk(zeros, zeros))
 }
 
 fn main() {

@@ -620,16 +620,9 @@ fn run_default() -> Result<()> {
         input.display()
     );
     let opts = RegisterOptions {
-        input,
-        output,
-        topic: None,
-        config: OdometryConfig::default(),
-        force: false,
-        world_frame: "world".into(),
         command_line: command_line(),
         progress: true,
-        max_points_per_cloud: crate::register::DEFAULT_MAX_POINTS_PER_CLOUD,
-        reorder_window: crate::register::REORDER_WINDOW,
+        ..RegisterOptions::new(&input, &output, OdometryConfig::default())
     };
     let summary = register_log(&opts)?;
     print_summary(&summary);

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use crate::io::{cloud_file, foxglove_msgs, pose_file, ros2};
 use crate::odometry::OdometryConfig;
 use crate::pipeline::PairConfig;
-use crate::register::{REORDER_WINDOW, RegisterOptions, register_log};
+use crate::register::{RegisterOptions, register_log};
 
 /// A fuzzed file surface: name (fuzz target and corpus folder) and entry point.
 pub type Target = (&'static str, fn(&[u8]));
@@ -85,25 +85,19 @@ pub fn register_input(data: &[u8]) {
     let output = scratch("out.mcap");
     write(&input, data);
     let _ = std::fs::remove_file(&output);
-    let opts = RegisterOptions {
-        input,
-        output: output.clone(),
-        topic: None,
-        config: OdometryConfig {
-            pair: PairConfig {
-                voxel_size_m: 0.05,
-                max_hypotheses: 1000,
-                ..Default::default()
-            },
+    let config = OdometryConfig {
+        pair: PairConfig {
+            voxel_size_m: 0.05,
+            max_hypotheses: 1000,
             ..Default::default()
         },
+        ..Default::default()
+    };
+    let opts = RegisterOptions {
         force: true,
-        world_frame: "world".into(),
-        command_line: "fuzz".into(),
-        progress: false,
         // Small bounds: a fuzzer's inputs are small, and its time is better spent elsewhere.
         max_points_per_cloud: 20_000,
-        reorder_window: REORDER_WINDOW,
+        ..RegisterOptions::new(&input, &output, config)
     };
     if register_log(&opts).is_err() {
         assert!(!output.exists(), "an error left an output behind");
@@ -274,4 +268,43 @@ pub fn foxglove_seed_cloud() -> Vec<u8> {
         data: data.into(),
     }
     .encode_to_vec()
+}
+
+/// A decompression bomb: a chunk record of `count` zero bytes compressed by zstd (streamed through
+/// the encoder, never held whole), claiming `claimed` uncompressed bytes.
+pub fn zstd_zero_chunk(count: u64, claimed: u64) -> Vec<u8> {
+    let mut enc = zstd::stream::Encoder::new(Vec::new(), 1).expect("in memory");
+    let zeros = vec![0u8; 1 << 20];
+    let mut left = count;
+    while left > 0 {
+        let n = left.min(zeros.len() as u64) as usize;
+        std::io::Write::write_all(&mut enc, &zeros[..n]).expect("in memory");
+        left -= n as u64;
+    }
+    let data = enc.finish().expect("in memory");
+    let mut body = Vec::new();
+    body.extend(0u64.to_le_bytes());
+    body.extend(0u64.to_le_bytes());
+    body.extend(claimed.to_le_bytes());
+    body.extend(0u32.to_le_bytes());
+    body.extend(4u32.to_le_bytes());
+    body.extend(b"zstd");
+    body.extend((data.len() as u64).to_le_bytes());
+    body.extend(data);
+    let mut rec = vec![mcap::records::op::CHUNK];
+    rec.extend((body.len() as u64).to_le_bytes());
+    rec.extend(body);
+    rec
+}
+
+/// `log` (a valid MCAP with a chunk) with its first chunk record replaced by `chunk`.
+pub fn with_first_chunk(log: &[u8], chunk: &[u8]) -> Vec<u8> {
+    let mut at = 8;
+    loop {
+        let len = u64::from_le_bytes(log[at + 1..at + 9].try_into().expect("8 bytes")) as usize;
+        if log[at] == mcap::records::op::CHUNK {
+            return [&log[..at], chunk, &log[at + 9 + len..]].concat();
+        }
+        at += 9 + len;
+    }
 }

@@ -67,6 +67,26 @@ pub struct RegisterOptions {
     pub reorder_window: usize,
 }
 
+impl RegisterOptions {
+    /// `input` registered into `output` with `config`; the other fields at their defaults: the
+    /// cloud topic auto-detected, no `--force`, world frame `world`, no command line, no progress
+    /// bar, [`DEFAULT_MAX_POINTS_PER_CLOUD`], [`REORDER_WINDOW`].
+    pub fn new(input: &Path, output: &Path, config: OdometryConfig) -> Self {
+        Self {
+            input: input.to_path_buf(),
+            output: output.to_path_buf(),
+            topic: None,
+            config,
+            force: false,
+            world_frame: "world".into(),
+            command_line: String::new(),
+            progress: false,
+            max_points_per_cloud: DEFAULT_MAX_POINTS_PER_CLOUD,
+            reorder_window: REORDER_WINDOW,
+        }
+    }
+}
+
 /// Default bound on points per cloud: 4 000 000, 15× an Ouster OS1-128 scan (262 144 points) and
 /// 4× a 1280×720 depth image; decoded, such a cloud takes 96 MB.
 pub const DEFAULT_MAX_POINTS_PER_CLOUD: usize = 4_000_000;

@@ -55,24 +55,14 @@ fn mcap_seeds_are_valid_logs() {
         std::fs::write(&input, &data).unwrap();
         let out = dir.path().join("out.mcap");
         let _ = std::fs::remove_file(&out);
-        let opts = mireg::register::RegisterOptions {
-            input,
-            output: out,
-            topic: None,
-            config: mireg::odometry::OdometryConfig {
-                pair: mireg::pipeline::PairConfig {
-                    voxel_size_m: 0.05,
-                    ..Default::default()
-                },
+        let config = mireg::odometry::OdometryConfig {
+            pair: mireg::pipeline::PairConfig {
+                voxel_size_m: 0.05,
                 ..Default::default()
             },
-            force: true,
-            world_frame: "world".into(),
-            command_line: "test".into(),
-            progress: false,
-            max_points_per_cloud: mireg::register::DEFAULT_MAX_POINTS_PER_CLOUD,
-            reorder_window: mireg::register::REORDER_WINDOW,
+            ..Default::default()
         };
+        let opts = mireg::register::RegisterOptions::new(&input, &out, config);
         let s = mireg::register::register_log(&opts).unwrap_or_else(|e| panic!("{name}: {e}"));
         assert_eq!((s.frames, s.failed_frames), (2, 0), "{name}");
     }

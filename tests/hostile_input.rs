@@ -15,9 +15,7 @@ use mireg::fuzzing::small_log;
 use mireg::io::mcap_read::for_each_record;
 use mireg::odometry::OdometryConfig;
 use mireg::pipeline::PairConfig;
-use mireg::register::{
-    DEFAULT_MAX_POINTS_PER_CLOUD, REORDER_WINDOW, RegisterOptions, register_log,
-};
+use mireg::register::{RegisterOptions, register_log};
 use rand::{RngExt, SeedableRng};
 
 fn mireg(args: &[&str]) -> Output {
@@ -42,24 +40,18 @@ fn fixture() -> PathBuf {
 }
 
 fn options(input: &Path, output: &Path) -> RegisterOptions {
-    RegisterOptions {
-        input: input.to_path_buf(),
-        output: output.to_path_buf(),
-        topic: None,
-        config: OdometryConfig {
-            pair: PairConfig {
-                voxel_size_m: 0.05,
-                seed: 1,
-                ..Default::default()
-            },
+    let config = OdometryConfig {
+        pair: PairConfig {
+            voxel_size_m: 0.05,
+            seed: 1,
             ..Default::default()
         },
+        ..Default::default()
+    };
+    RegisterOptions {
         force: true,
-        world_frame: "world".into(),
         command_line: "test".into(),
-        progress: false,
-        max_points_per_cloud: DEFAULT_MAX_POINTS_PER_CLOUD,
-        reorder_window: REORDER_WINDOW,
+        ..RegisterOptions::new(input, output, config)
     }
 }
 
@@ -490,42 +482,6 @@ fn registering_an_output_again_keeps_the_runs_apart() {
     assert_eq!(v["frames"], 3, "{v}");
 }
 
-/// A chunk record whose body is `records` compressed by zstd, claiming `claimed` uncompressed
-/// bytes; `records` is `count` zero bytes streamed through the encoder (never held whole).
-fn zstd_zero_chunk(count: u64, claimed: u64) -> Vec<u8> {
-    let mut enc = zstd::stream::Encoder::new(Vec::new(), 1).unwrap();
-    let zeros = vec![0u8; 1 << 20];
-    let mut left = count;
-    while left > 0 {
-        let n = left.min(zeros.len() as u64) as usize;
-        std::io::Write::write_all(&mut enc, &zeros[..n]).unwrap();
-        left -= n as u64;
-    }
-    let data = enc.finish().unwrap();
-    let mut body = Vec::new();
-    body.extend(0u64.to_le_bytes());
-    body.extend(0u64.to_le_bytes());
-    body.extend(claimed.to_le_bytes());
-    body.extend(0u32.to_le_bytes());
-    body.extend(4u32.to_le_bytes());
-    body.extend(b"zstd");
-    body.extend((data.len() as u64).to_le_bytes());
-    body.extend(data);
-    let mut rec = vec![mcap::records::op::CHUNK];
-    rec.extend((body.len() as u64).to_le_bytes());
-    rec.extend(body);
-    rec
-}
-
-/// Replaces the first chunk record of `log` by `chunk`.
-fn with_first_chunk(log: &[u8], chunk: &[u8]) -> Vec<u8> {
-    let (at, _, len) = top_level_records(log)
-        .into_iter()
-        .find(|r| r.1 == mcap::records::op::CHUNK)
-        .unwrap();
-    [&log[..at], chunk, &log[at + 9 + len..]].concat()
-}
-
 /// A 68 KB log (one chunk of 2 GiB of zeros) took 2.1 GB of memory. A chunk claiming more than
 /// the limit is refused before anything is allocated; one that lies about its size (claims
 /// 1 MiB, holds 64 MiB of zeros) never decompresses past its claim.
@@ -541,7 +497,7 @@ fn decompression_bomb_is_refused() {
     let claim = mireg::io::mcap_read::MAX_CHUNK_BYTES + 1;
     std::fs::write(
         &bomb,
-        with_first_chunk(&base, &zstd_zero_chunk(1 << 20, claim)),
+        mireg::fuzzing::with_first_chunk(&base, &mireg::fuzzing::zstd_zero_chunk(1 << 20, claim)),
     )
     .unwrap();
     let e = register_log(&options(&bomb, &out)).unwrap_err().to_string();
@@ -553,7 +509,10 @@ fn decompression_bomb_is_refused() {
     assert!(e.contains("more than the limit"), "{e}");
     std::fs::write(
         &bomb,
-        with_first_chunk(&base, &zstd_zero_chunk(64 << 20, 1 << 20)),
+        mireg::fuzzing::with_first_chunk(
+            &base,
+            &mireg::fuzzing::zstd_zero_chunk(64 << 20, 1 << 20),
+        ),
     )
     .unwrap();
     let e = for_each_record(&bomb, |_| Ok(())).unwrap_err().to_string();
@@ -779,7 +738,7 @@ fn errors_say_what_is_wrong_once() {
     let mut rec = vec![mcap::records::op::CHUNK];
     rec.extend((body.len() as u64).to_le_bytes());
     rec.extend(body);
-    std::fs::write(&nested, with_first_chunk(&base, &rec)).unwrap();
+    std::fs::write(&nested, mireg::fuzzing::with_first_chunk(&base, &rec)).unwrap();
     let e = for_each_record(&nested, |_| Ok(()))
         .unwrap_err()
         .to_string();

@@ -19,24 +19,18 @@ fn fixture() -> PathBuf {
 }
 
 fn options(input: &Path, output: &Path, voxel: f64) -> RegisterOptions {
-    RegisterOptions {
-        input: input.to_path_buf(),
-        output: output.to_path_buf(),
-        topic: None,
-        config: OdometryConfig {
-            pair: PairConfig {
-                voxel_size_m: voxel,
-                seed: 3,
-                ..Default::default()
-            },
+    let config = OdometryConfig {
+        pair: PairConfig {
+            voxel_size_m: voxel,
+            seed: 3,
             ..Default::default()
         },
+        ..Default::default()
+    };
+    RegisterOptions {
         force: false,
-        world_frame: "world".into(),
         command_line: "test".into(),
-        progress: false,
-        max_points_per_cloud: mireg::register::DEFAULT_MAX_POINTS_PER_CLOUD,
-        reorder_window: mireg::register::REORDER_WINDOW,
+        ..RegisterOptions::new(input, output, config)
     }
 }
 
