@@ -265,6 +265,13 @@ pub struct RegisterArgs {
     /// A registration with lower ICP fitness is flagged as failed.
     #[arg(long, default_value_t = OdometryConfig::default().min_fitness, value_parser = parse_fraction)]
     pub min_fitness: f64,
+    /// Register each frame to the previous one only: no refinement against a local map of
+    /// recent frames (chains frame-to-frame estimates; drifts more on long logs).
+    #[arg(long)]
+    pub no_local_map: bool,
+    /// Points kept per voxel of the local map (its voxel is the ICP voxel).
+    #[arg(long, value_name = "N", default_value_t = OdometryConfig::default().map_max_points_per_voxel)]
+    pub map_points_per_voxel: usize,
     /// Name of the world frame (the first cloud's sensor frame) in /tf and /mireg/pose.
     #[arg(long, default_value = "world")]
     pub world_frame: String,
@@ -575,6 +582,8 @@ fn run_register(args: &RegisterArgs) -> Result<()> {
         pair: args.flags.config()?,
         min_inliers: args.min_inliers,
         min_fitness: args.min_fitness,
+        local_map: !args.no_local_map,
+        map_max_points_per_voxel: args.map_points_per_voxel,
     };
     let opts = RegisterOptions {
         input: args.input.clone(),

@@ -304,6 +304,10 @@ pub fn stats_json_schema() -> serde_json::Value {
             "num_inliers": int, "inlier_ratio": num, "hypotheses": int,
             "best_found_at": {"type": ["integer", "null"]}, "fitness": num, "inlier_rmse_m": num,
             "icp_iterations": int,
+            "map_guess": {"type": ["string", "null"], "enum": ["global", "constant_velocity", null]},
+            "map_used": {"type": "boolean"}, "map_fitness": {"type": ["number", "null"]},
+            "map_inlier_rmse_m": {"type": ["number", "null"]},
+            "map_icp_iterations": {"type": ["integer", "null"]}, "map_points": {"type": ["integer", "null"]},
             "timings_s": {"type": "object", "additionalProperties": num}
         },
         "required": ["frame", "stamp_ns", "success", "failure_reason", "num_points", "num_points_downsampled",
@@ -338,6 +342,12 @@ fn frame_stats(out: &FrameOut) -> serde_json::Value {
         "fitness": p.map_or(0.0, |p| p.fitness),
         "inlier_rmse_m": p.map_or(0.0, |p| p.inlier_rmse_m),
         "icp_iterations": p.map_or(0, |p| p.icp_iterations) + e.fallback_icp_iterations,
+        "map_guess": e.map.map(|m| m.guess.as_str()),
+        "map_used": e.map.is_some_and(|m| m.used),
+        "map_fitness": e.map.map(|m| m.fitness),
+        "map_inlier_rmse_m": e.map.map(|m| m.inlier_rmse_m),
+        "map_icp_iterations": e.map.map(|m| m.iterations),
+        "map_points": e.map.map(|m| m.map_points),
         "timings_s": {
             "decode": out.decode_s,
             "downsample": out.prep.downsample,

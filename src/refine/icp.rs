@@ -195,7 +195,9 @@ pub struct RegistrationEvaluation {
 pub struct IcpTarget {
     points: Vec<Point3<f64>>,
     normals: Option<Vec<Vector3<f64>>>,
-    tree: ImmutableKdTree<f64, 3>,
+    /// Built on first use: ICP answers from a radius grid where it can, so a target that only
+    /// serves ICP (a local map rebuilt every frame) never pays for the tree.
+    tree: std::sync::OnceLock<ImmutableKdTree<f64, 3>>,
 }
 
 impl std::fmt::Debug for IcpTarget {
@@ -259,7 +261,7 @@ impl IcpTarget {
         Ok(Self {
             points: points.to_vec(),
             normals: Some(normals.to_vec()),
-            tree,
+            tree: std::sync::OnceLock::from(tree),
         })
     }
 
@@ -280,13 +282,10 @@ impl IcpTarget {
                 "target point {i} is not finite"
             )));
         }
-        let coords: Vec<[f64; 3]> = points.iter().map(|p| [p.x, p.y, p.z]).collect();
-        let tree = ImmutableKdTree::new_from_slice(&coords)
-            .map_err(|e| Error::InvalidInput(format!("building target kd-tree: {e:?}")))?;
         Ok(Self {
             points: points.to_vec(),
             normals: None,
-            tree,
+            tree: std::sync::OnceLock::new(),
         })
     }
 
@@ -300,9 +299,18 @@ impl IcpTarget {
         self.normals.as_deref()
     }
 
+    /// The kd-tree over the points (built on first use).
+    fn tree(&self) -> &ImmutableKdTree<f64, 3> {
+        self.tree.get_or_init(|| {
+            let coords: Vec<[f64; 3]> = self.points.iter().map(|p| [p.x, p.y, p.z]).collect();
+            // The points were checked (non-empty, finite, at most u32::MAX) when the target was made.
+            ImmutableKdTree::new_from_slice(&coords).expect("kd-tree over checked points")
+        })
+    }
+
     /// Squared distance \[m²\] from `p` to the nearest target point.
     pub fn nearest_distance_squared(&self, p: &Point3<f64>) -> f64 {
-        self.tree
+        self.tree()
             .query(&[p.x, p.y, p.z])
             .nearest_one::<SquaredEuclidean<f64>>()
             .execute()
@@ -314,7 +322,7 @@ impl IcpTarget {
     /// equidistant points is returned is kiddo's choice.
     fn nearest(&self, p: &Point3<f64>, max_squared: f64) -> Option<(usize, f64)> {
         let nn = self
-            .tree
+            .tree()
             .query(&[p.x, p.y, p.z])
             .nearest_one::<SquaredEuclidean<f64>>()
             .execute();

@@ -1,0 +1,194 @@
+//! A local map in the world frame, for refining each frame's pose against recent frames instead
+//! of the previous one alone: frame-to-map registration, as in KISS-ICP (Vizzo et al., "KISS-ICP:
+//! In Defense of Point-to-Point ICP", RA-L 2023, Sec. IV-D: a voxel hash of at most N points per
+//! voxel, voxels beyond the sensor's range of the current pose removed).
+//!
+//! NOTE: KISS-ICP registers point-to-point; we keep point-to-plane (our ICP), so each map point
+//! carries the normal estimated in the frame it came from, rotated into the world.
+//!
+//! Voxels are kept in a [`BTreeMap`], so the map's points come out in the same order for the same
+//! frames whatever the hash seed or thread count: the same seed gives the same poses.
+
+use std::collections::BTreeMap;
+
+use nalgebra::{Isometry3, Point3, Vector3};
+
+use super::icp::IcpTarget;
+use crate::{Error, Result};
+
+/// Settings of a [`LocalMap`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LocalMapConfig {
+    /// Edge of a map voxel \[m\]; `mireg register` uses the ICP voxel.
+    pub voxel_size_m: f64,
+    /// Points kept per voxel (the first ones to arrive). KISS-ICP's default: 20.
+    pub max_points_per_voxel: usize,
+}
+
+/// Points (with normals) of recent frames in the world frame.
+#[derive(Debug, Clone)]
+pub struct LocalMap {
+    config: LocalMapConfig,
+    voxels: BTreeMap<[i64; 3], Voxel>,
+    points: usize,
+}
+
+#[derive(Debug, Clone, Default)]
+struct Voxel {
+    points: Vec<Point3<f64>>,
+    normals: Vec<Vector3<f64>>,
+}
+
+impl LocalMap {
+    /// An empty map; fails unless the voxel is finite and positive and voxels hold a point.
+    pub fn new(config: LocalMapConfig) -> Result<Self> {
+        let v = config.voxel_size_m;
+        if !(v.is_finite() && v > 0.0) || config.max_points_per_voxel == 0 {
+            return Err(Error::InvalidInput(format!(
+                "local map: voxel_size_m must be finite and > 0 and max_points_per_voxel > 0, got {v} and {}",
+                config.max_points_per_voxel
+            )));
+        }
+        Ok(Self {
+            config,
+            voxels: BTreeMap::new(),
+            points: 0,
+        })
+    }
+
+    /// Points in the map.
+    pub fn len(&self) -> usize {
+        self.points
+    }
+
+    /// `true` before the first [`insert`](Self::insert).
+    pub fn is_empty(&self) -> bool {
+        self.points == 0
+    }
+
+    fn key(&self, p: &Point3<f64>) -> [i64; 3] {
+        let v = self.config.voxel_size_m;
+        [
+            (p.x / v).floor() as i64,
+            (p.y / v).floor() as i64,
+            (p.z / v).floor() as i64,
+        ]
+    }
+
+    /// Adds a frame's `points` and `normals` (sensor frame) at `world_from_frame`, into voxels not
+    /// yet full, then drops every voxel whose first point is farther than `max_distance_m` from the
+    /// frame's origin.
+    ///
+    /// # Panics
+    /// If `points` and `normals` differ in length.
+    pub fn insert(
+        &mut self,
+        world_from_frame: &Isometry3<f64>,
+        points: &[Point3<f64>],
+        normals: &[Vector3<f64>],
+        max_distance_m: f64,
+    ) {
+        assert_eq!(points.len(), normals.len(), "one normal per point");
+        let cap = self.config.max_points_per_voxel;
+        for (p, n) in points.iter().zip(normals) {
+            let w = world_from_frame * p;
+            if !w.coords.iter().all(|c| c.is_finite()) {
+                continue;
+            }
+            let key = self.key(&w);
+            let v = self.voxels.entry(key).or_default();
+            if v.points.len() < cap {
+                v.points.push(w);
+                v.normals.push(world_from_frame.rotation * n);
+                self.points += 1;
+            }
+        }
+        let origin = Point3::from(world_from_frame.translation.vector);
+        let max_sq = max_distance_m * max_distance_m;
+        let mut removed = 0;
+        self.voxels.retain(|_, v| {
+            let keep = (v.points[0] - origin).norm_squared() <= max_sq;
+            if !keep {
+                removed += v.points.len();
+            }
+            keep
+        });
+        self.points -= removed;
+    }
+
+    /// The map as an ICP target (points and normals in voxel order); `None` while empty.
+    pub fn target(&self) -> Result<Option<IcpTarget>> {
+        if self.is_empty() {
+            return Ok(None);
+        }
+        let mut points = Vec::with_capacity(self.points);
+        let mut normals = Vec::with_capacity(self.points);
+        for v in self.voxels.values() {
+            points.extend_from_slice(&v.points);
+            normals.extend_from_slice(&v.normals);
+        }
+        IcpTarget::new(&points, &normals).map(Some)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    fn map(voxel: f64, cap: usize) -> LocalMap {
+        LocalMap::new(LocalMapConfig {
+            voxel_size_m: voxel,
+            max_points_per_voxel: cap,
+        })
+        .unwrap()
+    }
+
+    #[test]
+    fn voxels_hold_at_most_their_cap_and_far_voxels_go() {
+        let mut m = map(1.0, 2);
+        let pts: Vec<Point3<f64>> = (0..5)
+            .map(|k| Point3::new(0.1 * k as f64, 0.5, 0.5))
+            .collect();
+        let normals = vec![Vector3::z(); pts.len()];
+        m.insert(&Isometry3::identity(), &pts, &normals, 100.0);
+        assert_eq!(m.len(), 2, "one voxel, capped at two");
+        // The same points seen from 10 m further along x land in another voxel.
+        let moved = Isometry3::from_parts(
+            Translation3::new(10.0, 0.0, 0.0),
+            UnitQuaternion::identity(),
+        );
+        m.insert(&moved, &pts, &normals, 100.0);
+        assert_eq!(m.len(), 4);
+        // From 20 m on, with a 5 m range, the first voxel (10+ m away) is dropped.
+        let far = Isometry3::from_parts(
+            Translation3::new(12.0, 0.0, 0.0),
+            UnitQuaternion::identity(),
+        );
+        m.insert(&far, &[], &[], 5.0);
+        assert_eq!(m.len(), 2);
+        let t = m.target().unwrap().unwrap();
+        assert!(t.points().iter().all(|p| p.x >= 10.0));
+    }
+
+    #[test]
+    fn points_and_normals_go_to_the_world_frame() {
+        let mut m = map(0.5, 20);
+        let pose = Isometry3::from_parts(
+            Translation3::new(1.0, 2.0, 3.0),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2),
+        );
+        m.insert(&pose, &[Point3::new(1.0, 0.0, 0.0)], &[Vector3::x()], 100.0);
+        let t = m.target().unwrap().unwrap();
+        assert!((t.points()[0] - Point3::new(1.0, 3.0, 3.0)).norm() < 1e-12);
+        assert!((t.normals().unwrap()[0] - Vector3::y()).norm() < 1e-12);
+        assert!(map(0.5, 20).target().unwrap().is_none());
+        assert!(
+            LocalMap::new(LocalMapConfig {
+                voxel_size_m: f64::NAN,
+                max_points_per_voxel: 1
+            })
+            .is_err()
+        );
+    }
+}
