@@ -95,6 +95,10 @@ pub struct MapFit {
     pub map_points: usize,
     /// Whether the refined pose was used (its fitness reached `min_fitness`).
     pub used: bool,
+    /// Seconds spent building the map target (points, normals, search grid).
+    pub target_s: f64,
+    /// Seconds spent in ICP against the map (every start).
+    pub icp_s: f64,
 }
 
 /// The estimate for one frame.
@@ -251,12 +255,16 @@ impl Odometry {
         Ok(est)
     }
 
-    /// ICP of `frame` against the local map from the global estimate (`est.world_from_frame`)
-    /// and from the constant-velocity prediction `predicted`; the best fit (highest fitness, then
-    /// lowest RMSE; the global start on a tie). The prediction is skipped where it is within
-    /// the correspondence distance and 1° of the global estimate (both would converge alike), and
-    /// the global start where global registration failed (its pose is then the prediction or
-    /// derived from it).
+    /// ICP of `frame` against the local map from the initial guesses that make sense: the global
+    /// estimate when global registration succeeded, and the constant-velocity prediction
+    /// `predicted` when there is no global estimate, or when the global start fitted the map
+    /// poorly (fitness below `min_fitness`) and the prediction is not within the correspondence
+    /// distance and 1° of it (both would converge alike). The best fit wins: highest fitness,
+    /// then lowest RMSE, the global start on a tie.
+    ///
+    /// NOTE: the prediction is not tried when the global start already fits the map: on the
+    /// KAIST03 keyframes trying both cost a third of the frame rate for no accuracy
+    /// (docs/ODOMETRY.md); where the global estimate is wrong, its fit to the map is poor.
     fn refine_on_map(
         &self,
         frame: &PreparedFrame,
@@ -266,43 +274,57 @@ impl Odometry {
         let (Some(map), Some(icp_cloud)) = (&self.map, &frame.icp) else {
             return Ok(None);
         };
+        let t = std::time::Instant::now();
         let Some(target) = map.target()? else {
             return Ok(None);
         };
+        let target_s = t.elapsed().as_secs_f64();
+        let t = std::time::Instant::now();
         let c = self.config.pair.resolved()?;
         let distance = c.icp_max_distance_m.unwrap_or(c.voxel_size_m);
         let icp = IcpConfig::new(distance).max_iterations(c.icp_max_iterations);
+        let fit = |guess, start: &Isometry3<f64>| -> Result<(Isometry3<f64>, MapFit)> {
+            let r = registration_icp_point_to_plane(icp_cloud.points(), &target, start, &icp)?;
+            let fit = MapFit {
+                guess,
+                fitness: r.fitness,
+                inlier_rmse_m: r.inlier_rmse_m,
+                iterations: r.iterations,
+                map_points: map.len(),
+                used: r.fitness >= self.config.min_fitness,
+                target_s,
+                icp_s: 0.0,
+            };
+            Ok((r.target_from_source, fit))
+        };
         let global = est.world_from_frame;
-        let apart = global.inverse() * predicted;
-        let close = apart.translation.vector.norm() <= distance
-            && apart.rotation.angle() <= 1f64.to_radians();
-        let mut starts = Vec::with_capacity(2);
-        if est.success {
-            starts.push((InitialGuess::Global, global));
-        }
-        if !est.success || !close {
-            starts.push((InitialGuess::ConstantVelocity, *predicted));
-        }
-        let mut best: Option<(Isometry3<f64>, MapFit)> = None;
-        for (guess, start) in starts {
-            let r = registration_icp_point_to_plane(icp_cloud.points(), &target, &start, &icp)?;
-            let better = best.as_ref().is_none_or(|(_, b)| {
-                r.fitness > b.fitness
-                    || (r.fitness == b.fitness && r.inlier_rmse_m < b.inlier_rmse_m)
-            });
-            if better {
-                let fit = MapFit {
-                    guess,
-                    fitness: r.fitness,
-                    inlier_rmse_m: r.inlier_rmse_m,
-                    iterations: r.iterations,
-                    map_points: map.len(),
-                    used: r.fitness >= self.config.min_fitness,
-                };
-                best = Some((r.target_from_source, fit));
+        let from_global = if est.success {
+            let f = fit(InitialGuess::Global, &global)?;
+            let apart = global.inverse() * predicted;
+            let close = apart.translation.vector.norm() <= distance
+                && apart.rotation.angle() <= 1f64.to_radians();
+            if f.1.used || close {
+                let (pose, fit) = f;
+                let icp_s = t.elapsed().as_secs_f64();
+                return Ok(Some((pose, MapFit { icp_s, ..fit })));
             }
-        }
-        Ok(best)
+            Some(f)
+        } else {
+            None
+        };
+        let from_prediction = fit(InitialGuess::ConstantVelocity, predicted)?;
+        let icp_s = t.elapsed().as_secs_f64();
+        let (pose, best) = match from_global {
+            Some(g)
+                if g.1.fitness > from_prediction.1.fitness
+                    || (g.1.fitness == from_prediction.1.fitness
+                        && g.1.inlier_rmse_m <= from_prediction.1.inlier_rmse_m) =>
+            {
+                g
+            }
+            _ => from_prediction,
+        };
+        Ok(Some((pose, MapFit { icp_s, ..best })))
     }
 
     /// Adds an accepted frame's ICP cloud at `world_from_frame` to the map; voxels farther than

@@ -357,6 +357,8 @@ fn frame_stats(out: &FrameOut) -> serde_json::Value {
             "ranking": t.ranking,
             "ransac": t.ransac,
             "icp": t.icp,
+            "map_target": e.map.map_or(0.0, |m| m.target_s),
+            "map_icp": e.map.map_or(0.0, |m| m.icp_s),
             "register": out.register_s,
         }
     })

@@ -18,6 +18,44 @@ use mireg::pipeline::PairConfig;
 use mireg::register::{RegisterOptions, register_log};
 use rand::{RngExt, SeedableRng};
 
+/// The global allocator, recording the largest single allocation each thread asks for, so that
+/// a test can assert that a hostile input never drove one (Linux overcommit would otherwise let a
+/// 4 GiB reservation pass unnoticed).
+struct Largest;
+
+thread_local! {
+    static LARGEST: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+}
+
+// SAFETY: forwards to the system allocator; the thread-local is a const-initialised Cell, whose
+// access neither allocates nor runs a destructor.
+unsafe impl std::alloc::GlobalAlloc for Largest {
+    unsafe fn alloc(&self, layout: std::alloc::Layout) -> *mut u8 {
+        LARGEST.with(|c| c.set(c.get().max(layout.size())));
+        unsafe { std::alloc::System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: std::alloc::Layout) {
+        unsafe { std::alloc::System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: std::alloc::Layout, new_size: usize) -> *mut u8 {
+        LARGEST.with(|c| c.set(c.get().max(new_size)));
+        unsafe { std::alloc::System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: Largest = Largest;
+
+/// The largest single allocation \[bytes\] that `f` made on this thread.
+fn largest_allocation<T>(f: impl FnOnce() -> T) -> (T, usize) {
+    LARGEST.with(|c| c.set(0));
+    let r = f();
+    (r, LARGEST.with(|c| c.get()))
+}
+
+/// Allocations a hostile input of a few kilobytes may justify: 64 MiB.
+const MODEST: usize = 64 << 20;
+
 fn mireg(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_mireg"))
         .args(args)
@@ -197,15 +235,56 @@ fn record_length_past_the_end_is_an_error_not_an_abort() {
     bytes.extend([0u8; 20]);
     let cut = dir.path().join("cut.mcap");
     std::fs::write(&cut, &bytes).unwrap();
-    for r in [
-        mireg::io::mcap_log::list_channels(&cut).map(|_| ()),
-        for_each_record(&cut, |_| Ok(())),
-        register_log(&options(&cut, &out)).map(|_| ()),
-    ] {
+    let (results, largest) = largest_allocation(|| {
+        [
+            mireg::io::mcap_log::list_channels(&cut).map(|_| ()),
+            for_each_record(&cut, |_| Ok(())),
+        ]
+    });
+    assert!(largest < MODEST, "allocated {largest} bytes at once");
+    for r in results
+        .into_iter()
+        .chain([register_log(&options(&cut, &out)).map(|_| ())])
+    {
         let e = r.unwrap_err().to_string();
         assert!(e.contains("cut.mcap") && e.contains("claims"), "{e}");
     }
     assert!(!out.exists());
+}
+
+/// A 27 KB log whose attachment name claims 4 GiB made the mcap crate's parser reserve 4 GiB (the
+/// `mcap_records` fuzz target's out-of-memory); every string length is now checked against its
+/// record first. In the summary section, such a record makes the summary unreadable, and the
+/// data section is read instead.
+#[test]
+fn a_string_longer_than_its_record_is_refused_before_allocation() {
+    let input = regression("attachment_name_4gib.mcap");
+    let (r, largest) = largest_allocation(|| for_each_record(&input, |_| Ok(())));
+    assert!(largest < MODEST, "allocated {largest} bytes at once");
+    let e = r.unwrap_err().to_string();
+    assert!(
+        e.contains("attachment_name_4gib.mcap") && e.contains("runs past its end"),
+        "{e}"
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let mut log = small(2);
+    let recs = top_level_records(&log);
+    let data_end = recs
+        .iter()
+        .position(|r| r.1 == mcap::records::op::DATA_END)
+        .unwrap();
+    let (at, _, _) = *recs[data_end..]
+        .iter()
+        .find(|r| r.1 == mcap::records::op::CHANNEL)
+        .unwrap();
+    // Channel: opcode, length, id (2), schema id (2), topic length (4).
+    log[at + 9 + 4..at + 9 + 8].copy_from_slice(&u32::MAX.to_le_bytes());
+    let path = dir.path().join("summary.mcap");
+    std::fs::write(&path, &log).unwrap();
+    let (channels, largest) = largest_allocation(|| mireg::io::mcap_log::list_channels(&path));
+    assert!(largest < MODEST, "allocated {largest} bytes at once");
+    let topics: Vec<String> = channels.unwrap().into_iter().map(|c| c.topic).collect();
+    assert_eq!(topics, ["/points", "/ground_truth/pose", "/notes"]);
 }
 
 /// Every cut of a valid log at a record boundary, and inside each record, is an error naming the
@@ -515,7 +594,12 @@ fn decompression_bomb_is_refused() {
         ),
     )
     .unwrap();
-    let e = for_each_record(&bomb, |_| Ok(())).unwrap_err().to_string();
+    let (r, largest) = largest_allocation(|| for_each_record(&bomb, |_| Ok(())));
+    assert!(
+        largest <= 2 << 20,
+        "allocated {largest} bytes at once for a 1 MiB claim"
+    );
+    let e = r.unwrap_err().to_string();
     assert!(e.contains("zstd decompression failed"), "{e}");
     assert!(register_log(&options(&bomb, &out)).is_err());
     assert!(!out.exists());

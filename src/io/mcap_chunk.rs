@@ -10,6 +10,7 @@ use std::io::Read;
 use mcap::records::{Channel, ChunkHeader, MessageHeader, MessageIndex, Record, op};
 
 use super::mcap_read::MAX_CHUNK_BYTES;
+use super::mcap_record::parse_record;
 use super::mcap_write::SchemaRecord;
 
 /// Decompresses chunks into a buffer reused from one chunk to the next.
@@ -26,10 +27,9 @@ impl std::fmt::Debug for ChunkDecoder {
 
 /// The header of a chunk record, parsed from its body (everything after opcode and length).
 pub fn chunk_header(body: &[u8]) -> Result<ChunkHeader, String> {
-    match mcap::parse_record(op::CHUNK, body) {
-        Ok(Record::Chunk { header, .. }) => Ok(header),
-        Ok(_) => Err("not a chunk record".into()),
-        Err(e) => Err(format!("bad chunk record: {e}")),
+    match parse_record(op::CHUNK, body)? {
+        Record::Chunk { header, .. } => Ok(header),
+        _ => Err("not a chunk record".into()),
     }
 }
 
@@ -46,13 +46,12 @@ impl ChunkDecoder {
     /// The uncompressed records of the chunk whose record body is `body`, with their CRC checked
     /// (unless the chunk stores none, i.e. 0), and the chunk header.
     pub fn decode<'a>(&'a mut self, body: &'a [u8]) -> Result<(ChunkHeader, &'a [u8]), String> {
-        let (header, data) = match mcap::parse_record(op::CHUNK, body) {
-            Ok(Record::Chunk { header, data }) => match data {
+        let (header, data) = match parse_record(op::CHUNK, body)? {
+            Record::Chunk { header, data } => match data {
                 std::borrow::Cow::Borrowed(d) => (header, d),
                 std::borrow::Cow::Owned(_) => return Err("chunk data not borrowed".into()),
             },
-            Ok(_) => return Err("not a chunk record".into()),
-            Err(e) => return Err(format!("bad chunk record: {e}")),
+            _ => return Err("not a chunk record".into()),
         };
         let size = header.uncompressed_size;
         if size > MAX_CHUNK_BYTES {
@@ -163,13 +162,12 @@ pub fn check_chunk_opcode(opcode: u8) -> Result<(), String> {
 
 /// The header and payload of a message record body.
 pub fn message(body: &[u8]) -> Result<(MessageHeader, &[u8]), String> {
-    match mcap::parse_record(op::MESSAGE, body) {
-        Ok(Record::Message { header, data }) => match data {
+    match parse_record(op::MESSAGE, body)? {
+        Record::Message { header, data } => match data {
             std::borrow::Cow::Borrowed(d) => Ok((header, d)),
             std::borrow::Cow::Owned(_) => Err("message data not borrowed".into()),
         },
-        Ok(_) => Err("not a message record".into()),
-        Err(e) => Err(format!("bad message record: {e}")),
+        _ => Err("not a message record".into()),
     }
 }
 
@@ -206,8 +204,8 @@ impl ChunkContents {
                 self.messages.push((offset, id, log_time));
                 return Ok(Some(id));
             }
-            op::SCHEMA | op::CHANNEL => match mcap::parse_record(opcode, body) {
-                Ok(Record::Schema { header, data }) => self.schemas.push((
+            op::SCHEMA | op::CHANNEL => match parse_record(opcode, body)? {
+                Record::Schema { header, data } => self.schemas.push((
                     header.id,
                     SchemaRecord {
                         name: header.name,
@@ -215,9 +213,8 @@ impl ChunkContents {
                         data: data.into_owned(),
                     },
                 )),
-                Ok(Record::Channel(c)) => self.channels.push(c),
-                Ok(_) => {}
-                Err(e) => return Err(format!("bad record (opcode 0x{opcode:02x}): {e}")),
+                Record::Channel(c) => self.channels.push(c),
+                _ => {}
             },
             _ => {}
         }

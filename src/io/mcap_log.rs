@@ -21,6 +21,7 @@ use super::atomic_file::PendingFile;
 use super::mcap_chunk::{self, ChunkContents, ChunkDecoder};
 pub use super::mcap_read::for_each_record;
 use super::mcap_read::{Source, io_err, mcap_err, read_summary};
+use super::mcap_record::parse_record;
 use super::mcap_write::{McapWriter, SchemaRecord};
 use crate::{Error, Result};
 
@@ -757,11 +758,8 @@ impl PassThrough<'_> {
         body: &[u8],
         on_message: &mut OnMessage<'_>,
     ) -> Result<()> {
-        let record = mcap::parse_record(opcode, body).map_err(|e| {
-            self.err(format!(
-                "record at offset {offset} (opcode 0x{opcode:02x}): {e}"
-            ))
-        })?;
+        let record = parse_record(opcode, body)
+            .map_err(|e| self.err(format!("record at offset {offset}: {e}")))?;
         let w = log.w();
         match record {
             Record::Schema { header, data } => {
@@ -819,7 +817,7 @@ impl PassThrough<'_> {
                 && let Some(g) = open.as_mut()
             {
                 src.body(opcode, len, &mut small)?;
-                match mcap::parse_record(opcode, &small) {
+                match parse_record(opcode, &small) {
                     Ok(Record::MessageIndex(i)) => g.index.push(i),
                     _ => {
                         return Err(

@@ -17,6 +17,7 @@ use mcap::records::{ChunkHeader, Record, op};
 use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader, SummaryReaderOptions};
 
 use super::mcap_chunk::{self, ChunkDecoder};
+use super::mcap_record::{check_lengths, parse_record};
 use crate::{Error, Result};
 
 /// Largest uncompressed chunk accepted, in bytes: 1 GiB. A chunk's declared uncompressed size is
@@ -254,21 +255,14 @@ pub fn for_each_record(path: &Path, mut f: impl FnMut(Record<'_>) -> Result<()>)
                 for r in mcap_chunk::records(records) {
                     let (_, opcode, b) = r.map_err(in_chunk)?;
                     mcap_chunk::check_chunk_opcode(opcode).map_err(in_chunk)?;
-                    let record = mcap::parse_record(opcode, b).map_err(|e| {
-                        in_chunk(format!("bad record (opcode 0x{opcode:02x}): {e}"))
-                    })?;
+                    let record = parse_record(opcode, b).map_err(in_chunk)?;
                     f(record)?;
                 }
             }
             _ => {
                 src.body(opcode, len, &mut body)?;
-                let record = mcap::parse_record(opcode, &body).map_err(|e| {
-                    mcap_err(
-                        path,
-                        &format!("record at offset {offset} (opcode 0x{opcode:02x})"),
-                        e,
-                    )
-                })?;
+                let record = parse_record(opcode, &body)
+                    .map_err(|e| mcap_err(path, &format!("record at offset {offset}"), e))?;
                 f(record)?;
             }
         }
@@ -277,10 +271,14 @@ pub fn for_each_record(path: &Path, mut f: impl FnMut(Record<'_>) -> Result<()>)
 
 /// The summary section of `path`; `None` when the file has none or it cannot be read (a log cut
 /// short has no footer: the caller then scans the records, which reports what is wrong). No
-/// record of the summary may claim more bytes than the file holds.
+/// record of the summary may claim more bytes than the file holds, nor hold a string longer than
+/// itself ([`check_lengths`]: the summary reader would allocate what it claims).
 pub(crate) fn read_summary(path: &Path) -> Result<Option<mcap::Summary>> {
     let mut file = File::open(path).map_err(|e| io_err(path, e))?;
     let size = file.metadata().map_err(|e| io_err(path, e))?.len();
+    if !summary_lengths_hold(&mut file, size).map_err(|e| io_err(path, e))? {
+        return Ok(None);
+    }
     let mut reader = SummaryReader::new_with_options(
         SummaryReaderOptions::default()
             .with_file_size(size)
@@ -302,4 +300,40 @@ pub(crate) fn read_summary(path: &Path) -> Result<Option<mcap::Summary>> {
         }
     }
     Ok(reader.finish())
+}
+
+/// Whether every record between the summary start (from the footer) and the footer fits in the
+/// section and passes [`check_lengths`]; `true` when there is no footer or no summary (the
+/// summary reader then finds nothing to allocate for).
+fn summary_lengths_hold(file: &mut File, size: u64) -> std::io::Result<bool> {
+    use std::io::SeekFrom;
+    const FOOTER: u64 = 9 + 8 + 8 + 4; // opcode, length, summary start, offset start, CRC
+    let Some(footer_at) = size.checked_sub(FOOTER + mcap::MAGIC.len() as u64) else {
+        return Ok(true);
+    };
+    let mut footer = [0u8; FOOTER as usize];
+    file.seek(SeekFrom::Start(footer_at))?;
+    file.read_exact(&mut footer)?;
+    let start = u64::from_le_bytes(footer[9..17].try_into().expect("8 bytes"));
+    if footer[0] != op::FOOTER || start == 0 || start > footer_at {
+        return Ok(true);
+    }
+    let mut section = vec![0u8; (footer_at - start) as usize];
+    file.seek(SeekFrom::Start(start))?;
+    file.read_exact(&mut section)?;
+    let mut rest = &section[..];
+    while !rest.is_empty() {
+        if rest.len() < 9 {
+            return Ok(false);
+        }
+        let len = u64::from_le_bytes(rest[1..9].try_into().expect("8 bytes"));
+        let Some(body) = usize::try_from(len).ok().and_then(|l| rest[9..].get(..l)) else {
+            return Ok(false);
+        };
+        if check_lengths(rest[0], body).is_err() {
+            return Ok(false);
+        }
+        rest = &rest[9 + body.len()..];
+    }
+    Ok(true)
 }

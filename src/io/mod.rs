@@ -11,6 +11,7 @@ pub mod log_order;
 pub mod mcap_chunk;
 pub mod mcap_log;
 pub mod mcap_read;
+pub mod mcap_record;
 pub mod mcap_write;
 pub mod pose_file;
 pub mod ros2;

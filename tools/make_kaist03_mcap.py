@@ -1,0 +1,115 @@
+#!/usr/bin/env python3
+"""Turn the MulRan KAIST03 keyframes (../shared/data/mulran_kaist03_keyframes: binary PCD scans,
+KITTI-format poses, UNIX times) into a ROS 2 MCAP that `mireg register` and
+tools/compare_kiss_icp.py read:
+
+* ``/os1_cloud_node/points`` -- ``sensor_msgs/msg/PointCloud2``, fields x, y, z, intensity FLOAT32
+  (point_step 16), frame_id ``os1_lidar``, stamped with times.txt;
+* ``/ground_truth/pose`` -- ``geometry_msgs/msg/PoseStamped``, frame_id ``world``, the reference
+  ``first_from_sensor_k = P_0^-1 P_k`` (SC-A-LOAM's loop-closed estimate, not survey ground truth).
+
+``--frames 0-3,8-10,16-20`` keeps only those scans (irregular gaps, as when a recorder drops
+messages). MulRan is CC BY-NC-SA 4.0: write the MCAP outside the repository (benchmarks only).
+
+Usage:
+    bash tools/setup_mcap_venv.sh
+    tools/.venv-mcap/bin/python tools/make_kaist03_mcap.py --out /tmp/kaist03.mcap
+    tools/.venv-mcap/bin/python tools/make_kaist03_mcap.py --frames 0-3,8-10,16-20 --out /tmp/kaist03_gaps.mcap
+"""
+
+import argparse
+import os
+import struct
+import sys
+
+from mcap.writer import CompressionType
+from mcap_ros2.writer import Writer as Ros2Writer
+
+TOOLS_DIR = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, TOOLS_DIR)
+import make_fixture_mcap as fx  # noqa: E402  (schemas, rigid-transform and message helpers)
+
+DEFAULT_DATA = os.path.join(TOOLS_DIR, "..", "..", "shared", "data", "mulran_kaist03_keyframes")
+CLOUD_TOPIC = "/os1_cloud_node/points"
+CLOUD_FRAME = "os1_lidar"
+FLOAT32 = 7
+
+
+def read_pcd_xyzi(path):
+    """(x, y, z, intensity) float32 bytes of a binary PCD v0.7 with exactly those fields."""
+    with open(path, "rb") as f:
+        blob = f.read()
+    end = blob.index(b"DATA binary\n") + len(b"DATA binary\n")
+    head = dict(line.split(" ", 1) for line in blob[:end].decode("ascii").splitlines() if line and line[0] != "#")
+    if head["FIELDS"].split() != ["x", "y", "z", "intensity"] or head["TYPE"].split() != ["F"] * 4:
+        raise SystemExit(f"{path}: expected float32 fields x y z intensity, got {head['FIELDS']} {head['TYPE']}")
+    n = int(head["POINTS"])
+    data = blob[end:end + 16 * n]
+    if len(data) != 16 * n:
+        raise SystemExit(f"{path}: {len(data)} data bytes, expected {16 * n}")
+    return n, data
+
+
+def read_kitti_poses(path):
+    poses = []
+    with open(path) as f:
+        for line in f:
+            v = [float(x) for x in line.split()]
+            if len(v) == 12:
+                poses.append([v[0:4], v[4:8], v[8:12], [0.0, 0.0, 0.0, 1.0]])
+    return poses
+
+
+def parse_frames(text, count):
+    if not text:
+        return list(range(count))
+    out = []
+    for part in text.split(","):
+        a, _, b = part.partition("-")
+        out.extend(range(int(a), int(b or a) + 1))
+    return out
+
+
+def main(argv):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data", default=DEFAULT_DATA)
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--frames", default="", help="scans to keep, e.g. 0-3,8-10,16-20 (default: all)")
+    args = ap.parse_args(argv)
+    if not os.path.isdir(args.data):
+        raise SystemExit(f"{args.data}: not found (the KAIST03 keyframes live in ../shared/data)")
+    poses = read_kitti_poses(os.path.join(args.data, "poses_kitti.txt"))
+    with open(os.path.join(args.data, "times.txt")) as f:
+        times = [float(x) for x in f.read().split()]
+    frames = parse_frames(args.frames, len(poses))
+    first_inv = fx.rigid_inverse(poses[frames[0]])
+    tmp = args.out + ".tmp"
+    with open(tmp, "wb") as f:
+        writer = Ros2Writer(f, compression=CompressionType.ZSTD)
+        cloud_schema = writer.register_msgdef("sensor_msgs/msg/PointCloud2", fx.POINT_CLOUD2_SCHEMA)
+        pose_schema = writer.register_msgdef("geometry_msgs/msg/PoseStamped", fx.POSE_STAMPED_SCHEMA)
+        for seq, k in enumerate(frames):
+            n, data = read_pcd_xyzi(os.path.join(args.data, "Scans", f"{k:06d}.pcd"))
+            t_ns = round(times[k] * 1e9)
+            cloud = {
+                "header": fx.header(t_ns, CLOUD_FRAME),
+                "height": 1,
+                "width": n,
+                "fields": [{"name": c, "offset": 4 * i, "datatype": FLOAT32, "count": 1}
+                           for i, c in enumerate(("x", "y", "z", "intensity"))],
+                "is_bigendian": False,
+                "point_step": 16,
+                "row_step": 16 * n,
+                "data": data,
+                "is_dense": True,
+            }
+            writer.write_message(CLOUD_TOPIC, cloud_schema, cloud, log_time=t_ns, publish_time=t_ns, sequence=seq)
+            pose = fx.pose_message(t_ns, fx.mat_mul(first_inv, poses[k]))
+            writer.write_message(fx.POSE_TOPIC, pose_schema, pose, log_time=t_ns, publish_time=t_ns, sequence=seq)
+        writer.finish()
+    os.replace(tmp, args.out)
+    print(f"{args.out}: {len(frames)} scans ({args.frames or 'all'}), {os.path.getsize(args.out)} bytes")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
