@@ -135,6 +135,21 @@ pub struct RegistrationFlags {
 }
 
 impl RegistrationFlags {
+    /// Whether the voxel was given, by `--voxel` or as `voxel_size_m` in the `--config` file.
+    pub fn voxel_configured(&self) -> Result<bool> {
+        if self.voxel.is_some() {
+            return Ok(true);
+        }
+        let Some(path) = &self.config else {
+            return Ok(false);
+        };
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let table: toml::Table = toml::from_str(&text)
+            .with_context(|| format!("{}: invalid configuration", path.display()))?;
+        Ok(table.contains_key("voxel_size_m"))
+    }
+
     /// The configuration: defaults, then `--config`, then explicit flags.
     pub fn config(&self) -> Result<PairConfig> {
         let mut c = match &self.config {
@@ -599,6 +614,7 @@ fn run_register(args: &RegisterArgs) -> Result<()> {
         progress: !args.quiet,
         max_points_per_cloud: args.max_points,
         reorder_window: args.reorder_window,
+        derive_voxel: !args.flags.voxel_configured()?,
     };
     let summary = register_log(&opts)?;
     if args.json {
@@ -631,6 +647,7 @@ fn run_default() -> Result<()> {
     let opts = RegisterOptions {
         command_line: command_line(),
         progress: true,
+        derive_voxel: true,
         ..RegisterOptions::new(&input, &output, OdometryConfig::default())
     };
     let summary = register_log(&opts)?;
@@ -648,6 +665,11 @@ fn print_summary(s: &RegisterSummary) {
         s.topic,
         s.output.display()
     );
+    let source = match s.voxel_source {
+        "first_cloud" => "from the first cloud's median range; --voxel sets it",
+        _ => "configured",
+    };
+    println!("voxel {:.3} m ({source})", s.voxel_m);
     println!(
         "failed frames {} ({:.1} %), mean inliers {:.1}, {:.2} frames/s ({:.2} s), {} input messages copied, poses on {} and {}",
         s.failed_frames,

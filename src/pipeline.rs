@@ -293,6 +293,30 @@ pub struct PrepareScratch {
     neighbourhoods: Neighbourhoods,
 }
 
+/// Voxel edge per metre of median range for [`voxel_for_cloud`]: 1/40. Chosen by measurement
+/// (docs/ODOMETRY.md): it gives 0.049 m on the ICL-NUIM RGB-D frames (median range 1.96 m; 0.05 m
+/// is their best voxel), 0.37 m on the MulRan KAIST03 Ouster keyframes (14.8 m) and 0.25 m on
+/// KITTI HDL-64 scans (10.1 m).
+pub const VOXEL_PER_MEDIAN_RANGE: f64 = 1.0 / 40.0;
+
+/// A voxel edge \[m\] that fits the sensor of `points` (sensor frame): the median distance of
+/// its finite, non-zero points from the origin times [`VOXEL_PER_MEDIAN_RANGE`], so that an
+/// indoor RGB-D cloud and an outdoor LiDAR scan both get a workable resolution. `None` for
+/// fewer than 3 such points.
+pub fn voxel_for_cloud(points: &[Point3<f64>]) -> Option<f64> {
+    let mut ranges: Vec<f64> = points
+        .iter()
+        .map(|p| p.coords.norm())
+        .filter(|r| r.is_finite() && *r > 0.0)
+        .collect();
+    if ranges.len() < 3 {
+        return None;
+    }
+    let mid = ranges.len() / 2;
+    let (_, median, _) = ranges.select_nth_unstable_by(mid, f64::total_cmp);
+    Some(*median * VOXEL_PER_MEDIAN_RANGE)
+}
+
 /// Mean of `points` (non-empty), summed in order.
 fn centroid(points: &[Point3<f64>]) -> Point3<f64> {
     let sum = points
@@ -546,6 +570,83 @@ pub fn register_prepared(
     target: &PreparedFrame,
     config: &PairConfig,
 ) -> Result<PairResult> {
+    register_prepared_with(source, target, config, true)
+}
+
+/// [`register_prepared`] up to the RANSAC model, without the ICP refinement: `target_from_source`
+/// is the RANSAC model, `fitness` and `inlier_rmse_m` are 0. For callers that refine elsewhere
+/// (odometry against its local map), or later with [`refine_prepared`].
+pub fn register_prepared_coarse(
+    source: &PreparedFrame,
+    target: &PreparedFrame,
+    config: &PairConfig,
+) -> Result<PairResult> {
+    register_prepared_with(source, target, config, false)
+}
+
+/// The ICP step of [`register_prepared`] on a result of [`register_prepared_coarse`] with a
+/// model: refines `out.ransac_target_from_source` and sets pose, fitness, RMSE, iterations and
+/// the ICP timing (and the total).
+pub fn refine_prepared(
+    out: &mut PairResult,
+    source: &PreparedFrame,
+    target: &PreparedFrame,
+    config: &PairConfig,
+) -> Result<()> {
+    let c = config.resolved()?;
+    let t = Instant::now();
+    let built;
+    let tree = match target.icp.as_ref().filter(|t| t.points() == target.points) {
+        Some(icp) => icp,
+        None => {
+            built = IcpTarget::points_only(&target.points)?;
+            &built
+        }
+    };
+    refine(out, source, target, &c, tree)?;
+    let icp_s = t.elapsed().as_secs_f64();
+    out.timings_s.icp = icp_s;
+    out.timings_s.total += icp_s;
+    Ok(())
+}
+
+/// ICP of `source` to `target` from `out.ransac_target_from_source` (or, without ICP clouds, the
+/// fitness of that model on the feature clouds, against `target_tree`).
+fn refine(
+    out: &mut PairResult,
+    source: &PreparedFrame,
+    target: &PreparedFrame,
+    c: &PairConfig,
+    target_tree: &IcpTarget,
+) -> Result<()> {
+    let model = out.ransac_target_from_source;
+    if let (Some(src_icp), Some(tgt_icp)) = (&source.icp, &target.icp) {
+        let icp_config =
+            IcpConfig::new(c.icp_max_distance_m.unwrap()).max_iterations(c.icp_max_iterations);
+        let r = registration_icp_point_to_plane(src_icp.points(), tgt_icp, &model, &icp_config)?;
+        out.target_from_source = r.target_from_source;
+        out.fitness = r.fitness;
+        out.inlier_rmse_m = r.inlier_rmse_m;
+        out.icp_iterations = r.iterations;
+    } else {
+        let e = evaluate_registration(
+            &source.points,
+            target_tree,
+            &model,
+            c.inlier_threshold_m.unwrap(),
+        )?;
+        out.fitness = e.fitness;
+        out.inlier_rmse_m = e.inlier_rmse_m;
+    }
+    Ok(())
+}
+
+fn register_prepared_with(
+    source: &PreparedFrame,
+    target: &PreparedFrame,
+    config: &PairConfig,
+    refined: bool,
+) -> Result<PairResult> {
     let c = config.resolved()?;
     let start = Instant::now();
     let mut out = PairResult {
@@ -660,26 +761,16 @@ pub fn register_prepared(
     };
     out.ransac_target_from_source = model;
     out.target_from_source = model;
-
-    let t = Instant::now();
-    if let (Some(src_icp), Some(tgt_icp)) = (&source.icp, &target.icp) {
-        let icp_config =
-            IcpConfig::new(c.icp_max_distance_m.unwrap()).max_iterations(c.icp_max_iterations);
-        let r = registration_icp_point_to_plane(src_icp.points(), tgt_icp, &model, &icp_config)?;
-        out.target_from_source = r.target_from_source;
-        out.fitness = r.fitness;
-        out.inlier_rmse_m = r.inlier_rmse_m;
-        out.icp_iterations = r.iterations;
-    } else {
-        let e = evaluate_registration(
-            &source.points,
-            target_tree()?,
-            &model,
-            c.inlier_threshold_m.unwrap(),
-        )?;
-        out.fitness = e.fitness;
-        out.inlier_rmse_m = e.inlier_rmse_m;
+    if !refined {
+        return Ok(finish(out));
     }
+    let t = Instant::now();
+    // With both ICP clouds the feature cloud's tree is not consulted (and not built).
+    let tree = match (&source.icp, &target.icp) {
+        (Some(_), Some(icp)) => icp,
+        _ => target_tree()?,
+    };
+    refine(&mut out, source, target, &c, tree)?;
     out.timings_s.icp = t.elapsed().as_secs_f64();
     Ok(finish(out))
 }

@@ -21,6 +21,7 @@ use crate::io::{foxglove_msgs, ros2};
 use crate::odometry::{FrameEstimate, Odometry, OdometryConfig};
 use crate::pipeline::{
     FailureReason, PrepareScratch, PreparedFrame, prepare_frame, prepare_frame_with,
+    voxel_for_cloud,
 };
 use crate::trajectory::{Trajectory, evaluate, free_mireg_namespace};
 use crate::{Error, Result};
@@ -65,6 +66,10 @@ pub struct RegisterOptions {
     /// chunk's clouds. A cloud that arrives after a later one was registered is an error naming
     /// both log times. Default [`REORDER_WINDOW`].
     pub reorder_window: usize,
+    /// Derive the voxel from the first cloud ([`voxel_for_cloud`]) instead of using
+    /// `config.pair.voxel_size_m` (`mireg register` without `--voxel` or a configured voxel).
+    /// Default `false`.
+    pub derive_voxel: bool,
 }
 
 impl RegisterOptions {
@@ -83,6 +88,7 @@ impl RegisterOptions {
             progress: false,
             max_points_per_cloud: DEFAULT_MAX_POINTS_PER_CLOUD,
             reorder_window: REORDER_WINDOW,
+            derive_voxel: false,
         }
     }
 }
@@ -135,6 +141,10 @@ pub struct RegisterSummary {
     pub mean_inliers: f64,
     /// Input messages copied.
     pub messages_copied: u64,
+    /// Voxel used \[m\].
+    pub voxel_m: f64,
+    /// Where it came from: `"configured"` (flag or configuration) or `"first_cloud"`.
+    pub voxel_source: &'static str,
     /// Wall-clock seconds for the whole run.
     pub elapsed_s: f64,
     /// Frames per second (wall clock).
@@ -472,6 +482,37 @@ fn write_frame(log: &mut OutputLog, ch: &Outputs, world_frame: &str, out: &Frame
     log.write(ch.stats, out.log_time, out.publish_time, &stats)
 }
 
+/// The voxel for the log's sensor ([`voxel_for_cloud`]) from the first cloud on `topic` that
+/// decodes to at least 3 points; `None` when none does (the configured voxel is then used).
+fn first_cloud_voxel(
+    input: &Path,
+    channels: &[ChannelInfo],
+    topic: &str,
+    kind: CloudKind,
+) -> Result<Option<f64>> {
+    use std::ops::ControlFlow::{Break, Continue};
+    let ids: Vec<u16> = channels
+        .iter()
+        .filter(|c| c.topic == topic)
+        .map(|c| c.id)
+        .collect();
+    let mut voxel = None;
+    crate::io::mcap_read::for_each_record_until(input, |r| {
+        if let mcap::records::Record::Message { header, data } = r
+            && ids.contains(&header.channel_id)
+            && let Ok(cloud) = kind.decode(&data)
+        {
+            voxel = voxel_for_cloud(&cloud.points);
+        }
+        Ok(if voxel.is_some() {
+            Break(())
+        } else {
+            Continue(())
+        })
+    })?;
+    Ok(voxel)
+}
+
 /// Fails unless `input` is a regular file, saying once what is wrong and what is accepted.
 fn check_input(input: &Path) -> Result<()> {
     const ACCEPTED: &str = "mireg register reads one MCAP file (.mcap)";
@@ -508,10 +549,18 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
             opts.output.display()
         )));
     }
-    let mut odometry = Odometry::new(opts.config.clone())?;
     let catalog = InputCatalog::read(input)?;
     let channels = catalog.channel_infos();
     let (topic, kind) = choose_topic(input, &channels, opts.topic.as_deref())?;
+    let mut config = opts.config.clone();
+    let mut voxel_source = "configured";
+    if opts.derive_voxel
+        && let Some(v) = first_cloud_voxel(input, &channels, &topic, kind)?
+    {
+        config.pair.voxel_size_m = v;
+        voxel_source = "first_cloud";
+    }
+    let mut odometry = Odometry::new(config.clone())?;
     // A log registered before keeps its mireg topics; this run's go to the next namespace
     // (`/mireg_2/…`), so that no topic mixes two runs.
     let namespace = free_mireg_namespace(channels.iter().map(|c| c.topic.as_str()));
@@ -570,7 +619,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     let mut estimates: Vec<(i64, Isometry3<f64>, bool, usize)> = Vec::new(); // (stamp, pose, success, inliers)
     let mut reference: Vec<(i64, Isometry3<f64>)> = Vec::new();
     let mut copied = 0u64;
-    let config = &opts.config;
+    let config = &config;
     let max_points = opts.max_points_per_cloud;
 
     std::thread::scope(|scope| -> Result<()> {
@@ -755,9 +804,10 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     meta.insert("version".to_string(), env!("CARGO_PKG_VERSION").to_string());
     meta.insert(
         "config".to_string(),
-        serde_json::to_string(&opts.config).expect("config JSON"),
+        serde_json::to_string(config).expect("config JSON"),
     );
-    meta.insert("seed".to_string(), opts.config.pair.seed.to_string());
+    meta.insert("voxel_source".to_string(), voxel_source.to_string());
+    meta.insert("seed".to_string(), config.pair.seed.to_string());
     meta.insert("command_line".to_string(), opts.command_line.clone());
     meta.insert("input".to_string(), input.display().to_string());
     meta.insert("topic".to_string(), topic.clone());
@@ -792,6 +842,8 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         failed_frames,
         mean_inliers,
         messages_copied: copied,
+        voxel_m: config.pair.voxel_size_m,
+        voxel_source,
         elapsed_s,
         frames_per_s: frames as f64 / elapsed_s.max(1e-9),
         reference,

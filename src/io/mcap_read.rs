@@ -226,6 +226,16 @@ pub(crate) fn not_a_regular_file(path: &Path, meta: &std::fs::Metadata) -> Error
 /// CRC or size does not match, a chunk inside a chunk) is an [`Error::Format`] naming the file
 /// and the record's offset.
 pub fn for_each_record(path: &Path, mut f: impl FnMut(Record<'_>) -> Result<()>) -> Result<()> {
+    for_each_record_until(path, |r| f(r).map(|()| std::ops::ControlFlow::Continue(())))
+}
+
+/// [`for_each_record`] that stops as soon as `f` says [`ControlFlow::Break`]
+/// (`std::ops::ControlFlow`), without reading further (e.g. for the first cloud of a log).
+pub fn for_each_record_until(
+    path: &Path,
+    mut f: impl FnMut(Record<'_>) -> Result<std::ops::ControlFlow<()>>,
+) -> Result<()> {
+    use std::ops::ControlFlow::Break;
     let mut src = Source::open(path, 1 << 20)?;
     let mut decoder = ChunkDecoder::new().map_err(|e| mcap_err(path, "reading MCAP records", e))?;
     let mut body = Vec::new();
@@ -256,14 +266,18 @@ pub fn for_each_record(path: &Path, mut f: impl FnMut(Record<'_>) -> Result<()>)
                     let (_, opcode, b) = r.map_err(in_chunk)?;
                     mcap_chunk::check_chunk_opcode(opcode).map_err(in_chunk)?;
                     let record = parse_record(opcode, b).map_err(in_chunk)?;
-                    f(record)?;
+                    if let Break(()) = f(record)? {
+                        return Ok(());
+                    }
                 }
             }
             _ => {
                 src.body(opcode, len, &mut body)?;
                 let record = parse_record(opcode, &body)
                     .map_err(|e| mcap_err(path, &format!("record at offset {offset}"), e))?;
-                f(record)?;
+                if let Break(()) = f(record)? {
+                    return Ok(());
+                }
             }
         }
     }
