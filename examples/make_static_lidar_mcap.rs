@@ -45,7 +45,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             stamp: Time::from_ns(t as i64).ok_or("stamp")?,
             frame_id: "velodyne".into(),
         };
-        log.write(clouds, t, t, &ros2::encode_point_cloud2(&header, &pts, None))?;
+        log.write(
+            clouds,
+            t,
+            t,
+            &ros2::encode_point_cloud2(&header, &pts, None),
+        )?;
     }
     log.finish()?;
     println!("wrote {} ({frames} frames, noise {sigma} m)", out.display());

@@ -68,22 +68,26 @@ fn register_without_voxel_derives_it_from_the_first_cloud() {
     )
     .unwrap();
     let out = dir.path().join("out.mcap");
-    let run = std::process::Command::new(env!("CARGO_BIN_EXE_mireg"))
-        .args([
-            "register",
-            input.to_str().unwrap(),
-            "-o",
-            out.to_str().unwrap(),
-            "--json",
-        ])
-        .output()
-        .unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
-    let s: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    let register = |extra: &[&str]| -> serde_json::Value {
+        let run = std::process::Command::new(env!("CARGO_BIN_EXE_mireg"))
+            .args([
+                "register",
+                input.to_str().unwrap(),
+                "-o",
+                out.to_str().unwrap(),
+            ])
+            .args(["--json", "--force"])
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        serde_json::from_slice(&run.stdout).unwrap()
+    };
+    let s = register(&[]);
     assert_eq!(s["voxel_source"], "first_cloud");
     // The seed log's first cloud, decoded by the library, gives the same voxel.
     let mut first = None;
@@ -99,20 +103,7 @@ fn register_without_voxel_derives_it_from_the_first_cloud() {
     .unwrap();
     let expected = median_range(&first.unwrap()) * VOXEL_PER_MEDIAN_RANGE;
     assert!((s["voxel_m"].as_f64().unwrap() - expected).abs() < 1e-12);
-    let run = std::process::Command::new(env!("CARGO_BIN_EXE_mireg"))
-        .args([
-            "register",
-            input.to_str().unwrap(),
-            "-o",
-            out.to_str().unwrap(),
-            "--json",
-            "--force",
-            "--voxel",
-            "0.07",
-        ])
-        .output()
-        .unwrap();
-    let s: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    let s = register(&["--voxel", "0.07"]);
     assert_eq!(
         (s["voxel_source"].as_str(), s["voxel_m"].as_f64()),
         (Some("configured"), Some(0.07))

@@ -33,6 +33,9 @@ from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer as Ros2Writer
 
 from kiss_icp.config import load_config
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from make_kaist03_mcap import parse_frames  # noqa: E402
 from kiss_icp.kiss_icp import KissICP
 
 CLOUD = "sensor_msgs/msg/PointCloud2"
@@ -84,16 +87,6 @@ def read_log(path, topic, reference_topic):
             elif schema.name == POSE and channel.topic == reference_topic:
                 reference[stamp_ns(msg.header)] = pose_matrix(msg.pose)
     return cloud_topic, clouds, reference
-
-
-def parse_frames(text, n):
-    if not text:
-        return list(range(n))
-    out = []
-    for part in text.split(","):
-        a, _, b = part.partition("-")
-        out.extend(range(int(a), int(b or a) + 1))
-    return [k for k in out if k < n]
 
 
 def write_subset(src, topic, clouds, reference_topic, out):
