@@ -284,6 +284,10 @@ pub struct RegisterArgs {
     /// recent frames (chains frame-to-frame estimates; drifts more on long logs).
     #[arg(long)]
     pub no_local_map: bool,
+    /// Motion-compensate clouds with per-point times (Ouster t, Velodyne time, Hesai timestamp,
+    /// Livox offset_time, time_stamp): auto when the field is present, on (required), off.
+    #[arg(long, value_enum, default_value_t = crate::register::DeskewMode::Auto)]
+    pub deskew: crate::register::DeskewMode,
     /// Points kept per voxel of the local map (its voxel is the ICP voxel).
     #[arg(long, value_name = "N", default_value_t = OdometryConfig::default().map_max_points_per_voxel)]
     pub map_points_per_voxel: usize,
@@ -615,6 +619,7 @@ fn run_register(args: &RegisterArgs) -> Result<()> {
         max_points_per_cloud: args.max_points,
         reorder_window: args.reorder_window,
         derive_voxel: !args.flags.voxel_configured()?,
+        deskew: args.deskew,
     };
     let summary = register_log(&opts)?;
     if args.json {

@@ -14,6 +14,7 @@ use std::time::Instant;
 use nalgebra::Isometry3;
 use serde_json::json;
 
+use crate::geometry::deskew::deskew;
 use crate::io::atomic_file::same_file;
 use crate::io::log_order::{ChunkTimes, Reorder};
 use crate::io::mcap_log::{ChannelInfo, InputCatalog, OutputLog, pass_through};
@@ -70,6 +71,56 @@ pub struct RegisterOptions {
     /// `config.pair.voxel_size_m` (`mireg register` without `--voxel` or a configured voxel).
     /// Default `false`.
     pub derive_voxel: bool,
+    /// Whether clouds with per-point times are motion-compensated. Default
+    /// [`DeskewMode::Auto`].
+    pub deskew: DeskewMode,
+}
+
+/// `--deskew`: motion compensation of clouds with per-point times
+/// ([`crate::io::point_time`], [`crate::geometry::deskew`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DeskewMode {
+    /// Deskew every cloud that has a time field.
+    #[default]
+    Auto,
+    /// As `auto`, and a cloud without a time field is an error.
+    On,
+    /// Never deskew.
+    Off,
+}
+
+/// The motions of registered frames as the registering thread reports them, for deskewing:
+/// frame `k` is deskewed with frame `k − 2`'s motion, the latest one that is surely known when
+/// `k` is prepared (frame `k − 1` is being registered meanwhile), so the result does not depend
+/// on thread timing.
+struct Motions {
+    rx: Receiver<(usize, Isometry3<f64>, f64)>,
+    known: BTreeMap<usize, (Isometry3<f64>, f64)>,
+}
+
+impl Motions {
+    fn new(rx: Receiver<(usize, Isometry3<f64>, f64)>) -> Self {
+        Self {
+            rx,
+            known: BTreeMap::new(),
+        }
+    }
+
+    /// Frame `k`'s motion (`prev_from_curr`, and the seconds it took), waiting for it; `None`
+    /// for the first two frames (no motion yet) or once registration has stopped.
+    fn of(&mut self, k: Option<usize>) -> Option<(Isometry3<f64>, f64)> {
+        let k = k.filter(|&k| k >= 1)?;
+        while !self.known.contains_key(&k) {
+            let (i, m, dt) = self.rx.recv().ok()?;
+            self.known.insert(i, (m, dt));
+        }
+        self.known = self.known.split_off(&k);
+        self.known
+            .get(&k)
+            .copied()
+            .filter(|(_, dt)| dt.is_finite() && *dt > 0.0)
+    }
 }
 
 impl RegisterOptions {
@@ -89,6 +140,7 @@ impl RegisterOptions {
             max_points_per_cloud: DEFAULT_MAX_POINTS_PER_CLOUD,
             reorder_window: REORDER_WINDOW,
             derive_voxel: false,
+            deskew: DeskewMode::Auto,
         }
     }
 }
@@ -263,6 +315,9 @@ struct CloudMsg {
 struct PreparedMsg {
     /// Why the cloud could not be decoded or prepared (the frame is then empty and flagged).
     invalid: Option<(FailureReason, String)>,
+    /// The cloud's time field, and whether its points were deskewed by it.
+    time_field: Option<String>,
+    deskewed: bool,
     log_time: u64,
     publish_time: u64,
     header: ros2::Header,
@@ -272,6 +327,8 @@ struct PreparedMsg {
 
 struct FrameOut {
     invalid: Option<(FailureReason, String)>,
+    time_field: Option<String>,
+    deskewed: bool,
     log_time: u64,
     publish_time: u64,
     header: ros2::Header,
@@ -314,6 +371,7 @@ pub fn stats_json_schema() -> serde_json::Value {
             "num_inliers": int, "inlier_ratio": num, "hypotheses": int,
             "best_found_at": {"type": ["integer", "null"]}, "fitness": num, "inlier_rmse_m": num,
             "icp_iterations": int,
+            "deskewed": {"type": "boolean"}, "time_field": {"type": ["string", "null"]},
             "map_guess": {"type": ["string", "null"], "enum": ["global", "constant_velocity", null]},
             "map_used": {"type": "boolean"}, "map_fitness": {"type": ["number", "null"]},
             "map_inlier_rmse_m": {"type": ["number", "null"]},
@@ -352,6 +410,8 @@ fn frame_stats(out: &FrameOut) -> serde_json::Value {
         "fitness": p.map_or(0.0, |p| p.fitness),
         "inlier_rmse_m": p.map_or(0.0, |p| p.inlier_rmse_m),
         "icp_iterations": p.map_or(0, |p| p.icp_iterations) + e.fallback_icp_iterations,
+        "deskewed": out.deskewed,
+        "time_field": out.time_field,
         "map_guess": e.map.map(|m| m.guess.as_str()),
         "map_used": e.map.is_some_and(|m| m.used),
         "map_fitness": e.map.map(|m| m.fitness),
@@ -621,6 +681,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     let mut copied = 0u64;
     let config = &config;
     let max_points = opts.max_points_per_cloud;
+    let deskew_mode = opts.deskew;
 
     std::thread::scope(|scope| -> Result<()> {
         let (cloud_tx, cloud_rx): (SyncSender<CloudMsg>, Receiver<CloudMsg>) =
@@ -629,15 +690,21 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         // Unbounded: results are small (no point data), and the reading thread, which drains them,
         // may itself be blocked handing on a cloud; a bound here could close a cycle and deadlock.
         let (out_tx, out_rx) = std::sync::mpsc::channel::<Result<FrameOut>>();
+        // Each registered frame's motion, back to the preparing thread for deskewing (unbounded:
+        // one small message per frame, drained as frames are prepared).
+        let (motion_tx, motion_rx) = std::sync::mpsc::channel::<(usize, Isometry3<f64>, f64)>();
         let topic_ref = topic.as_str();
 
         scope.spawn(move || {
             let mut scratch = PrepareScratch::default();
             // The frame id of a cloud that cannot be decoded: the previous cloud's.
             let mut last_frame_id = String::new();
+            let mut frame_index = 0usize;
+            let mut motions = Motions::new(motion_rx);
             for msg in cloud_rx {
                 let t = Instant::now();
                 let decoded = kind.decode(&msg.data);
+                let (mut time_field, mut deskewed, mut fatal) = (None, false, None);
                 // The message bytes are not needed past decoding: don't hold them through prepare.
                 drop(msg.data);
                 let decode_s = t.elapsed().as_secs_f64();
@@ -659,13 +726,37 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                         );
                         (cloud.header, Err((FailureReason::TooManyPoints, detail)))
                     }
-                    Ok(cloud) => {
+                    Ok(mut cloud) => {
+                        if let Some(times) = &cloud.times {
+                            time_field = Some(times.field.clone());
+                            if deskew_mode != DeskewMode::Off
+                                && let Some((motion, dt)) = motions.of(frame_index.checked_sub(2))
+                            {
+                                deskew(&mut cloud.points, &times.seconds, &motion, dt);
+                                deskewed = true;
+                            }
+                        } else if deskew_mode == DeskewMode::On {
+                            let detail = format!(
+                                "--deskew on: no per-point time field (one of {})",
+                                crate::io::point_time::TIME_FIELDS.join(", ")
+                            );
+                            fatal = Some(Error::InvalidInput(format!(
+                                "{}: cloud on {topic_ref} at log time {} ns: {detail}",
+                                input.display(),
+                                msg.log_time
+                            )));
+                        }
                         let prepared =
                             prepare_frame_with(&cloud.points, &config.pair, &mut scratch)
                                 .map_err(|e| (FailureReason::InvalidCloud, e.to_string()));
                         (cloud.header, prepared)
                     }
                 };
+                if let Some(e) = fatal.take() {
+                    let _ = prep_tx.send(Err(e));
+                    break;
+                }
+                frame_index += 1;
                 last_frame_id.clone_from(&header.frame_id);
                 let r = match prepared {
                     Ok(f) => Ok((f, None)),
@@ -673,6 +764,8 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                 }
                 .map(|(frame, invalid)| PreparedMsg {
                     invalid,
+                    time_field,
+                    deskewed,
                     log_time: msg.log_time,
                     publish_time: msg.publish_time,
                     header,
@@ -687,6 +780,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         });
         let odometry = &mut odometry;
         scope.spawn(move || {
+            let mut previous_stamp: Option<i64> = None;
             for (k, msg) in prep_rx.into_iter().enumerate() {
                 if k % TRIM_EVERY_FRAMES == TRIM_EVERY_FRAMES - 1 {
                     crate::heap::trim();
@@ -698,8 +792,15 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                     if let Some((reason, _)) = &m.invalid {
                         est.failure = Some(*reason);
                     }
+                    // The motion and its duration, for deskewing a later frame.
+                    let stamp = m.header.stamp.to_ns();
+                    let dt = previous_stamp.map_or(f64::NAN, |p| (stamp - p) as f64 * 1e-9);
+                    previous_stamp = Some(stamp);
+                    let _ = motion_tx.send((k, est.prev_from_curr, dt));
                     Ok(FrameOut {
                         invalid: m.invalid,
+                        time_field: m.time_field,
+                        deskewed: m.deskewed,
                         log_time: m.log_time,
                         publish_time: m.publish_time,
                         header: m.header,

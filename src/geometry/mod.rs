@@ -1,6 +1,7 @@
 //! Point-cloud geometry: voxel-grid downsampling, kd-tree neighbourhoods and normal estimation,
 //! matching Open3D's semantics (see each module for where and why we depart).
 
+pub mod deskew;
 pub mod grid;
 pub mod kdtree;
 pub mod normals;

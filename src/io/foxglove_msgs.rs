@@ -180,6 +180,7 @@ pub fn decode_foxglove_point_cloud(payload: &[u8]) -> Result<PointCloud, DecodeE
             header,
             points: Vec::new(),
             intensity: None,
+            times: None,
             width: 0,
             height: 1,
             num_dropped_non_finite: 0,
@@ -269,6 +270,7 @@ pub fn decode_foxglove_point_cloud(payload: &[u8]) -> Result<PointCloud, DecodeE
     let layout = PackedLayout {
         xyz,
         intensity,
+        time: None,
         big_endian: false,
     };
     let mut ex = extract(data, &layout, 1, n, 0, stride);
@@ -281,6 +283,7 @@ pub fn decode_foxglove_point_cloud(payload: &[u8]) -> Result<PointCloud, DecodeE
         header,
         points: ex.points,
         intensity: ex.intensity,
+        times: None,
         width,
         height: 1,
         num_dropped_non_finite: ex.num_dropped_non_finite,

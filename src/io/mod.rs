@@ -13,6 +13,7 @@ pub mod mcap_log;
 pub mod mcap_read;
 pub mod mcap_record;
 pub mod mcap_write;
+pub mod point_time;
 pub mod pose_file;
 pub mod ros2;
 mod scalar;

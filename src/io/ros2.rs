@@ -255,6 +255,9 @@ pub struct PointCloud {
     pub points: Vec<Point3<f64>>,
     /// Per-point intensity parallel to `points`, if the message has an `intensity` field.
     pub intensity: Option<Vec<f32>>,
+    /// Per-point acquisition times parallel to `points`, if the message has a time field
+    /// ([`super::point_time::TIME_FIELDS`]).
+    pub times: Option<super::point_time::PointTimes>,
     /// Points per row in the message (before dropping non-finite points).
     pub width: u32,
     /// Rows in the message (1 for unorganised clouds).
@@ -643,6 +646,8 @@ pub(crate) struct PackedField {
 pub(crate) struct PackedLayout {
     pub(crate) xyz: [Option<PackedField>; 3],
     pub(crate) intensity: Option<PackedField>,
+    /// A per-point time field (read as `f64`).
+    pub(crate) time: Option<PackedField>,
     pub(crate) big_endian: bool,
 }
 
@@ -677,6 +682,7 @@ pub(crate) fn check_field_fits(
 pub(crate) struct Extracted {
     pub(crate) points: Vec<Point3<f64>>,
     pub(crate) intensity: Option<Vec<f32>>,
+    pub(crate) times: Option<Vec<f64>>,
     pub(crate) num_dropped_non_finite: usize,
 }
 
@@ -693,6 +699,7 @@ pub(crate) fn extract(
     let n = rows * cols;
     let mut points = Vec::with_capacity(n);
     let mut intensity = layout.intensity.map(|_| Vec::with_capacity(n));
+    let mut times = layout.time.map(|_| Vec::with_capacity(n));
     let mut dropped = 0;
     let read = |point: &[u8], f: Option<PackedField>| {
         f.map_or(0.0, |f| f.kind.read(&point[f.offset..], layout.big_endian))
@@ -714,11 +721,15 @@ pub(crate) fn extract(
             if let Some(out) = intensity.as_mut() {
                 out.push(read(point, layout.intensity) as f32);
             }
+            if let Some(out) = times.as_mut() {
+                out.push(read(point, layout.time));
+            }
         }
     }
     Extracted {
         points,
         intensity,
+        times,
         num_dropped_non_finite: dropped,
     }
 }
@@ -788,6 +799,7 @@ pub fn decode_point_cloud2(payload: &[u8]) -> Result<PointCloud, DecodeError> {
         header,
         points: Vec::new(),
         intensity: None,
+        times: None,
         width,
         height,
         num_dropped_non_finite: 0,
@@ -827,9 +839,17 @@ pub fn decode_point_cloud2(payload: &[u8]) -> Result<PointCloud, DecodeError> {
         )
         .map(Some)
     };
+    let mut time_field = None;
+    for name in super::point_time::TIME_FIELDS {
+        if let Some(f) = find(name, false)? {
+            time_field = Some((name, f));
+            break;
+        }
+    }
     let layout = PackedLayout {
         xyz: [find("x", true)?, find("y", true)?, find("z", true)?],
         intensity: find("intensity", false)?,
+        time: time_field.map(|(_, f)| f),
         big_endian: is_bigendian,
     };
 
@@ -875,9 +895,14 @@ pub fn decode_point_cloud2(payload: &[u8]) -> Result<PointCloud, DecodeError> {
         if height > 1 { row_step as usize } else { 0 },
         point_step as usize,
     );
+    let stamp_s = empty.header.stamp.to_ns() as f64 * 1e-9;
+    let times = time_field
+        .zip(ex.times)
+        .map(|((name, f), raw)| super::point_time::point_times(name, f.kind, raw, stamp_s));
     Ok(PointCloud {
         points: ex.points,
         intensity: ex.intensity,
+        times,
         num_dropped_non_finite: ex.num_dropped_non_finite,
         ..empty
     })
