@@ -699,9 +699,8 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
             let mut scratch = PrepareScratch::default();
             // The frame id of a cloud that cannot be decoded: the previous cloud's.
             let mut last_frame_id = String::new();
-            let mut frame_index = 0usize;
             let mut motions = Motions::new(motion_rx);
-            for msg in cloud_rx {
+            for (frame_index, msg) in cloud_rx.into_iter().enumerate() {
                 let t = Instant::now();
                 let decoded = kind.decode(&msg.data);
                 let (mut time_field, mut deskewed, mut fatal) = (None, false, None);
@@ -756,7 +755,6 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                     let _ = prep_tx.send(Err(e));
                     break;
                 }
-                frame_index += 1;
                 last_frame_id.clone_from(&header.frame_id);
                 let r = match prepared {
                     Ok(f) => Ok((f, None)),
