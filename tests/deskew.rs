@@ -112,6 +112,9 @@ fn cloud_with_time(name: &str, datatype: u8, stamp: ros2::Time, values: &[f64]) 
     w.finish()
 }
 
+/// A time-field case: field, PointField datatype, raw values, convention, seconds after the stamp.
+type Case = (&'static str, u8, Vec<f64>, TimeConvention, Vec<f64>);
+
 #[test]
 fn time_fields_of_each_driver_decode_as_seconds_after_the_stamp() {
     let stamp = ros2::Time {
@@ -119,7 +122,8 @@ fn time_fields_of_each_driver_decode_as_seconds_after_the_stamp() {
         nanosec: 500_000_000,
     };
     let abs = 1_700_000_000.5;
-    let cases: [(&str, u8, Vec<f64>, TimeConvention, Vec<f64>); 5] = [
+    // (field, PointField datatype, raw values, convention, seconds after the stamp)
+    let cases: [Case; 5] = [
         (
             "t",
             6,
