@@ -1,0 +1,202 @@
+//! What `mireg register` adds to the log: its channels (`/tf`, the pose and statistics topics, in
+//! the input's message family), one message of each per frame, and the statistics' JSON Schema.
+
+use serde_json::json;
+
+use super::{CloudKind, FrameOut};
+use crate::Result;
+use crate::io::mcap_log::OutputLog;
+use crate::io::{foxglove_msgs, ros2};
+
+/// JSON Schema of the `/mireg/stats` messages.
+pub fn stats_json_schema() -> serde_json::Value {
+    let num = json!({"type": "number"});
+    let int = json!({"type": "integer"});
+    json!({
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": "mireg.FrameStats",
+        "description": "Per-frame registration statistics written by mireg register",
+        "type": "object",
+        "properties": {
+            "frame": int, "stamp_ns": int, "success": {"type": "boolean"},
+            "failure_reason": {"type": ["string", "null"]},
+            "failure_detail": {"type": ["string", "null"]}, "fallback": {"type": ["string", "null"]},
+            "num_points": int, "num_points_downsampled": int, "num_correspondences": int,
+            "num_inliers": int, "inlier_ratio": num, "hypotheses": int,
+            "best_found_at": {"type": ["integer", "null"]}, "fitness": num, "inlier_rmse_m": num,
+            "icp_iterations": int,
+            "deskewed": {"type": "boolean"}, "time_field": {"type": ["string", "null"]},
+            "map_guess": {"type": ["string", "null"], "enum": ["global", "constant_velocity", null]},
+            "map_used": {"type": "boolean"}, "map_fitness": {"type": ["number", "null"]},
+            "map_inlier_rmse_m": {"type": ["number", "null"]},
+            "map_icp_iterations": {"type": ["integer", "null"]}, "map_points": {"type": ["integer", "null"]},
+            "timings_s": {"type": "object", "additionalProperties": num}
+        },
+        "required": ["frame", "stamp_ns", "success", "failure_reason", "num_points", "num_points_downsampled",
+                     "num_correspondences", "num_inliers", "inlier_ratio", "hypotheses", "best_found_at",
+                     "fitness", "inlier_rmse_m", "icp_iterations", "timings_s"]
+    })
+}
+
+fn frame_stats(out: &FrameOut) -> serde_json::Value {
+    let e = &out.est;
+    let p = e.pair.as_ref();
+    let t = p.map(|p| p.timings_s).unwrap_or_default();
+    let num_corr = p.map_or(0, |p| p.num_correspondences);
+    let num_inl = p.map_or(0, |p| p.num_inliers);
+    json!({
+        "frame": e.index,
+        "stamp_ns": out.header.stamp.to_ns(),
+        "success": e.success,
+        "failure_reason": e.failure.map(|f| f.as_str()),
+        "failure_detail": out.invalid.as_ref().map(|i| &i.1),
+        "fallback": e.fallback.map(|f| match f {
+            crate::odometry::Fallback::ConstantVelocityIcp => "constant_velocity_icp",
+            crate::odometry::Fallback::ConstantVelocity => "constant_velocity",
+        }),
+        "num_points": e.num_points,
+        "num_points_downsampled": e.num_points_downsampled,
+        "num_correspondences": num_corr,
+        "num_inliers": num_inl,
+        "inlier_ratio": if num_corr > 0 { num_inl as f64 / num_corr as f64 } else { 0.0 },
+        "hypotheses": p.map_or(0, |p| p.hypotheses),
+        "best_found_at": p.and_then(|p| p.best_found_at),
+        "fitness": p.map_or(0.0, |p| p.fitness),
+        "inlier_rmse_m": p.map_or(0.0, |p| p.inlier_rmse_m),
+        "icp_iterations": p.map_or(0, |p| p.icp_iterations) + e.fallback_icp_iterations,
+        "deskewed": out.deskewed,
+        "time_field": out.time_field,
+        "map_guess": e.map.map(|m| m.guess.as_str()),
+        "map_used": e.map.is_some_and(|m| m.used),
+        "map_fitness": e.map.map(|m| m.fitness),
+        "map_inlier_rmse_m": e.map.map(|m| m.inlier_rmse_m),
+        "map_icp_iterations": e.map.map(|m| m.iterations),
+        "map_points": e.map.map(|m| m.map_points),
+        "timings_s": {
+            "decode": out.decode_s,
+            "downsample": out.prep.downsample,
+            "normals": out.prep.normals,
+            "features": out.prep.features,
+            "matching": t.matching,
+            "ranking": t.ranking,
+            "ransac": t.ransac,
+            "icp": t.icp,
+            "map_target": e.map.map_or(0.0, |m| m.target_s),
+            "map_icp": e.map.map_or(0.0, |m| m.icp_s),
+            "register": out.register_s,
+        }
+    })
+}
+
+pub(super) struct Outputs {
+    kind: CloudKind,
+    tf: u16,
+    pose: u16,
+    stats: u16,
+}
+
+impl Outputs {
+    /// Registers our channels: ROS 2 messages for ROS 2 inputs, foxglove protobuf messages for
+    /// foxglove inputs (so both open natively in Foxglove and Rerun).
+    pub(super) fn create(
+        log: &mut OutputLog,
+        kind: CloudKind,
+        tf_topic: &str,
+        namespace: &str,
+    ) -> Result<Self> {
+        let pose_topic = format!("{namespace}/pose");
+        let (tf, pose) = match kind {
+            CloudKind::Ros2 => (
+                log.add_channel(
+                    tf_topic,
+                    ros2::TF_MESSAGE_SCHEMA_NAME,
+                    ros2::SCHEMA_ENCODING,
+                    ros2::TF_MESSAGE_SCHEMA.as_bytes(),
+                    ros2::MESSAGE_ENCODING,
+                )?,
+                log.add_channel(
+                    &pose_topic,
+                    ros2::POSE_STAMPED_SCHEMA_NAME,
+                    ros2::SCHEMA_ENCODING,
+                    ros2::POSE_STAMPED_SCHEMA.as_bytes(),
+                    ros2::MESSAGE_ENCODING,
+                )?,
+            ),
+            CloudKind::Foxglove => {
+                let (t, p) = (
+                    foxglove_msgs::frame_transforms_schema(),
+                    foxglove_msgs::pose_in_frame_schema(),
+                );
+                (
+                    log.add_channel(
+                        tf_topic,
+                        &t.name,
+                        &t.encoding,
+                        &t.data,
+                        foxglove_msgs::MESSAGE_ENCODING,
+                    )?,
+                    log.add_channel(
+                        &pose_topic,
+                        &p.name,
+                        &p.encoding,
+                        &p.data,
+                        foxglove_msgs::MESSAGE_ENCODING,
+                    )?,
+                )
+            }
+        };
+        let schema = serde_json::to_string(&stats_json_schema()).expect("schema JSON");
+        let stats = log.add_channel(
+            &format!("{namespace}/stats"),
+            "mireg.FrameStats",
+            "jsonschema",
+            schema.as_bytes(),
+            "json",
+        )?;
+        Ok(Self {
+            kind,
+            tf,
+            pose,
+            stats,
+        })
+    }
+}
+
+pub(super) fn write_frame(
+    log: &mut OutputLog,
+    ch: &Outputs,
+    world_frame: &str,
+    out: &FrameOut,
+) -> Result<()> {
+    let world_from_frame = out.est.world_from_frame;
+    let (pose, tf) = match ch.kind {
+        CloudKind::Ros2 => {
+            let header = ros2::Header {
+                stamp: out.header.stamp,
+                frame_id: world_frame.to_string(),
+            };
+            let tf = ros2::encode_tf_message(&[ros2::TransformStamped {
+                header: header.clone(),
+                child_frame_id: out.header.frame_id.clone(),
+                transform: world_from_frame,
+            }]);
+            (ros2::encode_pose_stamped(&header, &world_from_frame), tf)
+        }
+        CloudKind::Foxglove => {
+            let stamp = u64::try_from(out.header.stamp.to_ns()).unwrap_or(0);
+            (
+                foxglove_msgs::encode_pose_in_frame(stamp, world_frame, &world_from_frame),
+                foxglove_msgs::encode_frame_transforms(&[(
+                    stamp,
+                    world_frame,
+                    &out.header.frame_id,
+                    world_from_frame,
+                )]),
+            )
+        }
+    };
+    let stats = serde_json::to_vec(&frame_stats(out)).expect("JSON of plain values");
+    log.write(ch.tf, out.log_time, out.publish_time, &tf)?;
+    log.write(ch.pose, out.log_time, out.publish_time, &pose)?;
+    log.write(ch.stats, out.log_time, out.publish_time, &stats)
+}
