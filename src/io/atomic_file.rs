@@ -272,26 +272,52 @@ mod signals {
 
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     mod imp {
-        use std::ffi::CString;
+        use std::cell::UnsafeCell;
         use std::os::unix::ffi::OsStrExt;
         use std::path::Path;
-        use std::sync::atomic::{AtomicPtr, Ordering};
+        use std::sync::atomic::{AtomicU8, Ordering};
 
-        /// Paths (NUL-terminated, leaked so that the handler never reads freed memory) that the
-        /// handler removes.
-        static PATHS: [AtomicPtr<libc::c_char>; 8] =
-            [const { AtomicPtr::new(std::ptr::null_mut()) }; 8];
+        /// Longest path kept for removal, NUL included (Linux `PATH_MAX`).
+        const MAX_PATH: usize = 4096;
+
+        /// A path the handler removes: static storage (the handler never reads freed memory,
+        /// and nothing is allocated or leaked), written only while its state is `FREE`/`WRITING`.
+        struct Slot {
+            state: AtomicU8,
+            path: UnsafeCell<[u8; MAX_PATH]>,
+        }
+
+        const FREE: u8 = 0;
+        const WRITING: u8 = 1;
+        const READY: u8 = 2;
+
+        // SAFETY: `path` is written only by the thread that moved `state` from FREE to WRITING,
+        // and read only while `state` is READY.
+        unsafe impl Sync for Slot {}
+
+        static SLOTS: [Slot; 8] = [const {
+            Slot {
+                state: AtomicU8::new(FREE),
+                path: UnsafeCell::new([0; MAX_PATH]),
+            }
+        }; 8];
 
         pub fn remove_on_signal(path: &Path) {
-            let Ok(c) = CString::new(path.as_os_str().as_bytes()) else {
+            let bytes = path.as_os_str().as_bytes();
+            if bytes.len() >= MAX_PATH || bytes.contains(&0) {
                 return;
-            };
-            let p = c.into_raw();
-            for slot in &PATHS {
+            }
+            for slot in &SLOTS {
                 if slot
-                    .compare_exchange(std::ptr::null_mut(), p, Ordering::SeqCst, Ordering::SeqCst)
+                    .state
+                    .compare_exchange(FREE, WRITING, Ordering::SeqCst, Ordering::SeqCst)
                     .is_ok()
                 {
+                    // SAFETY: this thread owns the slot (state WRITING) until it publishes it.
+                    let buf = unsafe { &mut *slot.path.get() };
+                    buf[..bytes.len()].copy_from_slice(bytes);
+                    buf[bytes.len()] = 0;
+                    slot.state.store(READY, Ordering::SeqCst);
                     return;
                 }
             }
@@ -299,23 +325,25 @@ mod signals {
 
         pub fn forget(path: &Path) {
             let bytes = path.as_os_str().as_bytes();
-            for slot in &PATHS {
-                let p = slot.load(Ordering::SeqCst);
-                // SAFETY: non-null slots hold leaked, NUL-terminated strings from
-                // `remove_on_signal`, never freed.
-                if !p.is_null() && unsafe { std::ffi::CStr::from_ptr(p) }.to_bytes() == bytes {
-                    slot.store(std::ptr::null_mut(), Ordering::SeqCst);
+            for slot in &SLOTS {
+                if slot.state.load(Ordering::SeqCst) != READY {
+                    continue;
+                }
+                // SAFETY: READY slots are not written; a NUL ends the stored path.
+                let buf = unsafe { &*slot.path.get() };
+                let end = buf.iter().position(|&b| b == 0).unwrap_or(MAX_PATH);
+                if &buf[..end] == bytes {
+                    slot.state.store(FREE, Ordering::SeqCst);
                 }
             }
         }
 
         extern "C" fn on_signal(sig: libc::c_int) {
             // Only async-signal-safe calls here: unlink, write, _exit.
-            for slot in &PATHS {
-                let p = slot.load(Ordering::SeqCst);
-                if !p.is_null() {
-                    // SAFETY: a leaked NUL-terminated string (see PATHS).
-                    unsafe { libc::unlink(p) };
+            for slot in &SLOTS {
+                if slot.state.load(Ordering::SeqCst) == READY {
+                    // SAFETY: a READY slot holds a NUL-terminated path in static storage.
+                    unsafe { libc::unlink(slot.path.get().cast::<libc::c_char>()) };
                 }
             }
             let msg: &[u8] = if sig == libc::SIGINT {
