@@ -19,11 +19,13 @@ enum Field {
     StrMap,
     /// A `uint32` byte length and fixed-size entries filling it.
     Entries,
+    /// A `uint64` length and that many bytes.
+    Data64,
     /// Everything left (message data, schema data after its own length check).
     Rest,
 }
 
-use Field::{Entries, Fixed, Rest, Str, StrMap};
+use Field::{Data64, Entries, Fixed, Rest, Str, StrMap};
 
 /// The layout of the records whose strings the mcap crate reads; `None` for records without
 /// strings (messages, message indexes, footers, …) or of unknown opcodes.
@@ -34,7 +36,7 @@ fn layout(opcode: u8) -> Option<&'static [Field]> {
         op::CHANNEL => &[Fixed(4), Str, Str, StrMap],
         op::CHUNK => &[Fixed(28), Str, Rest],
         op::CHUNK_INDEX => &[Fixed(32), Entries, Fixed(8), Str, Fixed(16)],
-        op::ATTACHMENT => &[Fixed(16), Str, Str, Rest],
+        op::ATTACHMENT => &[Fixed(16), Str, Str, Data64, Fixed(4)],
         op::ATTACHMENT_INDEX => &[Fixed(40), Str, Str],
         op::STATISTICS => &[Fixed(42), Entries],
         op::METADATA => &[Str, StrMap],
@@ -101,6 +103,16 @@ pub fn check_lengths(opcode: u8, body: &[u8]) -> Result<(), String> {
                 }
                 at = stop;
             }
+            Data64 => {
+                let Some(b) = body.get(at..at + 8) else {
+                    return short("a length", at);
+                };
+                let n = u64::from_le_bytes(b.try_into().expect("8 bytes"));
+                if ((body.len() - at - 8) as u64) < n {
+                    return short("a byte array", at);
+                }
+                at += 8 + n as usize;
+            }
             Rest => return Ok(()),
         }
     }
@@ -154,6 +166,19 @@ mod tests {
         att.extend(u32::MAX.to_le_bytes());
         att.extend([0u8; 40]);
         assert!(check_lengths(op::ATTACHMENT, &att).is_err());
+        // An attachment whose data leaves no room for its CRC (the mcap crate's parser panicked
+        // on it: the mcap_records fuzz target).
+        let mut att = vec![0u8; 16];
+        att.extend(0u32.to_le_bytes());
+        att.extend(0u32.to_le_bytes());
+        att.extend(2u64.to_le_bytes());
+        att.extend([7, 7]);
+        assert!(check_lengths(op::ATTACHMENT, &att).is_err());
+        att.extend(0u32.to_le_bytes());
+        assert!(matches!(
+            parse_record(op::ATTACHMENT, &att),
+            Ok(Record::Attachment { .. })
+        ));
         // Truncated fixed parts.
         assert!(check_lengths(op::STATISTICS, &[0u8; 10]).is_err());
         assert!(check_lengths(op::CHANNEL, &[0u8; 3]).is_err());
