@@ -94,12 +94,18 @@ pub fn check_lengths(opcode: u8, body: &[u8]) -> Result<(), String> {
                 if body.len() - end < n {
                     return short("a map", at);
                 }
-                let (mut k, stop) = (end, end + n);
+                // Key and value strings, in pairs: the parser reads a value after every key,
+                // even one that ends the map.
+                let (mut k, stop, mut strings) = (end, end + n, 0usize);
                 while k < stop {
                     match u32_at(body, k) {
                         Some(len) if stop - (k + 4).min(stop) >= len => k += 4 + len,
                         _ => return short("a map string", k),
                     }
+                    strings += 1;
+                }
+                if strings % 2 == 1 {
+                    return short("a map key without a value", k);
                 }
                 at = stop;
             }
@@ -166,6 +172,13 @@ mod tests {
         att.extend(u32::MAX.to_le_bytes());
         att.extend([0u8; 40]);
         assert!(check_lengths(op::ATTACHMENT, &att).is_err());
+        // A map whose last key has no value inside the map (the parser would read the value's
+        // length from the bytes after it: the fuzzer's second out-of-memory).
+        let mut odd = string(b"robot");
+        odd.extend(6u32.to_le_bytes());
+        odd.extend(string(b"id"));
+        odd.extend(u32::MAX.to_le_bytes());
+        assert!(check_lengths(op::METADATA, &odd).is_err());
         // An attachment whose data leaves no room for its CRC (the mcap crate's parser panicked
         // on it: the mcap_records fuzz target).
         let mut att = vec![0u8; 16];
