@@ -595,29 +595,37 @@ pub fn refine_prepared(
 ) -> Result<()> {
     let c = config.resolved()?;
     let t = Instant::now();
-    let built;
-    let tree = match target.icp.as_ref().filter(|t| t.points() == target.points) {
-        Some(icp) => icp,
-        None => {
-            built = IcpTarget::points_only(&target.points)?;
-            &built
-        }
-    };
-    refine(out, source, target, &c, tree)?;
+    let built = std::cell::OnceCell::new();
+    refine(out, source, target, &c, || feature_tree(target, &built))?;
     let icp_s = t.elapsed().as_secs_f64();
     out.timings_s.icp = icp_s;
     out.timings_s.total += icp_s;
     Ok(())
 }
 
+/// The target feature cloud as a search target: its ICP cloud when that is the same cloud, else
+/// built into `built` on first use.
+fn feature_tree<'a>(
+    target: &'a PreparedFrame,
+    built: &'a std::cell::OnceCell<IcpTarget>,
+) -> Result<&'a IcpTarget> {
+    if let Some(icp) = target.icp.as_ref().filter(|t| t.points() == target.points) {
+        return Ok(icp);
+    }
+    if built.get().is_none() {
+        let _ = built.set(IcpTarget::points_only(&target.points)?);
+    }
+    Ok(built.get().expect("just set"))
+}
+
 /// ICP of `source` to `target` from `out.ransac_target_from_source` (or, without ICP clouds, the
-/// fitness of that model on the feature clouds, against `target_tree`).
-fn refine(
+/// fitness of that model on the feature clouds, against `target_tree()`, only then consulted).
+fn refine<'a>(
     out: &mut PairResult,
     source: &PreparedFrame,
     target: &PreparedFrame,
     c: &PairConfig,
-    target_tree: &IcpTarget,
+    target_tree: impl FnOnce() -> Result<&'a IcpTarget>,
 ) -> Result<()> {
     let model = out.ransac_target_from_source;
     if let (Some(src_icp), Some(tgt_icp)) = (&source.icp, &target.icp) {
@@ -631,7 +639,7 @@ fn refine(
     } else {
         let e = evaluate_registration(
             &source.points,
-            target_tree,
+            target_tree()?,
             &model,
             c.inlier_threshold_m.unwrap(),
         )?;
@@ -727,15 +735,7 @@ fn register_prepared_with(
     };
     // The target feature cloud's kd-tree, built on first use unless the ICP target is that cloud.
     let built_tree = std::cell::OnceCell::new();
-    let target_tree = || -> Result<&IcpTarget> {
-        if let Some(icp) = target.icp.as_ref().filter(|t| t.points() == target.points) {
-            return Ok(icp);
-        }
-        if built_tree.get().is_none() {
-            let _ = built_tree.set(IcpTarget::points_only(&target.points)?);
-        }
-        Ok(built_tree.get().expect("just set"))
-    };
+    let target_tree = || feature_tree(target, &built_tree);
     let result = match c.verification {
         Verification::Correspondences => run_sampler(c.sampler, &estimator, &consensus)?,
         Verification::Dense => {
@@ -765,12 +765,7 @@ fn register_prepared_with(
         return Ok(finish(out));
     }
     let t = Instant::now();
-    // With both ICP clouds the feature cloud's tree is not consulted (and not built).
-    let tree = match (&source.icp, &target.icp) {
-        (Some(_), Some(icp)) => icp,
-        _ => target_tree()?,
-    };
-    refine(&mut out, source, target, &c, tree)?;
+    refine(&mut out, source, target, &c, target_tree)?;
     out.timings_s.icp = t.elapsed().as_secs_f64();
     Ok(finish(out))
 }
