@@ -20,7 +20,7 @@ use crate::Result;
 use crate::pipeline::{
     FailureReason, PairConfig, PairResult, PreparedFrame, refine_prepared, register_prepared_coarse,
 };
-use crate::refine::icp::{IcpConfig, registration_icp_point_to_plane};
+use crate::refine::icp::{IcpConfig, IcpTarget, registration_icp_point_to_plane};
 use crate::refine::local_map::{LocalMap, LocalMapConfig};
 
 /// Acceptance thresholds on top of the pairwise configuration.
@@ -149,7 +149,6 @@ pub struct Odometry {
 impl Odometry {
     /// A new trajectory; fails if the pairwise configuration is invalid.
     pub fn new(config: OdometryConfig) -> Result<Self> {
-        config.pair.resolved()?;
         if !(0.0..=1.0).contains(&config.min_fitness) {
             return Err(crate::Error::InvalidInput(format!(
                 "min_fitness must be a fraction in [0, 1], got {}",
@@ -227,10 +226,20 @@ impl Odometry {
         let mut pair = register_prepared_coarse(&frame, prev, &self.config.pair)?;
         // With a map, the RANSAC model is refined against it directly; only where that does not
         // fit is it refined frame to frame, as without a map.
-        let map_ready = self.map.as_ref().is_some_and(|m| !m.is_empty());
-        if map_ready && pair.failure.is_none() && pair.num_inliers >= self.config.min_inliers {
+        // The map as an ICP target, built once for this frame's refinements.
+        let t = std::time::Instant::now();
+        let target = match (&self.map, &frame.icp) {
+            (Some(map), Some(_)) => map.target()?,
+            _ => None,
+        };
+        let target = target.map(|target| (target, t.elapsed().as_secs_f64()));
+        if let Some(target) = &target
+            && pair.failure.is_none()
+            && pair.num_inliers >= self.config.min_inliers
+        {
             let global = world_from_prev * pair.target_from_source;
-            if let Some((pose, fit)) = self.refine_on_map(&frame, Some(&global), &predicted)?
+            if let Some((pose, fit)) =
+                self.refine_on_map(&frame, target, Some(&global), &predicted)?
                 && fit.used
                 && fit.guess == InitialGuess::Global
             {
@@ -273,7 +282,11 @@ impl Odometry {
         est.pair = Some(pair);
         est.world_from_frame = world_from_prev * est.prev_from_curr;
         let global = est.success.then_some(est.world_from_frame);
-        if let Some((pose, fit)) = self.refine_on_map(&frame, global.as_ref(), &predicted)? {
+        let refined = match &target {
+            Some(target) => self.refine_on_map(&frame, target, global.as_ref(), &predicted)?,
+            None => None,
+        };
+        if let Some((pose, fit)) = refined {
             if fit.used {
                 est.world_from_frame = pose;
                 est.prev_from_curr = world_from_prev.inverse() * pose;
@@ -298,20 +311,19 @@ impl Odometry {
     /// NOTE: the prediction is not tried when the global start already fits the map: on the
     /// KAIST03 keyframes trying both cost a third of the frame rate for no accuracy
     /// (docs/ODOMETRY.md); where the global estimate is wrong, its fit to the map is poor.
+    ///
+    /// `target` is the map as an ICP target and the seconds it took to build.
     fn refine_on_map(
         &self,
         frame: &PreparedFrame,
+        (target, target_s): &(IcpTarget, f64),
         global: Option<&Isometry3<f64>>,
         predicted: &Isometry3<f64>,
     ) -> Result<Option<(Isometry3<f64>, MapFit)>> {
         let (Some(map), Some(icp_cloud)) = (&self.map, &frame.icp) else {
             return Ok(None);
         };
-        let t = std::time::Instant::now();
-        let Some(target) = map.target()? else {
-            return Ok(None);
-        };
-        let target_s = t.elapsed().as_secs_f64();
+        let target_s = *target_s;
         let t = std::time::Instant::now();
         let c = self.config.pair.resolved()?;
         let distance = c.icp_max_distance_m.unwrap_or(c.voxel_size_m);
@@ -320,7 +332,7 @@ impl Odometry {
             .relative_fitness(MAP_ICP_RELATIVE_CHANGE)
             .relative_rmse(MAP_ICP_RELATIVE_CHANGE * distance);
         let fit = |guess, start: &Isometry3<f64>| -> Result<(Isometry3<f64>, MapFit)> {
-            let r = registration_icp_point_to_plane(icp_cloud.points(), &target, start, &icp)?;
+            let r = registration_icp_point_to_plane(icp_cloud.points(), target, start, &icp)?;
             let fit = MapFit {
                 guess,
                 fitness: r.fitness,
