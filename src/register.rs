@@ -12,7 +12,7 @@ mod output;
 pub use motions::DeskewMode;
 use motions::Motions;
 pub use output::stats_json_schema;
-use output::{Outputs, write_frame};
+use output::{Outputs, Topics, write_frame};
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -31,7 +31,7 @@ use crate::pipeline::{
     FailureReason, PrepareScratch, PreparedFrame, prepare_frame, prepare_frame_with,
     voxel_for_cloud,
 };
-use crate::trajectory::{Trajectory, evaluate, free_mireg_namespace};
+use crate::trajectory::{Trajectory, evaluate};
 use crate::{Error, Result};
 
 /// Frames in flight between stages (each queue). Bounds memory.
@@ -395,12 +395,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     let mut odometry = Odometry::new(config.clone())?;
     // A log registered before keeps its mireg topics; this run's go to the next namespace
     // (`/mireg_2/…`), so that no topic mixes two runs.
-    let namespace = free_mireg_namespace(channels.iter().map(|c| c.topic.as_str()));
-    let tf_topic = if channels.iter().any(|c| c.topic == "/tf") {
-        format!("{namespace}/tf")
-    } else {
-        "/tf".to_string()
-    };
+    let topics = Topics::for_input(&channels);
     let reference_topic = channels
         .iter()
         .find(|c| {
@@ -418,7 +413,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     // The input's schemas and channels keep their ids (its chunks are copied as they are); ours
     // get ids above them.
     log.declare_input(input, &catalog)?;
-    let ch = Outputs::create(&mut log, kind, &tf_topic, &namespace)?;
+    let ch = Outputs::create(&mut log, kind, &topics)?;
     let cloud_channels: Vec<u16> = channels
         .iter()
         .filter(|c| c.topic == topic)
@@ -682,9 +677,9 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     meta.insert("command_line".to_string(), opts.command_line.clone());
     meta.insert("input".to_string(), input.display().to_string());
     meta.insert("topic".to_string(), topic.clone());
-    meta.insert("pose_topic".to_string(), format!("{namespace}/pose"));
-    meta.insert("stats_topic".to_string(), format!("{namespace}/stats"));
-    meta.insert("tf_topic".to_string(), tf_topic.clone());
+    meta.insert("pose_topic".to_string(), topics.pose.clone());
+    meta.insert("stats_topic".to_string(), topics.stats.clone());
+    meta.insert("tf_topic".to_string(), topics.tf.clone());
     log.write_metadata("mireg", meta)?;
     log.finish()?;
 
@@ -707,8 +702,8 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     Ok(RegisterSummary {
         output: opts.output.clone(),
         topic,
-        tf_topic,
-        pose_topic: format!("{namespace}/pose"),
+        tf_topic: topics.tf,
+        pose_topic: topics.pose,
         frames,
         failed_frames,
         mean_inliers,

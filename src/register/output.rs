@@ -5,8 +5,10 @@ use serde_json::json;
 
 use super::{CloudKind, FrameOut};
 use crate::Result;
+use crate::io::mcap_log::ChannelInfo;
 use crate::io::mcap_log::OutputLog;
 use crate::io::{foxglove_msgs, ros2};
+use crate::trajectory::free_mireg_namespace;
 
 /// JSON Schema of the `/mireg/stats` messages.
 pub fn stats_json_schema() -> serde_json::Value {
@@ -88,6 +90,31 @@ fn frame_stats(out: &FrameOut) -> serde_json::Value {
     })
 }
 
+/// The topics of this run: a log registered before keeps its mireg topics and this run's go to
+/// the next namespace (`/mireg_2/…`), so that no topic mixes two runs; transforms go to `/tf`
+/// unless the log has one.
+pub(super) struct Topics {
+    pub(super) tf: String,
+    pub(super) pose: String,
+    pub(super) stats: String,
+}
+
+impl Topics {
+    pub(super) fn for_input(channels: &[ChannelInfo]) -> Self {
+        let namespace = free_mireg_namespace(channels.iter().map(|c| c.topic.as_str()));
+        let tf = if channels.iter().any(|c| c.topic == "/tf") {
+            format!("{namespace}/tf")
+        } else {
+            "/tf".to_string()
+        };
+        Self {
+            tf,
+            pose: format!("{namespace}/pose"),
+            stats: format!("{namespace}/stats"),
+        }
+    }
+}
+
 pub(super) struct Outputs {
     kind: CloudKind,
     tf: u16,
@@ -98,13 +125,8 @@ pub(super) struct Outputs {
 impl Outputs {
     /// Registers our channels: ROS 2 messages for ROS 2 inputs, foxglove protobuf messages for
     /// foxglove inputs (so both open natively in Foxglove and Rerun).
-    pub(super) fn create(
-        log: &mut OutputLog,
-        kind: CloudKind,
-        tf_topic: &str,
-        namespace: &str,
-    ) -> Result<Self> {
-        let pose_topic = format!("{namespace}/pose");
+    pub(super) fn create(log: &mut OutputLog, kind: CloudKind, topics: &Topics) -> Result<Self> {
+        let (tf_topic, pose_topic) = (&topics.tf, &topics.pose);
         let (tf, pose) = match kind {
             CloudKind::Ros2 => (
                 log.add_channel(
@@ -115,7 +137,7 @@ impl Outputs {
                     ros2::MESSAGE_ENCODING,
                 )?,
                 log.add_channel(
-                    &pose_topic,
+                    pose_topic,
                     ros2::POSE_STAMPED_SCHEMA_NAME,
                     ros2::SCHEMA_ENCODING,
                     ros2::POSE_STAMPED_SCHEMA.as_bytes(),
@@ -136,7 +158,7 @@ impl Outputs {
                         foxglove_msgs::MESSAGE_ENCODING,
                     )?,
                     log.add_channel(
-                        &pose_topic,
+                        pose_topic,
                         &p.name,
                         &p.encoding,
                         &p.data,
@@ -147,7 +169,7 @@ impl Outputs {
         };
         let schema = serde_json::to_string(&stats_json_schema()).expect("schema JSON");
         let stats = log.add_channel(
-            &format!("{namespace}/stats"),
+            &topics.stats,
             "mireg.FrameStats",
             "jsonschema",
             schema.as_bytes(),
