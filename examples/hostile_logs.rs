@@ -11,7 +11,7 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use mcap::records::MessageHeader;
-use mireg::io::ros2;
+use mireg::io::codec::{self, cdr};
 use nalgebra::Point3;
 use rand::{RngExt, SeedableRng};
 
@@ -24,9 +24,9 @@ fn random_clouds(points: usize) -> Vec<u8> {
         .expect("writer");
     let s = w
         .add_schema(
-            ros2::POINT_CLOUD2_SCHEMA_NAME,
-            ros2::SCHEMA_ENCODING,
-            ros2::POINT_CLOUD2_SCHEMA.as_bytes(),
+            cdr::POINT_CLOUD2_SCHEMA_NAME,
+            cdr::SCHEMA_ENCODING,
+            cdr::POINT_CLOUD2_SCHEMA.as_bytes(),
         )
         .expect("schema");
     let c = w
@@ -43,11 +43,11 @@ fn random_clouds(points: usize) -> Vec<u8> {
             })
             .collect();
         let t = 1_000_000_000 + k * 100_000_000;
-        let header = ros2::Header {
-            stamp: ros2::Time::from_ns(t as i64).expect("in range"),
+        let header = codec::Header {
+            stamp: codec::Time::from_ns(t as i64).expect("in range"),
             frame_id: "lidar".into(),
         };
-        let data = ros2::encode_point_cloud2(&header, &pts, None);
+        let data = cdr::encode_point_cloud2(&header, &pts, None);
         let h = MessageHeader {
             channel_id: c,
             sequence: k as u32,

@@ -8,7 +8,7 @@ use std::path::Path;
 
 use mcap::records::Record;
 use mireg::fuzzing::small_log;
-use mireg::io::ros2;
+use mireg::io::codec::{self, cdr};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion};
 
 fn put(target: &str, name: &str, bytes: &[u8]) {
@@ -68,8 +68,8 @@ fn main() {
         Ok(())
     })
     .expect("seed log reads");
-    let header = ros2::Header {
-        stamp: ros2::Time { sec: 1, nanosec: 2 },
+    let header = codec::Header {
+        stamp: codec::Time { sec: 1, nanosec: 2 },
         frame_id: "lidar".into(),
     };
     let pts = [
@@ -80,7 +80,7 @@ fn main() {
     put(
         "point_cloud2",
         "three_with_intensity.cdr",
-        &ros2::encode_point_cloud2(&header, &pts, Some(&[1.0, 2.0, 3.0])),
+        &cdr::encode_point_cloud2(&header, &pts, Some(&[1.0, 2.0, 3.0])),
     );
     let pose = Isometry3::from_parts(
         Translation3::new(1.0, -2.0, 0.5),
@@ -89,7 +89,7 @@ fn main() {
     put(
         "pose_messages",
         "tf_message.cdr",
-        &ros2::encode_tf_message(&[ros2::TransformStamped {
+        &cdr::encode_tf_message(&[codec::TransformStamped {
             header: header.clone(),
             child_frame_id: "base".into(),
             transform: pose,
@@ -103,7 +103,7 @@ fn main() {
     put(
         "pose_messages",
         "pose_in_frame.pb",
-        &mireg::io::foxglove_msgs::encode_pose_in_frame(5, "world", &pose),
+        &mireg::io::codec::foxglove::encode_pose_in_frame(5, "world", &pose),
     );
     // Point cloud files of `mireg pair`.
     let ply = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n0 0 0\n1 0 0\n0 1 0.5\n";

@@ -10,8 +10,8 @@
 use std::path::Path;
 
 use mireg::io::cloud_file::read_points;
+use mireg::io::codec::{Header, Time, cdr};
 use mireg::io::mcap_log::OutputLog;
-use mireg::io::ros2::{self, Header, Time};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -32,9 +32,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut log = OutputLog::create(out, true, "ros2")?;
     let clouds = log.add_channel(
         "/velodyne_points",
-        ros2::POINT_CLOUD2_SCHEMA_NAME,
+        cdr::POINT_CLOUD2_SCHEMA_NAME,
         "ros2msg",
-        ros2::POINT_CLOUD2_SCHEMA.as_bytes(),
+        cdr::POINT_CLOUD2_SCHEMA.as_bytes(),
         "cdr",
     )?;
     let blob = log.add_channel("/camera/raw", "", "", &[], "application/octet-stream")?;
@@ -58,7 +58,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             clouds,
             t,
             t,
-            &ros2::encode_point_cloud2(&header, &pts, Some(&intensity)),
+            &cdr::encode_point_cloud2(&header, &pts, Some(&intensity)),
         )?;
         for _ in 0..blobs_per_frame {
             if blobs_written == passthrough_mb {

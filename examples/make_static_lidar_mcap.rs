@@ -8,8 +8,8 @@
 use std::path::Path;
 
 use mireg::io::cloud_file::read_points;
+use mireg::io::codec::{Header, Time, cdr};
 use mireg::io::mcap_log::OutputLog;
-use mireg::io::ros2::{self, Header, Time};
 use nalgebra::{Point3, Vector3};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
@@ -30,9 +30,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut log = OutputLog::create(out, true, "ros2")?;
     let clouds = log.add_channel(
         "/velodyne_points",
-        ros2::POINT_CLOUD2_SCHEMA_NAME,
+        cdr::POINT_CLOUD2_SCHEMA_NAME,
         "ros2msg",
-        ros2::POINT_CLOUD2_SCHEMA.as_bytes(),
+        cdr::POINT_CLOUD2_SCHEMA.as_bytes(),
         "cdr",
     )?;
     for k in 0..frames {
@@ -45,12 +45,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             stamp: Time::from_ns(t as i64).ok_or("stamp")?,
             frame_id: "velodyne".into(),
         };
-        log.write(
-            clouds,
-            t,
-            t,
-            &ros2::encode_point_cloud2(&header, &pts, None),
-        )?;
+        log.write(clouds, t, t, &cdr::encode_point_cloud2(&header, &pts, None))?;
     }
     log.finish()?;
     println!("wrote {} ({frames} frames, noise {sigma} m)", out.display());

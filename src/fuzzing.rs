@@ -7,7 +7,8 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::io::{cloud_file, foxglove_msgs, pose_file, ros2};
+use crate::io::codec::{self, cdr, foxglove};
+use crate::io::{cloud_file, pose_file};
 use crate::odometry::OdometryConfig;
 use crate::pipeline::PairConfig;
 use crate::register::{RegisterOptions, register_log};
@@ -28,7 +29,7 @@ pub const TARGETS: &[Target] = &[
 
 /// `sensor_msgs/msg/PointCloud2` (cdr) decoding; a decoded cloud holds only finite points.
 pub fn point_cloud2(data: &[u8]) {
-    if let Ok(c) = ros2::decode_point_cloud2(data) {
+    if let Ok(c) = cdr::decode_point_cloud2(data) {
         assert!(
             c.points
                 .iter()
@@ -39,7 +40,7 @@ pub fn point_cloud2(data: &[u8]) {
 
 /// `foxglove.PointCloud` (protobuf) decoding.
 pub fn foxglove_point_cloud(data: &[u8]) {
-    if let Ok(c) = foxglove_msgs::decode_foxglove_point_cloud(data) {
+    if let Ok(c) = foxglove::decode_foxglove_point_cloud(data) {
         assert!(
             c.points
                 .iter()
@@ -50,8 +51,8 @@ pub fn foxglove_point_cloud(data: &[u8]) {
 
 /// `geometry_msgs/msg/PoseStamped` and `tf2_msgs/msg/TFMessage` (cdr) decoding.
 pub fn pose_messages(data: &[u8]) {
-    let _ = ros2::decode_pose_stamped(data);
-    let _ = ros2::decode_tf_message(data);
+    let _ = cdr::decode_pose_stamped(data);
+    let _ = cdr::decode_tf_message(data);
 }
 
 /// A scratch file for inputs that are read from a path: in a temporary directory of this
@@ -170,9 +171,9 @@ pub fn small_log(frames: usize, options: mcap::WriteOptions) -> Vec<u8> {
     let mut w = options.profile("ros2").create(&mut out).expect("writer");
     let cloud_schema = w
         .add_schema(
-            ros2::POINT_CLOUD2_SCHEMA_NAME,
-            ros2::SCHEMA_ENCODING,
-            ros2::POINT_CLOUD2_SCHEMA.as_bytes(),
+            cdr::POINT_CLOUD2_SCHEMA_NAME,
+            cdr::SCHEMA_ENCODING,
+            cdr::POINT_CLOUD2_SCHEMA.as_bytes(),
         )
         .expect("schema");
     let clouds = w
@@ -180,9 +181,9 @@ pub fn small_log(frames: usize, options: mcap::WriteOptions) -> Vec<u8> {
         .expect("channel");
     let pose_schema = w
         .add_schema(
-            ros2::POSE_STAMPED_SCHEMA_NAME,
-            ros2::SCHEMA_ENCODING,
-            ros2::POSE_STAMPED_SCHEMA.as_bytes(),
+            cdr::POSE_STAMPED_SCHEMA_NAME,
+            cdr::SCHEMA_ENCODING,
+            cdr::POSE_STAMPED_SCHEMA.as_bytes(),
         )
         .expect("schema");
     let poses = w
@@ -214,8 +215,8 @@ pub fn small_log(frames: usize, options: mcap::WriteOptions) -> Vec<u8> {
             Translation3::new(0.04 * k as f64, 0.0, 0.01 * k as f64),
             UnitQuaternion::from_euler_angles(0.0, 0.02 * k as f64, 0.0),
         );
-        let header = ros2::Header {
-            stamp: ros2::Time::from_ns(t as i64).expect("in range"),
+        let header = codec::Header {
+            stamp: codec::Time::from_ns(t as i64).expect("in range"),
             frame_id: "camera".into(),
         };
         let camera_from_world = world_from_camera.inverse();
@@ -226,14 +227,14 @@ pub fn small_log(frames: usize, options: mcap::WriteOptions) -> Vec<u8> {
             log_time: t,
             publish_time: t,
         };
-        let cloud = ros2::encode_point_cloud2(&header, &pts, None);
+        let cloud = cdr::encode_point_cloud2(&header, &pts, None);
         w.write_to_known_channel(&m(clouds, k as u32), &cloud)
             .expect("cloud");
-        let reference = ros2::Header {
+        let reference = codec::Header {
             frame_id: "world".into(),
             ..header
         };
-        let pose = ros2::encode_pose_stamped(&reference, &world_from_camera);
+        let pose = cdr::encode_pose_stamped(&reference, &world_from_camera);
         w.write_to_known_channel(&m(poses, k as u32), &pose)
             .expect("pose");
         let note = format!(r#"{{"k":{k}}}"#);
@@ -247,8 +248,8 @@ pub fn small_log(frames: usize, options: mcap::WriteOptions) -> Vec<u8> {
 
 /// A small `foxglove.PointCloud` (protobuf): three points, FLOAT32 x, y, z at offsets 0, 4, 8.
 pub fn foxglove_seed_cloud() -> Vec<u8> {
-    use foxglove::schemas::packed_element_field::NumericType;
-    use foxglove::schemas::{PackedElementField, PointCloud, Timestamp};
+    use ::foxglove::schemas::packed_element_field::NumericType;
+    use ::foxglove::schemas::{PackedElementField, PointCloud, Timestamp};
     use prost::Message;
     let field = |name: &str, offset| PackedElementField {
         name: name.into(),

@@ -23,9 +23,9 @@ use nalgebra::Isometry3;
 
 use crate::geometry::deskew::deskew;
 use crate::io::atomic_file::same_file;
+use crate::io::codec::{self, cdr, foxglove};
 use crate::io::log_order::{ChunkTimes, Reorder};
 use crate::io::mcap_log::{ChannelInfo, InputCatalog, OutputLog, pass_through};
-use crate::io::{foxglove_msgs, ros2};
 use crate::odometry::{FrameEstimate, Odometry, OdometryConfig};
 use crate::pipeline::{
     FailureReason, PrepareScratch, PreparedFrame, prepare_frame, prepare_frame_with,
@@ -177,12 +177,11 @@ enum CloudKind {
 const FOXGLOVE_POINT_CLOUD: &str = "foxglove.PointCloud";
 
 fn cloud_kind(c: &ChannelInfo) -> Option<CloudKind> {
-    if c.schema_name == ros2::POINT_CLOUD2_SCHEMA_NAME
-        && c.message_encoding == ros2::MESSAGE_ENCODING
+    if c.schema_name == cdr::POINT_CLOUD2_SCHEMA_NAME && c.message_encoding == cdr::MESSAGE_ENCODING
     {
         Some(CloudKind::Ros2)
     } else if c.schema_name == FOXGLOVE_POINT_CLOUD
-        && c.message_encoding == foxglove_msgs::MESSAGE_ENCODING
+        && c.message_encoding == foxglove::MESSAGE_ENCODING
     {
         Some(CloudKind::Foxglove)
     } else {
@@ -191,10 +190,10 @@ fn cloud_kind(c: &ChannelInfo) -> Option<CloudKind> {
 }
 
 impl CloudKind {
-    fn decode(self, payload: &[u8]) -> std::result::Result<ros2::PointCloud, ros2::DecodeError> {
+    fn decode(self, payload: &[u8]) -> std::result::Result<codec::PointCloud, codec::DecodeError> {
         match self {
-            CloudKind::Ros2 => ros2::decode_point_cloud2(payload),
-            CloudKind::Foxglove => foxglove_msgs::decode_foxglove_point_cloud(payload),
+            CloudKind::Ros2 => cdr::decode_point_cloud2(payload),
+            CloudKind::Foxglove => foxglove::decode_foxglove_point_cloud(payload),
         }
     }
 }
@@ -280,7 +279,7 @@ struct PreparedMsg {
     deskewed: bool,
     log_time: u64,
     publish_time: u64,
-    header: ros2::Header,
+    header: codec::Header,
     decode_s: f64,
     frame: PreparedFrame,
 }
@@ -291,7 +290,7 @@ struct FrameOut {
     deskewed: bool,
     log_time: u64,
     publish_time: u64,
-    header: ros2::Header,
+    header: codec::Header,
     decode_s: f64,
     prep: crate::pipeline::FrameTimings,
     register_s: f64,
@@ -299,7 +298,7 @@ struct FrameOut {
 }
 
 /// Why a cloud message could not be decoded, naming topic, log time and field.
-fn decode_detail(topic: &str, log_time: u64, e: &ros2::DecodeError) -> String {
+fn decode_detail(topic: &str, log_time: u64, e: &codec::DecodeError) -> String {
     format!(
         "message on {topic} at log time {log_time} ns: field {}: {}",
         e.field, e.detail
@@ -307,10 +306,10 @@ fn decode_detail(topic: &str, log_time: u64, e: &ros2::DecodeError) -> String {
 }
 
 /// The header stamp given to a cloud that could not be decoded: its log time.
-fn stamp_of_log_time(log_time: u64) -> ros2::Time {
+fn stamp_of_log_time(log_time: u64) -> codec::Time {
     i64::try_from(log_time)
         .ok()
-        .and_then(ros2::Time::from_ns)
+        .and_then(codec::Time::from_ns)
         .unwrap_or_default()
 }
 
@@ -399,7 +398,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     let reference_topic = channels
         .iter()
         .find(|c| {
-            c.topic == DEFAULT_REFERENCE_TOPIC && c.schema_name == ros2::POSE_STAMPED_SCHEMA_NAME
+            c.topic == DEFAULT_REFERENCE_TOPIC && c.schema_name == cdr::POSE_STAMPED_SCHEMA_NAME
         })
         .map(|c| c.topic.clone());
     let chunk_times = ChunkTimes::read(input)?;
@@ -479,7 +478,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                 let (header, prepared) = match decoded {
                     Err(e) => {
                         let detail = decode_detail(topic_ref, msg.log_time, &e);
-                        let header = ros2::Header {
+                        let header = codec::Header {
                             stamp: stamp_of_log_time(msg.log_time),
                             frame_id: last_frame_id.clone(),
                         };
@@ -629,7 +628,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                     }
                 }
             } else if reference_channels.contains(&header.channel_id)
-                && let Ok((h, pose)) = ros2::decode_pose_stamped(data)
+                && let Ok((h, pose)) = cdr::decode_pose_stamped(data)
             {
                 reference.push((h.stamp.to_ns(), pose));
             }

@@ -21,8 +21,9 @@ use nalgebra::{Isometry3, Matrix3, Quaternion, Translation3, UnitQuaternion, Vec
 use crate::evaluate::{
     Drift, aligned_position_errors, ate_rmse, path_distances, path_drift, relative_pose_errors,
 };
+use crate::io::codec::cdr;
 use crate::io::mcap_log::{ChannelInfo, for_each_record, list_channels};
-use crate::io::{format_err, pose_file, read_text, ros2};
+use crate::io::{format_err, pose_file, read_text};
 use crate::{Error, Result};
 
 /// Topic of the estimated poses written by `mireg register`.
@@ -387,7 +388,7 @@ pub fn read_redwood(path: &Path) -> Result<Trajectory> {
 pub fn pose_stamped_topics(channels: &[ChannelInfo]) -> Vec<String> {
     let mut t: Vec<String> = channels
         .iter()
-        .filter(|c| c.schema_name == ros2::POSE_STAMPED_SCHEMA_NAME && c.message_encoding == "cdr")
+        .filter(|c| c.schema_name == cdr::POSE_STAMPED_SCHEMA_NAME && c.message_encoding == "cdr")
         .map(|c| c.topic.clone())
         .collect();
     t.dedup();
@@ -422,7 +423,7 @@ pub fn check_pose_topic(path: &Path, channels: &[ChannelInfo], topic: &str) -> R
     }
     if let Some(c) = matching
         .iter()
-        .find(|c| c.schema_name != ros2::POSE_STAMPED_SCHEMA_NAME || c.message_encoding != "cdr")
+        .find(|c| c.schema_name != cdr::POSE_STAMPED_SCHEMA_NAME || c.message_encoding != "cdr")
     {
         return Err(pose_topic_error(
             path,
@@ -431,7 +432,7 @@ pub fn check_pose_topic(path: &Path, channels: &[ChannelInfo], topic: &str) -> R
                 "topic {topic:?} carries {} ({}), not {} (cdr)",
                 c.schema_name,
                 c.message_encoding,
-                ros2::POSE_STAMPED_SCHEMA_NAME
+                cdr::POSE_STAMPED_SCHEMA_NAME
             ),
         ));
     }
@@ -481,7 +482,7 @@ pub fn read_mcap_pose_topics(path: &Path, topics: &[&str]) -> Result<Vec<Traject
     }
     let mut out: Vec<Vec<(i64, Isometry3<f64>)>> = vec![Vec::new(); topics.len()];
     for_each_message_on(path, topics, |k, log_time, data| {
-        let (header, pose) = ros2::decode_pose_stamped(data).map_err(|e| {
+        let (header, pose) = cdr::decode_pose_stamped(data).map_err(|e| {
             format_err(
                 path,
                 format!(

@@ -94,7 +94,7 @@ fn register_without_voxel_derives_it_from_the_first_cloud() {
     mireg::io::mcap_read::for_each_record(&input, |r| {
         if let mcap::records::Record::Message { data, .. } = r
             && first.is_none()
-            && let Ok(c) = mireg::io::ros2::decode_point_cloud2(&data)
+            && let Ok(c) = mireg::io::codec::cdr::decode_point_cloud2(&data)
         {
             first = Some(c.points);
         }

@@ -3,8 +3,8 @@
 //! recovered to < 1 mm; per-point time fields of each driver convention decode from PointCloud2.
 
 use mireg::geometry::deskew::deskew;
+use mireg::io::codec::{self, WireWrite, cdr, cdr::CdrWriter};
 use mireg::io::point_time::TimeConvention;
-use mireg::io::ros2::{self, CdrWriter};
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
 
@@ -75,7 +75,7 @@ fn a_spinning_scan_of_a_moving_sensor_is_recovered_to_a_millimetre() {
 }
 
 /// A PointCloud2 with x, y, z (FLOAT32) and one time field of the given name and datatype.
-fn cloud_with_time(name: &str, datatype: u8, stamp: ros2::Time, values: &[f64]) -> Vec<u8> {
+fn cloud_with_time(name: &str, datatype: u8, stamp: codec::Time, values: &[f64]) -> Vec<u8> {
     let size = if datatype == 8 { 8 } else { 4 };
     let step = 12 + size;
     let mut w = CdrWriter::new();
@@ -117,7 +117,7 @@ type Case = (&'static str, u8, Vec<f64>, TimeConvention, Vec<f64>);
 
 #[test]
 fn time_fields_of_each_driver_decode_as_seconds_after_the_stamp() {
-    let stamp = ros2::Time {
+    let stamp = codec::Time {
         sec: 1_700_000_000,
         nanosec: 500_000_000,
     };
@@ -161,7 +161,7 @@ fn time_fields_of_each_driver_decode_as_seconds_after_the_stamp() {
         ),
     ];
     for (name, dt, raw, convention, seconds) in cases {
-        let c = ros2::decode_point_cloud2(&cloud_with_time(name, dt, stamp, &raw)).unwrap();
+        let c = cdr::decode_point_cloud2(&cloud_with_time(name, dt, stamp, &raw)).unwrap();
         let t = c.times.unwrap_or_else(|| panic!("{name}: no times"));
         assert_eq!((t.field.as_str(), t.convention), (name, convention));
         for (a, b) in t.seconds.iter().zip(&seconds) {
@@ -169,15 +169,15 @@ fn time_fields_of_each_driver_decode_as_seconds_after_the_stamp() {
         }
     }
     // No time field: no times.
-    let plain = ros2::encode_point_cloud2(
-        &ros2::Header {
+    let plain = cdr::encode_point_cloud2(
+        &codec::Header {
             stamp,
             frame_id: "l".into(),
         },
         &[Point3::new(1.0f32, 2.0, 3.0)],
         None,
     );
-    assert!(ros2::decode_point_cloud2(&plain).unwrap().times.is_none());
+    assert!(cdr::decode_point_cloud2(&plain).unwrap().times.is_none());
 }
 
 /// A log of spinning scans (a room, `t` in ns, the sensor moving 0.1 m per scan): the stats say
@@ -207,9 +207,9 @@ fn register_deskews_from_the_fourth_frame_and_says_so() {
         .unwrap();
     let schema = w
         .add_schema(
-            ros2::POINT_CLOUD2_SCHEMA_NAME,
+            cdr::POINT_CLOUD2_SCHEMA_NAME,
             "ros2msg",
-            ros2::POINT_CLOUD2_SCHEMA.as_bytes(),
+            cdr::POINT_CLOUD2_SCHEMA.as_bytes(),
         )
         .unwrap();
     let ch = w
@@ -223,7 +223,7 @@ fn register_deskews_from_the_fourth_frame_and_says_so() {
             .iter()
             .map(|p| (p.y.atan2(p.x) + std::f64::consts::PI) / std::f64::consts::TAU * 1e8)
             .collect();
-        let stamp = ros2::Time::from_ns(t as i64).unwrap();
+        let stamp = codec::Time::from_ns(t as i64).unwrap();
         let mut msg = cloud_with_time("t", 6, stamp, &times);
         // Real coordinates instead of the helper's placeholders (x, y, z at the start of each point).
         let data_start = msg.len() - 1 - 16 * pts.len();

@@ -5,8 +5,8 @@ use std::path::Path;
 use std::process::Command;
 
 use mireg::cli_eval::{EvaluateArgs, TrajectoryFormat, evaluate_log};
+use mireg::io::codec::{Header, Time, cdr};
 use mireg::io::mcap_log::OutputLog;
-use mireg::io::ros2::{self, Header, Time};
 use mireg::trajectory::{self, Trajectory};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 
@@ -33,7 +33,7 @@ fn pose_msg(stamp_ns: i64, pose: &Isometry3<f64>) -> Vec<u8> {
         stamp: Time::from_ns(stamp_ns).expect("stamp in range"),
         frame_id: "world".into(),
     };
-    ros2::encode_pose_stamped(&header, pose)
+    cdr::encode_pose_stamped(&header, pose)
 }
 
 /// Writes an MCAP with `/mireg/pose` (= `est`, stamps T0 + k·DT), `/ground_truth/pose` (= `gt`,
@@ -43,10 +43,10 @@ fn write_log(path: &Path, est: &[Isometry3<f64>], gt: &[Isometry3<f64>], failed:
     let add_pose_channel = |log: &mut OutputLog, topic: &str| {
         log.add_channel(
             topic,
-            ros2::POSE_STAMPED_SCHEMA_NAME,
-            ros2::SCHEMA_ENCODING,
-            ros2::POSE_STAMPED_SCHEMA.as_bytes(),
-            ros2::MESSAGE_ENCODING,
+            cdr::POSE_STAMPED_SCHEMA_NAME,
+            cdr::SCHEMA_ENCODING,
+            cdr::POSE_STAMPED_SCHEMA.as_bytes(),
+            cdr::MESSAGE_ENCODING,
         )
         .expect("channel")
     };
@@ -249,10 +249,10 @@ fn bad_inputs_name_the_file_and_topic() {
         let ch = log
             .add_channel(
                 "/odom/pose",
-                ros2::POSE_STAMPED_SCHEMA_NAME,
-                ros2::SCHEMA_ENCODING,
-                ros2::POSE_STAMPED_SCHEMA.as_bytes(),
-                ros2::MESSAGE_ENCODING,
+                cdr::POSE_STAMPED_SCHEMA_NAME,
+                cdr::SCHEMA_ENCODING,
+                cdr::POSE_STAMPED_SCHEMA.as_bytes(),
+                cdr::MESSAGE_ENCODING,
             )
             .expect("channel");
         log.write(ch, 1, 1, &pose_msg(1, &Isometry3::identity()))

@@ -5,9 +5,9 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use mcap::records::{MessageHeader, Record};
+use mireg::io::codec::{Header, Time, cdr};
 use mireg::io::log_order::ChunkTimes;
 use mireg::io::mcap_log::for_each_record;
-use mireg::io::ros2::{self, Header, Time};
 use mireg::odometry::OdometryConfig;
 use mireg::pipeline::{PairConfig, pose_error};
 use mireg::register::{RegisterOptions, register_log};
@@ -94,7 +94,7 @@ fn poses(c: &Contents, topic: &str) -> Vec<(i64, Isometry3<f64>)> {
         .iter()
         .filter(|m| m.0 == topic)
         .map(|m| {
-            let (h, p) = ros2::decode_pose_stamped(&m.3).unwrap();
+            let (h, p) = cdr::decode_pose_stamped(&m.3).unwrap();
             (h.stamp.to_ns(), p)
         })
         .collect()
@@ -254,9 +254,9 @@ fn write_log_full(
         .unwrap();
     let cloud_schema = w
         .add_schema(
-            ros2::POINT_CLOUD2_SCHEMA_NAME,
+            cdr::POINT_CLOUD2_SCHEMA_NAME,
             "ros2msg",
-            ros2::POINT_CLOUD2_SCHEMA.as_bytes(),
+            cdr::POINT_CLOUD2_SCHEMA.as_bytes(),
         )
         .unwrap();
     let clouds = w
@@ -301,7 +301,7 @@ fn write_log_full(
             stamp: Time::from_ns(t as i64).unwrap(),
             frame_id: "lidar".into(),
         };
-        let data = ros2::encode_point_cloud2(&header, &pts, None);
+        let data = cdr::encode_point_cloud2(&header, &pts, None);
         w.write_to_known_channel(
             &MessageHeader {
                 channel_id: clouds,
@@ -345,7 +345,7 @@ fn poses_in_file_order(path: &Path, topic: &str) -> Vec<(i64, Isometry3<f64>)> {
         match r {
             Record::Channel(ch) if ch.topic == topic => channel = Some(ch.id),
             Record::Message { header, data } if Some(header.channel_id) == channel => {
-                let (h, p) = ros2::decode_pose_stamped(&data).unwrap();
+                let (h, p) = cdr::decode_pose_stamped(&data).unwrap();
                 out.push((h.stamp.to_ns(), p));
             }
             _ => {}
@@ -404,7 +404,7 @@ fn synthetic_log_recovers_known_motion_and_keeps_every_record() {
     }
     // /tf carries the same pose, parent "world", child = the cloud's frame.
     for m in b.messages.iter().filter(|m| m.0 == "/tf") {
-        let tfs = ros2::decode_tf_message(&m.3).unwrap();
+        let tfs = cdr::decode_tf_message(&m.3).unwrap();
         assert_eq!(
             (
                 tfs[0].header.frame_id.as_str(),
@@ -504,9 +504,9 @@ fn real_rosbag2_log_passes_through_untouched() {
         let ch = log
             .add_channel(
                 "/scan/points",
-                ros2::POINT_CLOUD2_SCHEMA_NAME,
+                cdr::POINT_CLOUD2_SCHEMA_NAME,
                 "ros2msg",
-                ros2::POINT_CLOUD2_SCHEMA.as_bytes(),
+                cdr::POINT_CLOUD2_SCHEMA.as_bytes(),
                 "cdr",
             )
             .unwrap();
@@ -521,7 +521,7 @@ fn real_rosbag2_log_passes_through_untouched() {
                 stamp: Time::from_ns(t as i64).unwrap(),
                 frame_id: "base_scan".into(),
             };
-            log.write(ch, t, t, &ros2::encode_point_cloud2(&header, &pts, None))
+            log.write(ch, t, t, &cdr::encode_point_cloud2(&header, &pts, None))
                 .unwrap();
         }
         log.finish().unwrap();
@@ -585,7 +585,7 @@ fn foxglove_point_clouds_get_foxglove_poses() {
 
     let dir = tempfile::tempdir().unwrap();
     let (input, out) = (dir.path().join("fox.mcap"), dir.path().join("out.mcap"));
-    let schema = mireg::io::foxglove_msgs::point_cloud_schema();
+    let schema = mireg::io::codec::foxglove::point_cloud_schema();
     {
         let file = std::io::BufWriter::new(std::fs::File::create(&input).unwrap());
         let mut w = mcap::WriteOptions::new().create(file).unwrap();

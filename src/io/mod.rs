@@ -6,7 +6,7 @@
 
 pub mod atomic_file;
 pub mod cloud_file;
-pub mod foxglove_msgs;
+pub mod codec;
 pub mod log_order;
 pub mod mcap_chunk;
 pub mod mcap_log;
@@ -15,7 +15,6 @@ pub mod mcap_record;
 pub mod mcap_write;
 pub mod point_time;
 pub mod pose_file;
-pub mod ros2;
 mod scalar;
 
 use std::path::Path;

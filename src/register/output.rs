@@ -5,9 +5,9 @@ use serde_json::json;
 
 use super::{CloudKind, FrameOut};
 use crate::Result;
+use crate::io::codec::{self, cdr, foxglove};
 use crate::io::mcap_log::ChannelInfo;
 use crate::io::mcap_log::OutputLog;
-use crate::io::{foxglove_msgs, ros2};
 use crate::trajectory::free_mireg_namespace;
 
 /// JSON Schema of the `/mireg/stats` messages.
@@ -131,23 +131,23 @@ impl Outputs {
             CloudKind::Ros2 => (
                 log.add_channel(
                     tf_topic,
-                    ros2::TF_MESSAGE_SCHEMA_NAME,
-                    ros2::SCHEMA_ENCODING,
-                    ros2::TF_MESSAGE_SCHEMA.as_bytes(),
-                    ros2::MESSAGE_ENCODING,
+                    cdr::TF_MESSAGE_SCHEMA_NAME,
+                    cdr::SCHEMA_ENCODING,
+                    cdr::TF_MESSAGE_SCHEMA.as_bytes(),
+                    cdr::MESSAGE_ENCODING,
                 )?,
                 log.add_channel(
                     pose_topic,
-                    ros2::POSE_STAMPED_SCHEMA_NAME,
-                    ros2::SCHEMA_ENCODING,
-                    ros2::POSE_STAMPED_SCHEMA.as_bytes(),
-                    ros2::MESSAGE_ENCODING,
+                    cdr::POSE_STAMPED_SCHEMA_NAME,
+                    cdr::SCHEMA_ENCODING,
+                    cdr::POSE_STAMPED_SCHEMA.as_bytes(),
+                    cdr::MESSAGE_ENCODING,
                 )?,
             ),
             CloudKind::Foxglove => {
                 let (t, p) = (
-                    foxglove_msgs::frame_transforms_schema(),
-                    foxglove_msgs::pose_in_frame_schema(),
+                    foxglove::frame_transforms_schema(),
+                    foxglove::pose_in_frame_schema(),
                 );
                 (
                     log.add_channel(
@@ -155,14 +155,14 @@ impl Outputs {
                         &t.name,
                         &t.encoding,
                         &t.data,
-                        foxglove_msgs::MESSAGE_ENCODING,
+                        foxglove::MESSAGE_ENCODING,
                     )?,
                     log.add_channel(
                         pose_topic,
                         &p.name,
                         &p.encoding,
                         &p.data,
-                        foxglove_msgs::MESSAGE_ENCODING,
+                        foxglove::MESSAGE_ENCODING,
                     )?,
                 )
             }
@@ -193,22 +193,22 @@ pub(super) fn write_frame(
     let world_from_frame = out.est.world_from_frame;
     let (pose, tf) = match ch.kind {
         CloudKind::Ros2 => {
-            let header = ros2::Header {
+            let header = codec::Header {
                 stamp: out.header.stamp,
                 frame_id: world_frame.to_string(),
             };
-            let tf = ros2::encode_tf_message(&[ros2::TransformStamped {
+            let tf = cdr::encode_tf_message(&[codec::TransformStamped {
                 header: header.clone(),
                 child_frame_id: out.header.frame_id.clone(),
                 transform: world_from_frame,
             }]);
-            (ros2::encode_pose_stamped(&header, &world_from_frame), tf)
+            (cdr::encode_pose_stamped(&header, &world_from_frame), tf)
         }
         CloudKind::Foxglove => {
             let stamp = u64::try_from(out.header.stamp.to_ns()).unwrap_or(0);
             (
-                foxglove_msgs::encode_pose_in_frame(stamp, world_frame, &world_from_frame),
-                foxglove_msgs::encode_frame_transforms(&[(
+                foxglove::encode_pose_in_frame(stamp, world_frame, &world_from_frame),
+                foxglove::encode_frame_transforms(&[(
                     stamp,
                     world_frame,
                     &out.header.frame_id,

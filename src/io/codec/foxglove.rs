@@ -18,11 +18,9 @@ use foxglove::schemas::{
 use nalgebra::Isometry3;
 use prost::Message;
 
-use super::ros2::{
-    DecodeError, Header, PackedField, PackedLayout, PointCloud, Time, check_field_fits, extract,
-    isometry_from_parts,
-};
-use super::scalar::Scalar;
+use super::packed::{PackedField, PackedLayout, check_field_fits, extract};
+use super::{DecodeError, Header, PointCloud, Time, isometry_from_parts};
+use crate::io::scalar::Scalar;
 
 /// MCAP message encoding of every message in this module.
 pub const MESSAGE_ENCODING: &str = "protobuf";
@@ -184,6 +182,7 @@ pub fn decode_foxglove_point_cloud(payload: &[u8]) -> Result<PointCloud, DecodeE
             width: 0,
             height: 1,
             num_dropped_non_finite: 0,
+            num_dropped_zero: 0,
         });
     }
     let stride = u64::from(msg.point_stride);
@@ -287,6 +286,7 @@ pub fn decode_foxglove_point_cloud(payload: &[u8]) -> Result<PointCloud, DecodeE
         width,
         height: 1,
         num_dropped_non_finite: ex.num_dropped_non_finite,
+        num_dropped_zero: ex.num_dropped_zero,
     })
 }
 
