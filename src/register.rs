@@ -23,7 +23,7 @@ use nalgebra::Isometry3;
 
 use crate::geometry::deskew::deskew;
 use crate::io::atomic_file::same_file;
-use crate::io::codec::{self, cdr, foxglove};
+use crate::io::codec::{self, cdr, foxglove, pose_stamped_decoder, ros1};
 use crate::io::log_order::{ChunkTimes, Reorder};
 use crate::io::mcap_log::{ChannelInfo, InputCatalog, OutputLog, pass_through};
 use crate::odometry::{FrameEstimate, Odometry, OdometryConfig};
@@ -170,6 +170,8 @@ pub struct RegisterSummary {
 enum CloudKind {
     /// ROS 2 `sensor_msgs/msg/PointCloud2`, cdr.
     Ros2,
+    /// ROS 1 `sensor_msgs/PointCloud2`, ros1.
+    Ros1,
     /// `foxglove.PointCloud`, protobuf (its `pose` applied).
     Foxglove,
 }
@@ -180,6 +182,10 @@ fn cloud_kind(c: &ChannelInfo) -> Option<CloudKind> {
     if c.schema_name == cdr::POINT_CLOUD2_SCHEMA_NAME && c.message_encoding == cdr::MESSAGE_ENCODING
     {
         Some(CloudKind::Ros2)
+    } else if c.schema_name == ros1::POINT_CLOUD2_SCHEMA_NAME
+        && c.message_encoding == ros1::MESSAGE_ENCODING
+    {
+        Some(CloudKind::Ros1)
     } else if c.schema_name == FOXGLOVE_POINT_CLOUD
         && c.message_encoding == foxglove::MESSAGE_ENCODING
     {
@@ -190,12 +196,46 @@ fn cloud_kind(c: &ChannelInfo) -> Option<CloudKind> {
 }
 
 impl CloudKind {
+    /// The MCAP profile of a log whose clouds are of this kind (and so of ours).
+    fn profile(self) -> &'static str {
+        match self {
+            CloudKind::Ros1 => "ros1",
+            CloudKind::Ros2 | CloudKind::Foxglove => "ros2",
+        }
+    }
+
     fn decode(self, payload: &[u8]) -> std::result::Result<codec::PointCloud, codec::DecodeError> {
         match self {
             CloudKind::Ros2 => cdr::decode_point_cloud2(payload),
+            CloudKind::Ros1 => ros1::decode_point_cloud2(payload),
             CloudKind::Foxglove => foxglove::decode_foxglove_point_cloud(payload),
         }
     }
+}
+
+/// The cloud messages `register` reads, for error messages.
+const CLOUD_TYPES: &str =
+    "sensor_msgs/PointCloud2 in ros1 or cdr, or foxglove.PointCloud in protobuf";
+
+/// How to turn a point message mireg does not read into one it does, for the types users meet.
+fn conversion_hint(schema_name: &str) -> Option<&'static str> {
+    let name = schema_name.replace("/msg/", "/");
+    Some(match name.as_str() {
+        "livox_ros_driver/CustomMsg" | "livox_ros_driver2/CustomMsg" => {
+            "Livox's own point format is not supported; record the driver's PointCloud2 output instead (xfer_format 0 in the livox_ros_driver launch file), or republish the log's CustomMsg as sensor_msgs/PointCloud2 and record that"
+        }
+        "sensor_msgs/PointCloud" => {
+            "the old sensor_msgs/PointCloud is not supported; convert it to PointCloud2 (ROS 1 point_cloud_converter, or sensor_msgs::convertPointCloudToPointCloud2)"
+        }
+        "velodyne_msgs/VelodyneScan" => {
+            "these are raw Velodyne packets; turn them into PointCloud2 with velodyne_pointcloud (its transform or cloud node) while replaying the log, and record that"
+        }
+        "ouster_ros/PacketMsg" | "ouster_sensor_msgs/PacketMsg" => {
+            "these are raw Ouster packets; turn them into PointCloud2 with ouster_ros's os_cloud node while replaying the log, and record that"
+        }
+        "sensor_msgs/LaserScan" => "2-D laser scans are not supported",
+        _ => return None,
+    })
 }
 
 /// Picks the point cloud channel: the one named `requested`, or the only cloud topic.
@@ -220,23 +260,33 @@ fn choose_topic(
                     .join(", ")
             ))
         })?;
-        let kind = cloud_kind(c).ok_or_else(|| Error::InvalidInput(format!(
-            "{}: topic {topic:?} carries {} ({}), not a point cloud (sensor_msgs/msg/PointCloud2 in cdr, or foxglove.PointCloud in protobuf)",
-            path.display(),
-            c.schema_name,
-            c.message_encoding
-        )))?;
+        let kind = cloud_kind(c).ok_or_else(|| {
+            Error::InvalidInput(format!(
+                "{}: topic {topic:?} carries {} ({}), not a point cloud mireg reads ({CLOUD_TYPES}){}",
+                path.display(),
+                c.schema_name,
+                c.message_encoding,
+                conversion_hint(&c.schema_name)
+                    .map(|h| format!("; {h}"))
+                    .unwrap_or_default()
+            ))
+        })?;
         return Ok((topic.to_string(), kind));
     }
     match clouds.as_slice() {
         [] => Err(Error::InvalidInput(format!(
-            "{}: no point cloud topic (sensor_msgs/msg/PointCloud2 in cdr, or foxglove.PointCloud in protobuf); topics: {}",
+            "{}: no point cloud topic ({CLOUD_TYPES}); topics: {}{}",
             path.display(),
             channels
                 .iter()
                 .map(|c| format!("{} [{}]", c.topic, c.schema_name))
                 .collect::<Vec<_>>()
-                .join(", ")
+                .join(", "),
+            channels
+                .iter()
+                .find_map(|c| conversion_hint(&c.schema_name)
+                    .map(|h| format!("; topic {:?}: {h}", c.topic)))
+                .unwrap_or_default()
         ))),
         // Several channels on one topic (e.g. two recorder sessions) are one stream.
         [first, rest @ ..]
@@ -277,6 +327,8 @@ struct PreparedMsg {
     /// The cloud's time field, and whether its points were deskewed by it.
     time_field: Option<String>,
     deskewed: bool,
+    /// Points dropped by the decoder: non-finite, and zero returns of an organised cloud.
+    dropped: Dropped,
     log_time: u64,
     publish_time: u64,
     header: codec::Header,
@@ -284,10 +336,18 @@ struct PreparedMsg {
     frame: PreparedFrame,
 }
 
+/// Points the decoder dropped from one cloud.
+#[derive(Debug, Clone, Copy, Default)]
+struct Dropped {
+    non_finite: usize,
+    zero: usize,
+}
+
 struct FrameOut {
     invalid: Option<(FailureReason, String)>,
     time_field: Option<String>,
     deskewed: bool,
+    dropped: Dropped,
     log_time: u64,
     publish_time: u64,
     header: codec::Header,
@@ -395,12 +455,11 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     // A log registered before keeps its mireg topics; this run's go to the next namespace
     // (`/mireg_2/…`), so that no topic mixes two runs.
     let topics = Topics::for_input(&channels);
-    let reference_topic = channels
+    let reference = channels
         .iter()
-        .find(|c| {
-            c.topic == DEFAULT_REFERENCE_TOPIC && c.schema_name == cdr::POSE_STAMPED_SCHEMA_NAME
-        })
-        .map(|c| c.topic.clone());
+        .filter(|c| c.topic == DEFAULT_REFERENCE_TOPIC)
+        .find_map(|c| pose_stamped_decoder(&c.schema_name, &c.message_encoding));
+    let reference_topic = reference.map(|_| DEFAULT_REFERENCE_TOPIC.to_string());
     let chunk_times = ChunkTimes::read(input)?;
     let total_frames = channels
         .iter()
@@ -408,7 +467,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         .filter_map(|c| c.message_count)
         .sum::<u64>();
 
-    let mut log = OutputLog::create(&opts.output, opts.force, "ros2")?;
+    let mut log = OutputLog::create(&opts.output, opts.force, kind.profile())?;
     // The input's schemas and channels keep their ids (its chunks are copied as they are); ours
     // get ids above them.
     log.declare_input(input, &catalog)?;
@@ -443,6 +502,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     };
 
     let mut estimates: Vec<(i64, Isometry3<f64>, bool, usize)> = Vec::new(); // (stamp, pose, success, inliers)
+    let reference_decoder = reference;
     let mut reference: Vec<(i64, Isometry3<f64>)> = Vec::new();
     let mut copied = 0u64;
     let config = &config;
@@ -470,6 +530,10 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                 let t = Instant::now();
                 let decoded = kind.decode(&msg.data);
                 let (mut time_field, mut deskewed, mut fatal) = (None, false, None);
+                let dropped = decoded.as_ref().map_or(Dropped::default(), |c| Dropped {
+                    non_finite: c.num_dropped_non_finite,
+                    zero: c.num_dropped_zero,
+                });
                 // The message bytes are not needed past decoding: don't hold them through prepare.
                 drop(msg.data);
                 let decode_s = t.elapsed().as_secs_f64();
@@ -530,6 +594,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                     invalid,
                     time_field,
                     deskewed,
+                    dropped,
                     log_time: msg.log_time,
                     publish_time: msg.publish_time,
                     header,
@@ -565,6 +630,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                         invalid: m.invalid,
                         time_field: m.time_field,
                         deskewed: m.deskewed,
+                        dropped: m.dropped,
                         log_time: m.log_time,
                         publish_time: m.publish_time,
                         header: m.header,
@@ -628,7 +694,8 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                     }
                 }
             } else if reference_channels.contains(&header.channel_id)
-                && let Ok((h, pose)) = cdr::decode_pose_stamped(data)
+                && let Some(decode) = reference_decoder
+                && let Ok((h, pose)) = decode(data)
             {
                 reference.push((h.stamp.to_ns(), pose));
             }

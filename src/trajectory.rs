@@ -21,7 +21,7 @@ use nalgebra::{Isometry3, Matrix3, Quaternion, Translation3, UnitQuaternion, Vec
 use crate::evaluate::{
     Drift, aligned_position_errors, ate_rmse, path_distances, path_drift, relative_pose_errors,
 };
-use crate::io::codec::cdr;
+use crate::io::codec::{PoseStampedDecoder, cdr, pose_stamped_decoder, ros1};
 use crate::io::mcap_log::{ChannelInfo, for_each_record, list_channels};
 use crate::io::{format_err, pose_file, read_text};
 use crate::{Error, Result};
@@ -384,11 +384,11 @@ pub fn read_redwood(path: &Path) -> Result<Trajectory> {
 // MCAP
 // ---------------------------------------------------------------------------------------------
 
-/// Topics of `channels` that carry `geometry_msgs/msg/PoseStamped` in CDR.
+/// Topics of `channels` that carry `geometry_msgs/PoseStamped` (ROS 2 in CDR or ROS 1).
 pub fn pose_stamped_topics(channels: &[ChannelInfo]) -> Vec<String> {
     let mut t: Vec<String> = channels
         .iter()
-        .filter(|c| c.schema_name == cdr::POSE_STAMPED_SCHEMA_NAME && c.message_encoding == "cdr")
+        .filter(|c| pose_stamped_decoder(&c.schema_name, &c.message_encoding).is_some())
         .map(|c| c.topic.clone())
         .collect();
     t.dedup();
@@ -408,11 +408,16 @@ fn pose_topic_error(path: &Path, channels: &[ChannelInfo], detail: String) -> Er
     ))
 }
 
-/// Checks that `topic` exists in `channels` and carries `geometry_msgs/msg/PoseStamped` (CDR).
+/// Checks that `topic` exists in `channels` and carries `geometry_msgs/PoseStamped` (ROS 2 in CDR
+/// or ROS 1), and returns its decoder.
 ///
 /// # Errors
 /// [`Error::InvalidInput`] naming the file and topic and listing the PoseStamped topics.
-pub fn check_pose_topic(path: &Path, channels: &[ChannelInfo], topic: &str) -> Result<()> {
+pub fn check_pose_topic(
+    path: &Path,
+    channels: &[ChannelInfo],
+    topic: &str,
+) -> Result<PoseStampedDecoder> {
     let matching: Vec<&ChannelInfo> = channels.iter().filter(|c| c.topic == topic).collect();
     if matching.is_empty() {
         return Err(pose_topic_error(
@@ -421,22 +426,36 @@ pub fn check_pose_topic(path: &Path, channels: &[ChannelInfo], topic: &str) -> R
             format!("no topic {topic:?}"),
         ));
     }
-    if let Some(c) = matching
+    let decoders: Vec<Option<PoseStampedDecoder>> = matching
         .iter()
-        .find(|c| c.schema_name != cdr::POSE_STAMPED_SCHEMA_NAME || c.message_encoding != "cdr")
-    {
+        .map(|c| pose_stamped_decoder(&c.schema_name, &c.message_encoding))
+        .collect();
+    if let Some(k) = decoders.iter().position(|d| d.is_none()) {
+        let c = matching[k];
         return Err(pose_topic_error(
             path,
             channels,
             format!(
-                "topic {topic:?} carries {} ({}), not {} (cdr)",
+                "topic {topic:?} carries {} ({}), not {} (cdr) or {} (ros1)",
                 c.schema_name,
                 c.message_encoding,
-                cdr::POSE_STAMPED_SCHEMA_NAME
+                cdr::POSE_STAMPED_SCHEMA_NAME,
+                ros1::POSE_STAMPED_SCHEMA_NAME
             ),
         ));
     }
-    Ok(())
+    let first = decoders[0].expect("checked");
+    if matching
+        .iter()
+        .any(|c| c.message_encoding != matching[0].message_encoding)
+    {
+        return Err(pose_topic_error(
+            path,
+            channels,
+            format!("topic {topic:?} mixes ROS 1 and ROS 2 channels"),
+        ));
+    }
+    Ok(first)
 }
 
 /// Calls `f(topic index, log time \[ns\], payload)` for every message on one of `topics`, in file
@@ -477,12 +496,13 @@ fn for_each_message_on(
 /// topic and log time) or an unreadable MCAP.
 pub fn read_mcap_pose_topics(path: &Path, topics: &[&str]) -> Result<Vec<Trajectory>> {
     let channels = list_channels(path)?;
-    for t in topics {
-        check_pose_topic(path, &channels, t)?;
-    }
+    let decoders = topics
+        .iter()
+        .map(|t| check_pose_topic(path, &channels, t))
+        .collect::<Result<Vec<_>>>()?;
     let mut out: Vec<Vec<(i64, Isometry3<f64>)>> = vec![Vec::new(); topics.len()];
     for_each_message_on(path, topics, |k, log_time, data| {
-        let (header, pose) = cdr::decode_pose_stamped(data).map_err(|e| {
+        let (header, pose) = decoders[k](data).map_err(|e| {
             format_err(
                 path,
                 format!(

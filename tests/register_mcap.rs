@@ -7,6 +7,10 @@ use std::path::{Path, PathBuf};
 use mcap::records::{MessageHeader, Record};
 use mireg::io::codec::{Header, Time, cdr};
 use mireg::io::log_order::ChunkTimes;
+
+#[path = "common/log_contents.rs"]
+mod log_contents;
+use log_contents::{Contents, assert_superset, contents};
 use mireg::io::mcap_log::for_each_record;
 use mireg::odometry::OdometryConfig;
 use mireg::pipeline::{PairConfig, pose_error};
@@ -31,61 +35,6 @@ fn options(input: &Path, output: &Path, voxel: f64) -> RegisterOptions {
         force: false,
         command_line: "test".into(),
         ..RegisterOptions::new(input, output, config)
-    }
-}
-
-/// Everything a log holds, by kind: messages as (topic, log_time, publish_time, data), metadata,
-/// attachments.
-#[derive(Default)]
-struct Contents {
-    messages: Vec<(String, u64, u64, Vec<u8>)>,
-    metadata: Vec<(String, BTreeMap<String, String>)>,
-    attachments: Vec<(String, String, u64, Vec<u8>)>,
-}
-
-fn contents(path: &Path) -> Contents {
-    let mut topics = BTreeMap::new();
-    let mut c = Contents::default();
-    for_each_record(path, |r| {
-        match r {
-            Record::Channel(ch) => {
-                topics.insert(ch.id, ch.topic);
-            }
-            Record::Message { header, data } => c.messages.push((
-                topics[&header.channel_id].clone(),
-                header.log_time,
-                header.publish_time,
-                data.to_vec(),
-            )),
-            Record::Metadata(m) => c.metadata.push((m.name, m.metadata)),
-            Record::Attachment { header, data, .. } => c.attachments.push((
-                header.name,
-                header.media_type,
-                header.log_time,
-                data.to_vec(),
-            )),
-            _ => {}
-        }
-        Ok(())
-    })
-    .unwrap();
-    c.messages.sort();
-    c
-}
-
-fn assert_superset(input: &Contents, output: &Contents) {
-    let mut out = output.messages.clone();
-    for m in &input.messages {
-        let i = out
-            .binary_search(m)
-            .unwrap_or_else(|_| panic!("input message on {} at {} missing or altered", m.0, m.1));
-        out.remove(i);
-    }
-    for m in &input.metadata {
-        assert!(output.metadata.contains(m), "metadata {} lost", m.0);
-    }
-    for a in &input.attachments {
-        assert!(output.attachments.contains(a), "attachment {} lost", a.0);
     }
 }
 

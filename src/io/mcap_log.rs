@@ -362,6 +362,27 @@ impl OutputLog {
         schema: &[u8],
         message_encoding: &str,
     ) -> Result<u16> {
+        self.add_channel_with_metadata(
+            topic,
+            schema_name,
+            schema_encoding,
+            schema,
+            message_encoding,
+            BTreeMap::new(),
+        )
+    }
+
+    /// [`add_channel`](Self::add_channel) with channel metadata (e.g. the ROS 1 profile's
+    /// `md5sum`, `callerid`, `latching`).
+    pub fn add_channel_with_metadata(
+        &mut self,
+        topic: &str,
+        schema_name: &str,
+        schema_encoding: &str,
+        schema: &[u8],
+        message_encoding: &str,
+        metadata: BTreeMap<String, String>,
+    ) -> Result<u16> {
         let key = (
             schema_name.to_string(),
             schema_encoding.to_string(),
@@ -403,7 +424,7 @@ impl OutputLog {
                 schema_id,
                 topic: topic.to_string(),
                 message_encoding: message_encoding.to_string(),
-                metadata: BTreeMap::new(),
+                metadata,
             },
             true,
         )?;

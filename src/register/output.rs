@@ -1,14 +1,19 @@
 //! What `mireg register` adds to the log: its channels (`/tf`, the pose and statistics topics, in
 //! the input's message family), one message of each per frame, and the statistics' JSON Schema.
 
+use std::collections::BTreeMap;
+
 use serde_json::json;
 
 use super::{CloudKind, FrameOut};
 use crate::Result;
-use crate::io::codec::{self, cdr, foxglove};
+use crate::io::codec::{self, cdr, foxglove, ros1};
 use crate::io::mcap_log::ChannelInfo;
 use crate::io::mcap_log::OutputLog;
 use crate::trajectory::free_mireg_namespace;
+
+/// The `callerid` of our channels in a ROS 1 log.
+const ROS1_CALLERID: &str = "/mireg";
 
 /// JSON Schema of the `/mireg/stats` messages.
 pub fn stats_json_schema() -> serde_json::Value {
@@ -23,7 +28,8 @@ pub fn stats_json_schema() -> serde_json::Value {
             "frame": int, "stamp_ns": int, "success": {"type": "boolean"},
             "failure_reason": {"type": ["string", "null"]},
             "failure_detail": {"type": ["string", "null"]}, "fallback": {"type": ["string", "null"]},
-            "num_points": int, "num_points_downsampled": int, "num_correspondences": int,
+            "num_points": int, "num_dropped_non_finite": int, "num_dropped_zero": int,
+            "num_points_downsampled": int, "num_correspondences": int,
             "num_inliers": int, "inlier_ratio": num, "hypotheses": int,
             "best_found_at": {"type": ["integer", "null"]}, "fitness": num, "inlier_rmse_m": num,
             "icp_iterations": int,
@@ -57,6 +63,8 @@ fn frame_stats(out: &FrameOut) -> serde_json::Value {
             crate::odometry::Fallback::ConstantVelocity => "constant_velocity",
         }),
         "num_points": e.num_points,
+        "num_dropped_non_finite": out.dropped.non_finite,
+        "num_dropped_zero": out.dropped.zero,
         "num_points_downsampled": e.num_points_downsampled,
         "num_correspondences": num_corr,
         "num_inliers": num_inl,
@@ -123,8 +131,9 @@ pub(super) struct Outputs {
 }
 
 impl Outputs {
-    /// Registers our channels: ROS 2 messages for ROS 2 inputs, foxglove protobuf messages for
-    /// foxglove inputs (so both open natively in Foxglove and Rerun).
+    /// Registers our channels in the input's message family: ROS 2 messages for ROS 2 inputs,
+    /// ROS 1 messages (with the ROS 1 profile's channel metadata) for ROS 1 inputs, foxglove
+    /// protobuf messages for foxglove inputs.
     pub(super) fn create(log: &mut OutputLog, kind: CloudKind, topics: &Topics) -> Result<Self> {
         let (tf_topic, pose_topic) = (&topics.tf, &topics.pose);
         let (tf, pose) = match kind {
@@ -144,6 +153,35 @@ impl Outputs {
                     cdr::MESSAGE_ENCODING,
                 )?,
             ),
+            CloudKind::Ros1 => {
+                // The channel metadata the ROS 1 profile (and `mcap convert` from a bag) writes.
+                let meta = |topic: &str, md5: &str| {
+                    BTreeMap::from([
+                        ("callerid".to_string(), ROS1_CALLERID.to_string()),
+                        ("latching".to_string(), "0".to_string()),
+                        ("md5sum".to_string(), md5.to_string()),
+                        ("topic".to_string(), topic.to_string()),
+                    ])
+                };
+                (
+                    log.add_channel_with_metadata(
+                        tf_topic,
+                        ros1::TF_MESSAGE_SCHEMA_NAME,
+                        ros1::SCHEMA_ENCODING,
+                        ros1::TF_MESSAGE_SCHEMA.as_bytes(),
+                        ros1::MESSAGE_ENCODING,
+                        meta(tf_topic, ros1::TF_MESSAGE_MD5),
+                    )?,
+                    log.add_channel_with_metadata(
+                        pose_topic,
+                        ros1::POSE_STAMPED_SCHEMA_NAME,
+                        ros1::SCHEMA_ENCODING,
+                        ros1::POSE_STAMPED_SCHEMA.as_bytes(),
+                        ros1::MESSAGE_ENCODING,
+                        meta(pose_topic, ros1::POSE_STAMPED_MD5),
+                    )?,
+                )
+            }
             CloudKind::Foxglove => {
                 let (t, p) = (
                     foxglove::frame_transforms_schema(),
@@ -191,19 +229,24 @@ pub(super) fn write_frame(
     out: &FrameOut,
 ) -> Result<()> {
     let world_from_frame = out.est.world_from_frame;
+    let header = codec::Header {
+        stamp: out.header.stamp,
+        frame_id: world_frame.to_string(),
+    };
+    let transforms = [codec::TransformStamped {
+        header: header.clone(),
+        child_frame_id: out.header.frame_id.clone(),
+        transform: world_from_frame,
+    }];
     let (pose, tf) = match ch.kind {
-        CloudKind::Ros2 => {
-            let header = codec::Header {
-                stamp: out.header.stamp,
-                frame_id: world_frame.to_string(),
-            };
-            let tf = cdr::encode_tf_message(&[codec::TransformStamped {
-                header: header.clone(),
-                child_frame_id: out.header.frame_id.clone(),
-                transform: world_from_frame,
-            }]);
-            (cdr::encode_pose_stamped(&header, &world_from_frame), tf)
-        }
+        CloudKind::Ros2 => (
+            cdr::encode_pose_stamped(&header, &world_from_frame),
+            cdr::encode_tf_message(&transforms),
+        ),
+        CloudKind::Ros1 => (
+            ros1::encode_pose_stamped(&header, &world_from_frame),
+            ros1::encode_tf_message(&transforms),
+        ),
         CloudKind::Foxglove => {
             let stamp = u64::try_from(out.header.stamp.to_ns()).unwrap_or(0);
             (

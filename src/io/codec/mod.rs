@@ -313,3 +313,20 @@ pub(crate) fn isometry_from_parts(
         UnitQuaternion::from_quaternion(q),
     ))
 }
+
+/// A `geometry_msgs/PoseStamped` decoder: the header and the pose it carries.
+pub type PoseStampedDecoder = fn(&[u8]) -> Result<(Header, Isometry3<f64>), DecodeError>;
+
+/// The decoder for a channel that carries `geometry_msgs/PoseStamped`: ROS 2
+/// (`geometry_msgs/msg/PoseStamped` in `cdr`) or ROS 1 (`geometry_msgs/PoseStamped` in `ros1`);
+/// `None` for any other channel.
+pub fn pose_stamped_decoder(
+    schema_name: &str,
+    message_encoding: &str,
+) -> Option<PoseStampedDecoder> {
+    match (schema_name, message_encoding) {
+        (cdr::POSE_STAMPED_SCHEMA_NAME, cdr::MESSAGE_ENCODING) => Some(cdr::decode_pose_stamped),
+        (ros1::POSE_STAMPED_SCHEMA_NAME, ros1::MESSAGE_ENCODING) => Some(ros1::decode_pose_stamped),
+        _ => None,
+    }
+}

@@ -1,0 +1,64 @@
+//! What a log holds, read with mireg's bounded record reader, for tests that check that every
+//! input record reaches the output unchanged.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use mcap::records::Record;
+use mireg::io::mcap_log::for_each_record;
+
+/// Everything a log holds, by kind: messages as (topic, log_time, publish_time, data), metadata,
+/// attachments.
+#[derive(Default)]
+pub struct Contents {
+    pub messages: Vec<(String, u64, u64, Vec<u8>)>,
+    pub metadata: Vec<(String, BTreeMap<String, String>)>,
+    pub attachments: Vec<(String, String, u64, Vec<u8>)>,
+}
+
+pub fn contents(path: &Path) -> Contents {
+    let mut topics = BTreeMap::new();
+    let mut c = Contents::default();
+    for_each_record(path, |r| {
+        match r {
+            Record::Channel(ch) => {
+                topics.insert(ch.id, ch.topic);
+            }
+            Record::Message { header, data } => c.messages.push((
+                topics[&header.channel_id].clone(),
+                header.log_time,
+                header.publish_time,
+                data.to_vec(),
+            )),
+            Record::Metadata(m) => c.metadata.push((m.name, m.metadata)),
+            Record::Attachment { header, data, .. } => c.attachments.push((
+                header.name,
+                header.media_type,
+                header.log_time,
+                data.to_vec(),
+            )),
+            _ => {}
+        }
+        Ok(())
+    })
+    .unwrap();
+    c.messages.sort();
+    c
+}
+
+/// Every message, metadata record and attachment of `input` is in `output`, unchanged.
+pub fn assert_superset(input: &Contents, output: &Contents) {
+    let mut out = output.messages.clone();
+    for m in &input.messages {
+        let i = out
+            .binary_search(m)
+            .unwrap_or_else(|_| panic!("input message on {} at {} missing or altered", m.0, m.1));
+        out.remove(i);
+    }
+    for m in &input.metadata {
+        assert!(output.metadata.contains(m), "metadata {} lost", m.0);
+    }
+    for a in &input.attachments {
+        assert!(output.attachments.contains(a), "attachment {} lost", a.0);
+    }
+}
