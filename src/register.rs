@@ -24,8 +24,9 @@ use nalgebra::Isometry3;
 use crate::geometry::deskew::deskew;
 use crate::io::atomic_file::same_file;
 use crate::io::codec::{self, cdr, foxglove, pose_stamped_decoder, ros1};
-use crate::io::log_order::{ChunkTimes, Reorder};
-use crate::io::mcap_log::{ChannelInfo, InputCatalog, OutputLog, pass_through};
+use crate::io::input_log::InputLog;
+use crate::io::log_order::Reorder;
+use crate::io::mcap_log::{ChannelInfo, OutputLog};
 use crate::odometry::{FrameEstimate, Odometry, OdometryConfig};
 use crate::pipeline::{
     FailureReason, PrepareScratch, PreparedFrame, prepare_frame, prepare_frame_with,
@@ -376,7 +377,7 @@ fn stamp_of_log_time(log_time: u64) -> codec::Time {
 /// The voxel for the log's sensor ([`voxel_for_cloud`]) from the first cloud on `topic` that
 /// decodes to at least 3 points; `None` when none does (the configured voxel is then used).
 fn first_cloud_voxel(
-    input: &Path,
+    input: &InputLog,
     channels: &[ChannelInfo],
     topic: &str,
     kind: CloudKind,
@@ -388,10 +389,9 @@ fn first_cloud_voxel(
         .map(|c| c.id)
         .collect();
     let mut voxel = None;
-    crate::io::mcap_read::for_each_record_until(input, |r| {
-        if let mcap::records::Record::Message { header, data } = r
-            && ids.contains(&header.channel_id)
-            && let Ok(cloud) = kind.decode(&data)
+    input.for_each_message_until(|header, data| {
+        if ids.contains(&header.channel_id)
+            && let Ok(cloud) = kind.decode(data)
         {
             voxel = voxel_for_cloud(&cloud.points);
         }
@@ -404,49 +404,23 @@ fn first_cloud_voxel(
     Ok(voxel)
 }
 
-/// Fails unless `input` is a regular file, saying once what is wrong and what is accepted.
-fn check_input(input: &Path) -> Result<()> {
-    const ACCEPTED: &str = "mireg register reads one MCAP file (.mcap)";
-    match std::fs::metadata(input) {
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Err(Error::InvalidInput(format!(
-            "{}: no such file; {ACCEPTED}",
-            input.display()
-        ))),
-        Err(source) => Err(Error::Io {
-            path: input.to_path_buf(),
-            source,
-        }),
-        Ok(m) if m.is_dir() => Err(Error::InvalidInput(format!(
-            "{}: is a directory; {ACCEPTED} (for a ROS 2 bag directory, pass the .mcap file inside it)",
-            input.display()
-        ))),
-        Ok(m) if !m.is_file() => Err(Error::InvalidInput(format!(
-            "{}: is {}; {ACCEPTED}",
-            input.display(),
-            crate::io::file_kind(&m)
-        ))),
-        Ok(_) => Ok(()),
-    }
-}
-
 /// Runs the whole job. On any error the output path is left untouched.
 pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     let start = Instant::now();
     let input = &opts.input;
-    check_input(input)?;
     if same_file(input, &opts.output) {
         return Err(Error::InvalidInput(format!(
             "output {} is the input; mireg never writes over its input",
             opts.output.display()
         )));
     }
-    let catalog = InputCatalog::read(input)?;
+    let (input_log, catalog) = InputLog::open(input)?;
     let channels = catalog.channel_infos();
     let (topic, kind) = choose_topic(input, &channels, opts.topic.as_deref())?;
     let mut config = opts.config.clone();
     let mut voxel_source = "configured";
     if opts.derive_voxel
-        && let Some(v) = first_cloud_voxel(input, &channels, &topic, kind)?
+        && let Some(v) = first_cloud_voxel(&input_log, &channels, &topic, kind)?
     {
         config.pair.voxel_size_m = v;
         voxel_source = "first_cloud";
@@ -460,7 +434,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         .filter(|c| c.topic == DEFAULT_REFERENCE_TOPIC)
         .find_map(|c| pose_stamped_decoder(&c.schema_name, &c.message_encoding));
     let reference_topic = reference.map(|_| DEFAULT_REFERENCE_TOPIC.to_string());
-    let chunk_times = ChunkTimes::read(input)?;
+    let chunk_times = input_log.chunk_times()?;
     let total_frames = channels
         .iter()
         .filter(|c| c.topic == topic)
@@ -669,7 +643,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         let mut cloud_tx = Some(cloud_tx);
         // Input chunks are copied byte for byte; only messages on the cloud and reference
         // channels come here, in file order.
-        let read = pass_through(input, &mut log, &wanted, |log, header, data| {
+        let read = input_log.pass_through(&mut log, &wanted, |log, header, data| {
             if cloud_channels.contains(&header.channel_id) {
                 if let Some(handed) = pending.too_late(header.log_time) {
                     return Err(Error::Format {

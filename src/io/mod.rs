@@ -7,6 +7,7 @@
 pub mod atomic_file;
 pub mod cloud_file;
 pub mod codec;
+pub mod input_log;
 pub mod log_order;
 pub mod mcap_chunk;
 pub mod mcap_log;
@@ -15,6 +16,8 @@ pub mod mcap_record;
 pub mod mcap_write;
 pub mod point_time;
 pub mod pose_file;
+pub mod ros1_bag;
+pub mod rosbag2;
 mod scalar;
 
 use std::path::Path;

@@ -1,0 +1,207 @@
+//! The logs `mireg register` reads, behind one interface: an MCAP file, a ROS 1 bag, or a ROS 2
+//! bag directory. Each container gives a catalogue of MCAP schemas and channels
+//! ([`InputCatalog`]) and a stream of messages on them, so that everything downstream (topic
+//! choice, decoding, the output log) is the same for every kind.
+//!
+//! MCAP inputs keep their chunks: [`InputLog::pass_through`] copies them byte for byte. The other
+//! containers have no MCAP chunks to copy: their messages are written, bytes unchanged, into the
+//! output's own chunks.
+
+use std::borrow::Cow;
+use std::collections::BTreeSet;
+use std::ops::ControlFlow;
+use std::path::{Path, PathBuf};
+
+use mcap::records::{MessageHeader, Record};
+
+use super::log_order::ChunkTimes;
+use super::mcap_log::{InputCatalog, OutputLog, pass_through};
+use super::mcap_read::for_each_record_until;
+use super::ros1_bag::{self, Bag};
+use super::rosbag2::{Rosbag2, Storage};
+use crate::{Error, Result};
+
+/// What `register` accepts, for messages.
+pub const ACCEPTED: &str = "mireg register reads an MCAP file (.mcap), a ROS 1 bag (.bag), or a ROS 2 bag directory (metadata.yaml with .mcap or .db3 files)";
+
+/// The first bytes of every SQLite 3 database.
+const SQLITE_MAGIC: &[u8] = b"SQLite format 3\0";
+
+/// An opened input log.
+#[derive(Debug)]
+pub enum InputLog {
+    /// An MCAP file.
+    Mcap(PathBuf),
+    /// A ROS 1 bag (format 2.0).
+    Bag(Bag),
+    /// A ROS 2 bag directory.
+    Rosbag2(Rosbag2),
+}
+
+impl InputLog {
+    /// Opens `path` as whichever container it is: a directory with a `metadata.yaml` is a ROS 2
+    /// bag (one of a single MCAP file is read as that MCAP file); a file starting with `#ROSBAG`
+    /// is a ROS 1 bag; an SQLite database is a rosbag2 `.db3` file on its own; anything else is
+    /// read as MCAP (whose reader names what is wrong with a file that is not one).
+    ///
+    /// # Errors
+    /// [`Error::InvalidInput`] for a missing path, a directory without `metadata.yaml` or a
+    /// special file, saying once what is wrong and what is accepted; the containers' errors for
+    /// malformed files.
+    pub fn open(path: &Path) -> Result<(Self, InputCatalog)> {
+        let meta = match std::fs::metadata(path) {
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                return Err(Error::InvalidInput(format!(
+                    "{}: no such file or directory; {ACCEPTED}",
+                    path.display()
+                )));
+            }
+            Err(source) => {
+                return Err(Error::Io {
+                    path: path.to_path_buf(),
+                    source,
+                });
+            }
+            Ok(m) => m,
+        };
+        if meta.is_dir() {
+            if !path.join("metadata.yaml").is_file() {
+                return Err(Error::InvalidInput(format!(
+                    "{}: is a directory without a metadata.yaml, so not a ROS 2 bag; {ACCEPTED}",
+                    path.display()
+                )));
+            }
+            let mut bag = Rosbag2::open(path)?;
+            if let (Storage::Mcap, [file]) = (bag.storage, bag.files.as_slice()) {
+                // One MCAP file: read it as such, so that its chunks are copied byte for byte.
+                let catalog = InputCatalog::read(file)?;
+                return Ok((InputLog::Mcap(file.clone()), catalog));
+            }
+            let catalog = bag.catalog()?;
+            return Ok((InputLog::Rosbag2(bag), catalog));
+        }
+        if !meta.is_file() {
+            return Err(Error::InvalidInput(format!(
+                "{}: is {}; {ACCEPTED}",
+                path.display(),
+                super::file_kind(&meta)
+            )));
+        }
+        if starts_with(path, &ros1_bag::MAGIC[..9])? {
+            let bag = Bag::open(path)?;
+            let catalog = bag.catalog();
+            return Ok((InputLog::Bag(bag), catalog));
+        }
+        if starts_with(path, SQLITE_MAGIC)? {
+            // A rosbag2 `.db3` file on its own.
+            let mut bag = Rosbag2::single_db3(path)?;
+            let catalog = bag.catalog()?;
+            return Ok((InputLog::Rosbag2(bag), catalog));
+        }
+        let catalog = InputCatalog::read(path)?;
+        Ok((InputLog::Mcap(path.to_path_buf()), catalog))
+    }
+
+    /// The chunks' time ranges, for restoring log-time order ([`ChunkTimes`]); only MCAP files
+    /// have them.
+    pub fn chunk_times(&self) -> Result<Option<ChunkTimes>> {
+        match self {
+            InputLog::Mcap(path) => ChunkTimes::read(path),
+            InputLog::Bag(_) | InputLog::Rosbag2(_) => Ok(None),
+        }
+    }
+
+    /// Calls `f` on every message (its header as an MCAP message header on the catalogue's
+    /// channels, and its bytes) in file order until `f` breaks.
+    pub fn for_each_message_until(
+        &self,
+        mut f: impl FnMut(&MessageHeader, &[u8]) -> Result<ControlFlow<()>>,
+    ) -> Result<()> {
+        match self {
+            InputLog::Mcap(path) => for_each_record_until(path, |r| match r {
+                Record::Message { header, data } => f(&header, &data),
+                _ => Ok(ControlFlow::Continue(())),
+            }),
+            InputLog::Bag(bag) => {
+                bag.for_each_message(|conn, t, data| f(&bag_header(conn, t), data))
+            }
+            InputLog::Rosbag2(bag) => bag.for_each_message(|h, data| f(h, data)),
+        }
+    }
+
+    /// Copies every input message into `log` (bytes, channel ids and times unchanged), calling
+    /// `on_message` for those on `wanted` channels, in file order; returns the number of
+    /// messages copied. `log` must have declared the catalogue's schemas and channels.
+    pub fn pass_through(
+        &self,
+        log: &mut OutputLog,
+        wanted: &BTreeSet<u16>,
+        mut on_message: impl FnMut(&mut OutputLog, &MessageHeader, &[u8]) -> Result<()>,
+    ) -> Result<u64> {
+        let input_bytes = match self {
+            InputLog::Mcap(path) => return pass_through(path, log, wanted, on_message),
+            InputLog::Bag(bag) => bag.size(),
+            InputLog::Rosbag2(bag) => bag.size(),
+        };
+        log.reserve(input_bytes)?;
+        let mut copied = 0u64;
+        let mut copy = |log: &mut OutputLog, header: &MessageHeader, data: &[u8]| -> Result<()> {
+            log.copy(&Record::Message {
+                header: *header,
+                data: Cow::Borrowed(data),
+            })?;
+            copied += 1;
+            if wanted.contains(&header.channel_id) {
+                on_message(log, header, data)?;
+            }
+            log.write_behind()
+        };
+        match self {
+            InputLog::Mcap(_) => unreachable!("returned above"),
+            InputLog::Bag(bag) => bag.for_each_message(|conn, t, data| {
+                copy(log, &bag_header(conn, t), data)?;
+                Ok(ControlFlow::Continue(()))
+            })?,
+            InputLog::Rosbag2(bag) => bag.for_each_message(|h, data| {
+                copy(log, h, data)?;
+                Ok(ControlFlow::Continue(()))
+            })?,
+        }
+        log.start_writeback()?;
+        Ok(copied)
+    }
+}
+
+/// The MCAP header of a bag message: channel = connection, log and publish time = the bag's
+/// receive time, sequence 0 (bags record none).
+fn bag_header(conn: u32, time_ns: u64) -> MessageHeader {
+    MessageHeader {
+        channel_id: conn as u16, // < u16::MAX, checked when the bag was opened
+        sequence: 0,
+        log_time: time_ns,
+        publish_time: time_ns,
+    }
+}
+
+fn starts_with(path: &Path, prefix: &[u8]) -> Result<bool> {
+    use std::io::Read;
+    let mut f = std::fs::File::open(path).map_err(|source| Error::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let mut b = vec![0u8; prefix.len()];
+    let mut got = 0;
+    while got < b.len() {
+        match f.read(&mut b[got..]) {
+            Ok(0) => break,
+            Ok(n) => got += n,
+            Err(source) => {
+                return Err(Error::Io {
+                    path: path.to_path_buf(),
+                    source,
+                });
+            }
+        }
+    }
+    Ok(got == b.len() && b == prefix)
+}

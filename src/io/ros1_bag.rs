@@ -1,0 +1,659 @@
+//! ROS 1 bag files, format 2.0 (wiki.ros.org/Bags/Format/2.0): uncompressed, bz2 and lz4
+//! chunks, read in one forward pass with memory bounded by one chunk.
+//!
+//! A bag is `#ROSBAG V2.0\n` and a sequence of records, each `header_len: u32`, a header of
+//! `field_len: u32` + `name=value` fields, `data_len: u32`, data. The header's `op` field says
+//! what the record is: the bag header (0x03, with the offset of the index), chunks (0x05: a
+//! compressed run of connection (0x07) and message (0x02) records, each followed by index data
+//! (0x04)), then at the index offset every connection again and one chunk info (0x06) per chunk.
+//!
+//! The catalogue (connections and message counts) comes from the index; a bag whose index was
+//! never written (`index_pos` 0: the recorder was killed) is scanned once instead. Every length
+//! read from the file is checked against what remains of the file or the chunk, and a chunk's
+//! declared uncompressed size against [`MAX_CHUNK_BYTES`], before it drives an allocation.
+//!
+//! Each connection becomes an MCAP channel of the ROS 1 profile: id = the connection id, message
+//! encoding `ros1`, a `ros1msg` schema holding the connection's `message_definition`, and channel
+//! metadata `md5sum`, `topic`, and `callerid` / `latching` where the connection has them.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{BufReader, Read, Seek, SeekFrom};
+use std::ops::ControlFlow;
+use std::path::{Path, PathBuf};
+
+use mcap::records::Channel;
+
+use super::codec::ros1;
+use super::mcap_log::InputCatalog;
+use super::mcap_read::{MAX_CHUNK_BYTES, io_err};
+use super::mcap_write::SchemaRecord;
+use crate::{Error, Result};
+
+/// The first bytes of every bag of format 2.0.
+pub const MAGIC: &[u8] = b"#ROSBAG V2.0\n";
+
+/// Largest record header accepted, in bytes: 16 MiB. Headers hold a few fields; the largest are
+/// connection records' message definitions (tens of kilobytes).
+const MAX_HEADER_BYTES: u32 = 1 << 24;
+
+mod op {
+    pub const MSG_DATA: u8 = 0x02;
+    pub const BAG_HEADER: u8 = 0x03;
+    pub const INDEX_DATA: u8 = 0x04;
+    pub const CHUNK: u8 = 0x05;
+    pub const CHUNK_INFO: u8 = 0x06;
+    pub const CONNECTION: u8 = 0x07;
+}
+
+/// One connection of a bag: a topic with its type and publisher.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Connection {
+    /// Connection id (`conn`).
+    pub id: u32,
+    /// Topic the messages were recorded on.
+    pub topic: String,
+    /// Message type, e.g. `sensor_msgs/PointCloud2`.
+    pub msg_type: String,
+    /// MD5 sum of the type.
+    pub md5sum: String,
+    /// Full message definition (`gendeps --cat` text).
+    pub definition: String,
+    /// Publisher node, when recorded.
+    pub callerid: Option<String>,
+    /// `"1"` for a latched topic, when recorded.
+    pub latching: Option<String>,
+}
+
+/// A ROS 1 bag opened for reading: its connections and message counts.
+#[derive(Debug, Clone)]
+pub struct Bag {
+    path: PathBuf,
+    size: u64,
+    /// Offset of the first record after the bag header.
+    data_start: u64,
+    /// Offset of the index (0 when the bag has none); records from here on are not data.
+    index_pos: u64,
+    /// Connections by id.
+    pub connections: BTreeMap<u32, Connection>,
+    /// Messages per connection (from the chunk infos, or the scan).
+    pub message_counts: BTreeMap<u32, u64>,
+}
+
+/// A record's header fields (`name` → raw value) and its data.
+struct RawRecord {
+    offset: u64,
+    fields: Vec<(String, Vec<u8>)>,
+    data: Vec<u8>,
+}
+
+impl RawRecord {
+    fn op(&self) -> Option<u8> {
+        self.field("op")
+            .and_then(|v| (v.len() == 1).then_some(v[0]))
+    }
+
+    fn field(&self, name: &str) -> Option<&[u8]> {
+        self.fields
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, v)| v.as_slice())
+    }
+}
+
+/// Parses `name=value` fields, each prefixed by its `u32` length.
+fn parse_fields(mut b: &[u8]) -> std::result::Result<Vec<(String, Vec<u8>)>, String> {
+    let mut out = Vec::new();
+    while !b.is_empty() {
+        let Some((len, rest)) = b.split_first_chunk::<4>() else {
+            return Err(format!("{} stray bytes after the last field", b.len()));
+        };
+        let len = u32::from_le_bytes(*len) as usize;
+        if len > rest.len() {
+            return Err(format!(
+                "a field claims {len} bytes, {} remain in the header",
+                rest.len()
+            ));
+        }
+        let (field, rest) = rest.split_at(len);
+        let eq = field
+            .iter()
+            .position(|&c| c == b'=')
+            .ok_or_else(|| "a header field has no '='".to_string())?;
+        let name = String::from_utf8_lossy(&field[..eq]).into_owned();
+        out.push((name, field[eq + 1..].to_vec()));
+        b = rest;
+    }
+    Ok(out)
+}
+
+impl Bag {
+    fn err(&self, offset: u64, detail: impl std::fmt::Display) -> Error {
+        bag_err(&self.path, offset, detail)
+    }
+
+    /// Opens `path`, checks the format and reads the catalogue (from the index, or by one scan
+    /// when the bag has none).
+    ///
+    /// # Errors
+    /// [`Error::Format`] naming the file and the offset for anything that is not a well-formed
+    /// bag 2.0 (another version, a truncated file, an index beyond the end, a connection id
+    /// above 65 535).
+    pub fn open(path: &Path) -> Result<Self> {
+        let file = File::open(path).map_err(|e| io_err(path, e))?;
+        let size = file.metadata().map_err(|e| io_err(path, e))?.len();
+        let mut r = BufReader::with_capacity(1 << 16, file);
+        let mut magic = [0u8; 13];
+        let got = read_up_to(&mut r, &mut magic).map_err(|e| io_err(path, e))?;
+        if &magic[..got] != MAGIC {
+            let detail = if magic.starts_with(b"#ROSBAG V") {
+                format!(
+                    "bag format {:?} is not supported (only 2.0, what ROS 1 has written since 2010); `rosbag fix` upgrades it",
+                    String::from_utf8_lossy(&magic[9..got]).trim()
+                )
+            } else {
+                "not a ROS 1 bag: it does not start with \"#ROSBAG V2.0\"".to_string()
+            };
+            return Err(bag_err(path, 0, detail));
+        }
+        let mut bag = Bag {
+            path: path.to_path_buf(),
+            size,
+            data_start: 0,
+            index_pos: 0,
+            connections: BTreeMap::new(),
+            message_counts: BTreeMap::new(),
+        };
+        let mut pos = MAGIC.len() as u64;
+        let header = bag
+            .read_record(&mut r, &mut pos, false)?
+            .ok_or_else(|| bag.err(pos, "no bag header record (empty bag)"))?;
+        if header.op() != Some(op::BAG_HEADER) {
+            return Err(bag.err(header.offset, "the first record is not the bag header"));
+        }
+        bag.index_pos = u64_field(&header, "index_pos").map_err(|e| bag.err(header.offset, e))?;
+        bag.data_start = pos;
+        if bag.index_pos == 0 {
+            bag.scan_catalog(&mut r, pos)?;
+        } else {
+            if bag.index_pos < pos || bag.index_pos >= size {
+                return Err(bag.err(
+                    header.offset,
+                    format!(
+                        "the index is at offset {}, beyond the file's {size} bytes: the bag is truncated (rosbag reindex rebuilds its index)",
+                        bag.index_pos
+                    ),
+                ));
+            }
+            bag.read_index(&mut r)?;
+        }
+        Ok(bag)
+    }
+
+    /// Reads the record at `*pos` (`None` at the end of the file); its data is read only when
+    /// `with_data` or the record is small, else skipped.
+    fn read_record(
+        &self,
+        r: &mut BufReader<File>,
+        pos: &mut u64,
+        with_data: bool,
+    ) -> Result<Option<RawRecord>> {
+        let offset = *pos;
+        if offset == self.size {
+            return Ok(None);
+        }
+        let remain = self.size - offset;
+        let header_len = u64::from(read_u32(r, &self.path, offset)?);
+        if header_len > u64::from(MAX_HEADER_BYTES) || header_len + 8 > remain {
+            return Err(self.err(
+                offset,
+                format!(
+                    "record header claims {header_len} bytes, {} remain (truncated bag?)",
+                    remain.saturating_sub(4)
+                ),
+            ));
+        }
+        let mut header = vec![0u8; header_len as usize];
+        r.read_exact(&mut header)
+            .map_err(|e| io_err(&self.path, e))?;
+        let fields = parse_fields(&header).map_err(|e| self.err(offset, e))?;
+        let data_len = u64::from(read_u32(r, &self.path, offset)?);
+        let left = remain - 8 - header_len;
+        if data_len > left {
+            return Err(self.err(
+                offset,
+                format!("record data claims {data_len} bytes, {left} remain (truncated bag?)"),
+            ));
+        }
+        let mut rec = RawRecord {
+            offset,
+            fields,
+            data: Vec::new(),
+        };
+        let wants_data = with_data || rec.op() != Some(op::CHUNK);
+        if wants_data {
+            rec.data = vec![0u8; data_len as usize];
+            r.read_exact(&mut rec.data)
+                .map_err(|e| io_err(&self.path, e))?;
+        } else {
+            r.seek_relative(data_len as i64)
+                .map_err(|e| io_err(&self.path, e))?;
+        }
+        *pos = offset + 8 + header_len + data_len;
+        Ok(Some(rec))
+    }
+
+    fn add_connection(&mut self, rec: &RawRecord, data: &[u8]) -> Result<()> {
+        let id = u32_field(rec, "conn").map_err(|e| self.err(rec.offset, e))?;
+        if id >= u32::from(u16::MAX) {
+            return Err(self.err(
+                rec.offset,
+                format!("connection id {id} does not fit an MCAP channel id (at most 65534)"),
+            ));
+        }
+        let fields = parse_fields(data).map_err(|e| self.err(rec.offset, e))?;
+        let get = |name: &str| {
+            fields
+                .iter()
+                .find(|(n, _)| n == name)
+                .map(|(_, v)| String::from_utf8_lossy(v).into_owned())
+        };
+        let topic = rec
+            .field("topic")
+            .map(|v| String::from_utf8_lossy(v).into_owned())
+            .or_else(|| get("topic"))
+            .ok_or_else(|| self.err(rec.offset, format!("connection {id} has no topic")))?;
+        let need = |name: &str| {
+            get(name).ok_or_else(|| {
+                self.err(
+                    rec.offset,
+                    format!("connection {id} ({topic}) has no {name} field"),
+                )
+            })
+        };
+        let c = Connection {
+            id,
+            msg_type: need("type")?,
+            md5sum: need("md5sum")?,
+            definition: get("message_definition").unwrap_or_default(),
+            callerid: get("callerid"),
+            latching: get("latching"),
+            topic,
+        };
+        self.connections.entry(id).or_insert(c);
+        Ok(())
+    }
+
+    /// The index: every connection and chunk info from `index_pos` to the end.
+    fn read_index(&mut self, r: &mut BufReader<File>) -> Result<()> {
+        r.seek(SeekFrom::Start(self.index_pos))
+            .map_err(|e| io_err(&self.path, e))?;
+        let mut pos = self.index_pos;
+        while let Some(rec) = self.read_record(r, &mut pos, true)? {
+            match rec.op() {
+                Some(op::CONNECTION) => self.add_connection(&rec, &rec.data)?,
+                Some(op::CHUNK_INFO) => {
+                    for pair in rec.data.chunks(8) {
+                        let [c0, c1, c2, c3, n0, n1, n2, n3] = pair.try_into().map_err(|_| {
+                            self.err(rec.offset, "chunk info data is not a list of (conn, count)")
+                        })?;
+                        let conn = u32::from_le_bytes([c0, c1, c2, c3]);
+                        let n = u32::from_le_bytes([n0, n1, n2, n3]);
+                        *self.message_counts.entry(conn).or_default() += u64::from(n);
+                    }
+                }
+                _ => {}
+            }
+        }
+        Ok(())
+    }
+
+    /// The catalogue of a bag without an index: one pass over every chunk.
+    fn scan_catalog(&mut self, r: &mut BufReader<File>, start: u64) -> Result<()> {
+        let mut conns = Vec::new();
+        let mut counts: BTreeMap<u32, u64> = BTreeMap::new();
+        self.walk(r, start, &mut |rec, data| {
+            match rec {
+                Inner::Connection(rec) => conns.push((rec, data.to_vec())),
+                Inner::Message { conn, .. } => *counts.entry(conn).or_default() += 1,
+            }
+            Ok(ControlFlow::Continue(()))
+        })?;
+        for (rec, data) in conns {
+            self.add_connection(&rec, &data)?;
+        }
+        self.message_counts = counts;
+        Ok(())
+    }
+
+    /// Calls `f` on every connection and message record of every chunk from `start`, in file
+    /// order, until it breaks.
+    fn walk(
+        &self,
+        r: &mut BufReader<File>,
+        start: u64,
+        f: &mut InnerVisitor<'_>,
+    ) -> Result<()> {
+        let end = if self.index_pos == 0 {
+            self.size
+        } else {
+            self.index_pos
+        };
+        let mut pos = start;
+        let mut chunk = Vec::new();
+        while pos < end {
+            let Some(rec) = self.read_record(r, &mut pos, true)? else {
+                break;
+            };
+            match rec.op() {
+                Some(op::CHUNK) => {
+                    self.decompress(&rec, &mut chunk)?;
+                    if self.walk_chunk(&rec, &chunk, f)?.is_break() {
+                        return Ok(());
+                    }
+                }
+                Some(op::CONNECTION) => {
+                    if f(Inner::Connection(rec.clone_header()), &rec.data)?.is_break() {
+                        return Ok(());
+                    }
+                }
+                Some(op::MSG_DATA) => {
+                    let (conn, time_ns) =
+                        message_fields(&rec).map_err(|e| self.err(rec.offset, e))?;
+                    if f(Inner::Message { conn, time_ns }, &rec.data)?.is_break() {
+                        return Ok(());
+                    }
+                }
+                Some(op::INDEX_DATA | op::CHUNK_INFO | op::BAG_HEADER) => {}
+                Some(other) => {
+                    return Err(self.err(rec.offset, format!("unknown record op 0x{other:02x}")));
+                }
+                None => return Err(self.err(rec.offset, "record without an op field")),
+            }
+        }
+        Ok(())
+    }
+
+    /// The records inside one decompressed chunk.
+    fn walk_chunk(
+        &self,
+        chunk_rec: &RawRecord,
+        mut b: &[u8],
+        f: &mut InnerVisitor<'_>,
+    ) -> Result<ControlFlow<()>> {
+        let in_chunk = |at: usize, e: String| {
+            self.err(
+                chunk_rec.offset,
+                format!("chunk, at byte {at} of its records: {e}"),
+            )
+        };
+        let total = b.len();
+        while !b.is_empty() {
+            let at = total - b.len();
+            let (header, rest) = split_len_prefixed(b).map_err(|e| in_chunk(at, e))?;
+            let (data, rest) = split_len_prefixed(rest).map_err(|e| in_chunk(at, e))?;
+            b = rest;
+            let rec = RawRecord {
+                offset: chunk_rec.offset,
+                fields: parse_fields(header).map_err(|e| in_chunk(at, e))?,
+                data: Vec::new(),
+            };
+            let flow = match rec.op() {
+                Some(op::MSG_DATA) => {
+                    let (conn, time_ns) = message_fields(&rec).map_err(|e| in_chunk(at, e))?;
+                    f(Inner::Message { conn, time_ns }, data)?
+                }
+                Some(op::CONNECTION) => f(Inner::Connection(rec), data)?,
+                Some(other) => {
+                    return Err(in_chunk(
+                        at,
+                        format!("op 0x{other:02x} does not belong in a chunk"),
+                    ));
+                }
+                None => return Err(in_chunk(at, "record without an op field".into())),
+            };
+            if flow.is_break() {
+                return Ok(flow);
+            }
+        }
+        Ok(ControlFlow::Continue(()))
+    }
+
+    /// Decompresses a chunk record's data into `out`, checking its declared size.
+    fn decompress(&self, rec: &RawRecord, out: &mut Vec<u8>) -> Result<()> {
+        let size = u64::from(u32_field(rec, "size").map_err(|e| self.err(rec.offset, e))?);
+        if size > MAX_CHUNK_BYTES {
+            return Err(self.err(
+                rec.offset,
+                format!("chunk claims {size} uncompressed bytes, more than the limit of {MAX_CHUNK_BYTES}"),
+            ));
+        }
+        let compression = rec
+            .field("compression")
+            .map(|v| String::from_utf8_lossy(v).into_owned())
+            .unwrap_or_default();
+        out.clear();
+        let result = match compression.as_str() {
+            "none" => {
+                out.extend_from_slice(&rec.data);
+                Ok(())
+            }
+            "bz2" => read_bounded(bzip2::read::BzDecoder::new(&rec.data[..]), size, out),
+            "lz4" => lz4::Decoder::new(&rec.data[..]).and_then(|d| read_bounded(d, size, out)),
+            other => {
+                return Err(self.err(
+                    rec.offset,
+                    format!("chunk compression {other:?} is not supported (none, bz2, lz4)"),
+                ));
+            }
+        };
+        result.map_err(|e| self.err(rec.offset, format!("{compression} chunk: {e}")))?;
+        if out.len() as u64 != size {
+            return Err(self.err(
+                rec.offset,
+                format!(
+                    "{compression} chunk decompresses to {}{} bytes, but declares {size}",
+                    if out.len() as u64 > size {
+                        "more than "
+                    } else {
+                        ""
+                    },
+                    out.len()
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Calls `f(connection id, time [ns since the epoch], message bytes)` for every message, in
+    /// file order, until `f` breaks. One chunk is held in memory at a time.
+    pub fn for_each_message(
+        &self,
+        mut f: impl FnMut(u32, u64, &[u8]) -> Result<ControlFlow<()>>,
+    ) -> Result<()> {
+        let file = File::open(&self.path).map_err(|e| io_err(&self.path, e))?;
+        let mut r = BufReader::with_capacity(1 << 20, file);
+        r.seek(SeekFrom::Start(self.data_start))
+            .map_err(|e| io_err(&self.path, e))?;
+        let path = &self.path;
+        let connections = &self.connections;
+        self.walk(&mut r, self.data_start, &mut |rec, data| match rec {
+            Inner::Message { conn, time_ns } => {
+                if !connections.contains_key(&conn) {
+                    return Err(Error::Format {
+                        path: path.clone(),
+                        detail: format!(
+                            "a message at {time_ns} ns is on connection {conn}, which the bag never defines"
+                        ),
+                    });
+                }
+                f(conn, time_ns, data)
+            }
+            Inner::Connection(_) => Ok(ControlFlow::Continue(())),
+        })
+    }
+
+    /// Total size of the bag file, in bytes.
+    pub fn size(&self) -> u64 {
+        self.size
+    }
+
+    /// The bag as an MCAP catalogue of the ROS 1 profile (see the module doc).
+    pub fn catalog(&self) -> InputCatalog {
+        let mut cat = InputCatalog::default();
+        let mut schema_ids: BTreeMap<(&str, &str), u16> = BTreeMap::new();
+        for c in self.connections.values() {
+            let next = schema_ids.len() as u16 + 1;
+            let schema_id = *schema_ids
+                .entry((c.msg_type.as_str(), c.definition.as_str()))
+                .or_insert(next);
+            cat.schemas
+                .entry(schema_id)
+                .or_insert_with(|| SchemaRecord {
+                    name: c.msg_type.clone(),
+                    encoding: ros1::SCHEMA_ENCODING.to_string(),
+                    data: c.definition.as_bytes().to_vec(),
+                });
+            let mut metadata = BTreeMap::from([
+                ("md5sum".to_string(), c.md5sum.clone()),
+                ("topic".to_string(), c.topic.clone()),
+            ]);
+            if let Some(v) = &c.callerid {
+                metadata.insert("callerid".into(), v.clone());
+            }
+            if let Some(v) = &c.latching {
+                metadata.insert("latching".into(), v.clone());
+            }
+            let id = c.id as u16; // < u16::MAX, checked when read
+            cat.channels.insert(
+                id,
+                Channel {
+                    id,
+                    schema_id,
+                    topic: c.topic.clone(),
+                    message_encoding: ros1::MESSAGE_ENCODING.to_string(),
+                    metadata,
+                },
+            );
+        }
+        let counts = self
+            .connections
+            .keys()
+            .map(|&id| {
+                (
+                    id as u16,
+                    self.message_counts.get(&id).copied().unwrap_or(0),
+                )
+            })
+            .collect();
+        cat.message_counts = Some(counts);
+        cat
+    }
+}
+
+/// What [`Bag::walk`] calls on each inner record and its data.
+type InnerVisitor<'a> = dyn FnMut(Inner, &[u8]) -> Result<ControlFlow<()>> + 'a;
+
+/// A record inside a chunk (or at the top level of an old-style bag).
+enum Inner {
+    Connection(RawRecord),
+    Message { conn: u32, time_ns: u64 },
+}
+
+impl RawRecord {
+    fn clone_header(&self) -> RawRecord {
+        RawRecord {
+            offset: self.offset,
+            fields: self.fields.clone(),
+            data: Vec::new(),
+        }
+    }
+}
+
+fn bag_err(path: &Path, offset: u64, detail: impl std::fmt::Display) -> Error {
+    Error::Format {
+        path: path.to_path_buf(),
+        detail: format!("ROS 1 bag, record at offset {offset}: {detail}"),
+    }
+}
+
+fn read_up_to(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
+    let mut got = 0;
+    while got < buf.len() {
+        match r.read(&mut buf[got..])? {
+            0 => break,
+            n => got += n,
+        }
+    }
+    Ok(got)
+}
+
+fn read_u32(r: &mut impl Read, path: &Path, offset: u64) -> Result<u32> {
+    let mut b = [0u8; 4];
+    r.read_exact(&mut b).map_err(|e| {
+        if e.kind() == std::io::ErrorKind::UnexpectedEof {
+            bag_err(
+                path,
+                offset,
+                "the file ends inside the record (truncated bag?)",
+            )
+        } else {
+            io_err(path, e)
+        }
+    })?;
+    Ok(u32::from_le_bytes(b))
+}
+
+/// Splits a `u32`-length-prefixed field off the front of `b`.
+fn split_len_prefixed(b: &[u8]) -> std::result::Result<(&[u8], &[u8]), String> {
+    let Some((len, rest)) = b.split_first_chunk::<4>() else {
+        return Err(format!(
+            "{} stray bytes where a length was expected",
+            b.len()
+        ));
+    };
+    let len = u32::from_le_bytes(*len) as usize;
+    if len > rest.len() {
+        return Err(format!(
+            "claims {len} bytes, {} remain in the chunk",
+            rest.len()
+        ));
+    }
+    Ok(rest.split_at(len))
+}
+
+fn u32_field(rec: &RawRecord, name: &str) -> std::result::Result<u32, String> {
+    match rec.field(name) {
+        Some(v) if v.len() == 4 => Ok(u32::from_le_bytes(v.try_into().expect("4 bytes"))),
+        Some(v) => Err(format!("field {name} has {} bytes, not 4", v.len())),
+        None => Err(format!("no {name} field")),
+    }
+}
+
+fn u64_field(rec: &RawRecord, name: &str) -> std::result::Result<u64, String> {
+    match rec.field(name) {
+        Some(v) if v.len() == 8 => Ok(u64::from_le_bytes(v.try_into().expect("8 bytes"))),
+        Some(v) => Err(format!("field {name} has {} bytes, not 8", v.len())),
+        None => Err(format!("no {name} field")),
+    }
+}
+
+/// A message record's connection and time (`u32` seconds + `u32` nanoseconds) in nanoseconds.
+fn message_fields(rec: &RawRecord) -> std::result::Result<(u32, u64), String> {
+    let conn = u32_field(rec, "conn")?;
+    let t = match rec.field("time") {
+        Some(v) if v.len() == 8 => v,
+        _ => return Err("message record without an 8-byte time field".into()),
+    };
+    let sec = u32::from_le_bytes(t[..4].try_into().expect("4 bytes"));
+    let nsec = u32::from_le_bytes(t[4..].try_into().expect("4 bytes"));
+    Ok((conn, u64::from(sec) * 1_000_000_000 + u64::from(nsec)))
+}
+
+/// Reads `r` to its end into `out`, failing past `limit` bytes (a chunk that decompresses to more
+/// than it declares never gets the memory).
+fn read_bounded(r: impl Read, limit: u64, out: &mut Vec<u8>) -> std::io::Result<()> {
+    out.reserve(limit as usize);
+    r.take(limit + 1).read_to_end(out)?;
+    Ok(())
+}

@@ -1,0 +1,537 @@
+//! ROS 2 bag directories (rosbag2): a `metadata.yaml` naming the storage plugin and the bag's
+//! files in order, each an MCAP (`mcap` storage) or an SQLite 3 database (`sqlite3` storage,
+//! `.db3`). A bag split into several files is one log.
+//!
+//! The files' topics become one catalogue of MCAP channels: a channel per distinct (topic, type,
+//! serialization format), numbered from 1 in order of first appearance, so that a topic keeps one
+//! channel across the files of a split bag. Schemas:
+//! - `mcap` storage: the files' own schemas;
+//! - `sqlite3` storage: the `message_definitions` table where the bag has one (rosbag2 since
+//!   Iron); else our own full definition for the types we write ourselves
+//!   (`sensor_msgs/msg/PointCloud2`, `geometry_msgs/msg/PoseStamped`, `tf2_msgs/msg/TFMessage`);
+//!   else a `ros2msg` schema named after the type with an empty definition, so that the type
+//!   name and every message are kept even though no reader can decode them without the
+//!   definition (docs/INPUTS.md).
+//!
+//! SQLite files are opened read-only: nothing the user gave us is ever altered.
+
+use std::collections::BTreeMap;
+use std::ops::ControlFlow;
+use std::path::{Path, PathBuf};
+
+use mcap::records::{Channel, MessageHeader, Record};
+use rusqlite::{Connection as Db, OpenFlags};
+
+use super::codec::cdr;
+use super::mcap_log::InputCatalog;
+use super::mcap_read::for_each_record_until;
+use super::mcap_write::SchemaRecord;
+use crate::{Error, Result};
+
+/// The storage of a bag's files.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Storage {
+    /// MCAP files.
+    Mcap,
+    /// SQLite 3 databases (`.db3`).
+    Sqlite3,
+}
+
+/// A ROS 2 bag: its files in order and, once read, how their channel ids map to ours.
+#[derive(Debug, Clone)]
+pub struct Rosbag2 {
+    dir: PathBuf,
+    /// Storage plugin of every file.
+    pub storage: Storage,
+    /// The bag's files, in the order `metadata.yaml` lists them.
+    pub files: Vec<PathBuf>,
+    size: u64,
+    /// Per file: its channel (MCAP) or topic (SQLite) id → our channel id.
+    channel_maps: Vec<BTreeMap<i64, u16>>,
+}
+
+fn format_err(path: &Path, detail: impl Into<String>) -> Error {
+    super::format_err(path, detail)
+}
+
+fn sql_err(path: &Path, what: &str, e: rusqlite::Error) -> Error {
+    format_err(path, format!("SQLite 3 storage, {what}: {e}"))
+}
+
+/// A YAML scalar without its quotes.
+fn unquote(v: &str) -> String {
+    let v = v.trim();
+    for q in ['\'', '"'] {
+        if v.len() >= 2 && v.starts_with(q) && v.ends_with(q) {
+            return v[1..v.len() - 1].to_string();
+        }
+    }
+    v.to_string()
+}
+
+/// The two keys of a rosbag2 `metadata.yaml` we need: `storage_identifier`, and the list
+/// `relative_file_paths` (block or flow style), plus `compression_mode`. A small reader for
+/// the layout rosbag2 (and rosbags) write, not a YAML parser.
+#[derive(Debug, Default, PartialEq, Eq)]
+struct Metadata {
+    storage_identifier: Option<String>,
+    relative_file_paths: Vec<String>,
+    compression_mode: String,
+}
+
+fn parse_metadata(text: &str) -> Metadata {
+    let mut m = Metadata::default();
+    let mut lines = text.lines().peekable();
+    while let Some(line) = lines.next() {
+        let t = line.trim_start();
+        let indent = line.len() - t.len();
+        if let Some(v) = t.strip_prefix("storage_identifier:") {
+            m.storage_identifier = Some(unquote(v));
+        } else if let Some(v) = t.strip_prefix("compression_mode:") {
+            m.compression_mode = unquote(v);
+        } else if let Some(v) = t.strip_prefix("relative_file_paths:") {
+            let v = v.trim();
+            if let Some(inner) = v.strip_prefix('[').and_then(|v| v.strip_suffix(']')) {
+                m.relative_file_paths = inner
+                    .split(',')
+                    .map(unquote)
+                    .filter(|s| !s.is_empty())
+                    .collect();
+                continue;
+            }
+            while let Some(next) = lines.peek() {
+                let nt = next.trim_start();
+                let nindent = next.len() - nt.len();
+                match nt.strip_prefix("- ") {
+                    Some(item) if nindent >= indent => {
+                        m.relative_file_paths.push(unquote(item));
+                        lines.next();
+                    }
+                    _ => break,
+                }
+            }
+        }
+    }
+    m
+}
+
+impl Rosbag2 {
+    /// Reads `dir/metadata.yaml` and checks that every file it names exists.
+    ///
+    /// # Errors
+    /// [`Error::Format`] naming `metadata.yaml` when it lists no files, names an unknown storage
+    /// or a compressed bag, or names a file that is missing.
+    pub fn open(dir: &Path) -> Result<Self> {
+        let meta_path = dir.join("metadata.yaml");
+        let text = super::read_text(&meta_path)?;
+        let meta = parse_metadata(&text);
+        if !meta.compression_mode.is_empty() && meta.compression_mode != "none" {
+            return Err(format_err(
+                &meta_path,
+                format!(
+                    "compression_mode {}: compressed ROS 2 bags are not supported; `ros2 bag decompress` (or `ros2 bag convert`) writes an uncompressed copy",
+                    meta.compression_mode
+                ),
+            ));
+        }
+        if meta.relative_file_paths.is_empty() {
+            return Err(format_err(
+                &meta_path,
+                "lists no files (relative_file_paths is missing or empty)",
+            ));
+        }
+        let files: Vec<PathBuf> = meta
+            .relative_file_paths
+            .iter()
+            .map(|f| dir.join(f))
+            .collect();
+        let storage = match meta.storage_identifier.as_deref() {
+            Some("mcap") => Storage::Mcap,
+            Some("sqlite3") => Storage::Sqlite3,
+            Some(other) => {
+                return Err(format_err(
+                    &meta_path,
+                    format!("storage_identifier {other:?} is not supported (mcap, sqlite3)"),
+                ));
+            }
+            // Older metadata may omit it: the files' extension says.
+            None if files
+                .iter()
+                .all(|f| f.extension().is_some_and(|e| e == "db3")) =>
+            {
+                Storage::Sqlite3
+            }
+            None => Storage::Mcap,
+        };
+        let mut size = 0;
+        for f in &files {
+            match std::fs::metadata(f) {
+                Ok(m) if m.is_file() => size += m.len(),
+                _ => {
+                    return Err(format_err(
+                        &meta_path,
+                        format!("lists {}, which is not a file in the bag", f.display()),
+                    ));
+                }
+            }
+        }
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            storage,
+            files,
+            size,
+            channel_maps: Vec::new(),
+        })
+    }
+
+    /// A single `.db3` file given on its own, read as a bag of that one file.
+    pub fn single_db3(path: &Path) -> Result<Self> {
+        let size = std::fs::metadata(path)
+            .map_err(|source| Error::Io {
+                path: path.to_path_buf(),
+                source,
+            })?
+            .len();
+        Ok(Self {
+            dir: path.parent().unwrap_or(Path::new(".")).to_path_buf(),
+            storage: Storage::Sqlite3,
+            files: vec![path.to_path_buf()],
+            size,
+            channel_maps: Vec::new(),
+        })
+    }
+
+    /// The bag directory.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Total size of the bag's files, in bytes.
+    pub fn size(&self) -> u64 {
+        self.size
+    }
+
+    /// The merged catalogue of every file (see the module doc); also fixes how each file's ids
+    /// map to its channels.
+    pub fn catalog(&mut self) -> Result<InputCatalog> {
+        let mut m = Merge::default();
+        self.channel_maps.clear();
+        for f in self.files.clone() {
+            let map = match self.storage {
+                Storage::Mcap => m.add_mcap(&f)?,
+                Storage::Sqlite3 => m.add_sqlite(&f)?,
+            };
+            self.channel_maps.push(map);
+        }
+        Ok(m.cat)
+    }
+
+    /// Calls `f` on every message of every file, file after file, each file in its own order
+    /// (MCAP: file order; SQLite: by timestamp), with the header on our channel ids, until `f`
+    /// breaks. [`catalog`](Self::catalog) must have been read.
+    pub fn for_each_message(
+        &self,
+        mut f: impl FnMut(&MessageHeader, &[u8]) -> Result<ControlFlow<()>>,
+    ) -> Result<()> {
+        assert_eq!(self.channel_maps.len(), self.files.len(), "catalog() first");
+        for (file, map) in self.files.iter().zip(&self.channel_maps) {
+            let flow = match self.storage {
+                Storage::Mcap => mcap_messages(file, map, &mut f)?,
+                Storage::Sqlite3 => sqlite_messages(file, map, &mut f)?,
+            };
+            if flow.is_break() {
+                break;
+            }
+        }
+        Ok(())
+    }
+}
+
+fn mcap_messages(
+    file: &Path,
+    map: &BTreeMap<i64, u16>,
+    f: &mut impl FnMut(&MessageHeader, &[u8]) -> Result<ControlFlow<()>>,
+) -> Result<ControlFlow<()>> {
+    let mut flow = ControlFlow::Continue(());
+    for_each_record_until(file, |r| {
+        if let Record::Message { header, data } = r {
+            let channel_id = *map.get(&i64::from(header.channel_id)).ok_or_else(|| {
+                format_err(
+                    file,
+                    format!(
+                        "a message is on channel {}, which the file never defines",
+                        header.channel_id
+                    ),
+                )
+            })?;
+            flow = f(
+                &MessageHeader {
+                    channel_id,
+                    ..header
+                },
+                &data,
+            )?;
+        }
+        Ok(flow)
+    })?;
+    Ok(flow)
+}
+
+fn open_db(file: &Path) -> Result<Db> {
+    let db = Db::open_with_flags(
+        file,
+        OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX,
+    )
+    .map_err(|e| sql_err(file, "opening", e))?;
+    // Fail here, naming the file, if it is not a database at all.
+    db.query_row("SELECT count(*) FROM sqlite_master", [], |_| Ok(()))
+        .map_err(|e| sql_err(file, "reading its tables", e))?;
+    Ok(db)
+}
+
+fn sqlite_messages(
+    file: &Path,
+    map: &BTreeMap<i64, u16>,
+    f: &mut impl FnMut(&MessageHeader, &[u8]) -> Result<ControlFlow<()>>,
+) -> Result<ControlFlow<()>> {
+    let db = open_db(file)?;
+    let mut stmt = db
+        .prepare("SELECT topic_id, timestamp, data FROM messages ORDER BY timestamp, id")
+        .map_err(|e| sql_err(file, "reading the messages table", e))?;
+    let mut rows = stmt
+        .query([])
+        .map_err(|e| sql_err(file, "reading the messages table", e))?;
+    while let Some(row) = rows
+        .next()
+        .map_err(|e| sql_err(file, "reading a message", e))?
+    {
+        let topic_id: i64 = row
+            .get(0)
+            .map_err(|e| sql_err(file, "messages.topic_id", e))?;
+        let t: i64 = row
+            .get(1)
+            .map_err(|e| sql_err(file, "messages.timestamp", e))?;
+        let data = row
+            .get_ref(2)
+            .and_then(|v| v.as_blob().map_err(rusqlite::Error::from))
+            .map_err(|e| sql_err(file, "messages.data", e))?;
+        let channel_id = *map.get(&topic_id).ok_or_else(|| {
+            format_err(
+                file,
+                format!("a message at {t} ns is on topic id {topic_id}, which the topics table does not define"),
+            )
+        })?;
+        let log_time = u64::try_from(t).map_err(|_| {
+            format_err(
+                file,
+                format!("a message on topic id {topic_id} has a negative timestamp {t}"),
+            )
+        })?;
+        let header = MessageHeader {
+            channel_id,
+            sequence: 0,
+            log_time,
+            publish_time: log_time,
+        };
+        if f(&header, data)?.is_break() {
+            return Ok(ControlFlow::Break(()));
+        }
+    }
+    Ok(ControlFlow::Continue(()))
+}
+
+/// The catalogue being merged from the files of one bag.
+#[derive(Default)]
+struct Merge {
+    cat: InputCatalog,
+    schemas: BTreeMap<(String, String, Vec<u8>), u16>,
+    channels: BTreeMap<(String, String, u16), u16>,
+}
+
+impl Merge {
+    fn schema(&mut self, s: SchemaRecord) -> u16 {
+        let key = (s.name.clone(), s.encoding.clone(), s.data.clone());
+        let next = self.schemas.len() as u16 + 1;
+        let id = *self.schemas.entry(key).or_insert(next);
+        self.cat.schemas.entry(id).or_insert(s);
+        id
+    }
+
+    fn channel(
+        &mut self,
+        file: &Path,
+        topic: &str,
+        message_encoding: &str,
+        schema_id: u16,
+        metadata: BTreeMap<String, String>,
+        count: u64,
+    ) -> Result<u16> {
+        let key = (topic.to_string(), message_encoding.to_string(), schema_id);
+        let next = self.channels.len() + 1;
+        if next >= usize::from(u16::MAX) && !self.channels.contains_key(&key) {
+            return Err(format_err(file, "more than 65534 channels"));
+        }
+        let id = *self.channels.entry(key).or_insert(next as u16);
+        self.cat.channels.entry(id).or_insert_with(|| Channel {
+            id,
+            schema_id,
+            topic: topic.to_string(),
+            message_encoding: message_encoding.to_string(),
+            metadata,
+        });
+        *self
+            .cat
+            .message_counts
+            .get_or_insert_with(BTreeMap::new)
+            .entry(id)
+            .or_default() += count;
+        Ok(id)
+    }
+
+    fn add_mcap(&mut self, file: &Path) -> Result<BTreeMap<i64, u16>> {
+        let cat = InputCatalog::read(file)?;
+        let mut map = BTreeMap::new();
+        for c in cat.channels.values() {
+            let schema_id = match cat.schemas.get(&c.schema_id) {
+                Some(s) => self.schema(s.clone()),
+                None => 0,
+            };
+            let count = cat
+                .message_counts
+                .as_ref()
+                .and_then(|m| m.get(&c.id).copied())
+                .unwrap_or(0);
+            let id = self.channel(
+                file,
+                &c.topic,
+                &c.message_encoding,
+                schema_id,
+                c.metadata.clone(),
+                count,
+            )?;
+            map.insert(i64::from(c.id), id);
+        }
+        Ok(map)
+    }
+
+    fn add_sqlite(&mut self, file: &Path) -> Result<BTreeMap<i64, u16>> {
+        let db = open_db(file)?;
+        let has_table = |name: &str| -> Result<bool> {
+            db.query_row(
+                "SELECT count(*) FROM sqlite_master WHERE type = 'table' AND name = ?1",
+                [name],
+                |r| r.get::<_, i64>(0),
+            )
+            .map(|n| n > 0)
+            .map_err(|e| sql_err(file, "reading its tables", e))
+        };
+        if !has_table("topics")? || !has_table("messages")? {
+            return Err(format_err(
+                file,
+                "SQLite 3 storage: no topics or messages table, so not a rosbag2 database",
+            ));
+        }
+        let mut definitions: BTreeMap<String, (String, String)> = BTreeMap::new();
+        if has_table("message_definitions")? {
+            let mut stmt = db
+                .prepare("SELECT topic_type, encoding, encoded_message_definition FROM message_definitions")
+                .map_err(|e| sql_err(file, "reading message_definitions", e))?;
+            let rows = stmt
+                .query_map([], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)))
+                .map_err(|e| sql_err(file, "reading message_definitions", e))?;
+            for row in rows {
+                let (t, enc, text): (String, String, String) =
+                    row.map_err(|e| sql_err(file, "reading message_definitions", e))?;
+                if !text.is_empty() {
+                    definitions.insert(t, (enc, text));
+                }
+            }
+        }
+        let has_qos = db
+            .prepare("SELECT offered_qos_profiles FROM topics LIMIT 0")
+            .is_ok();
+        let sql = if has_qos {
+            "SELECT id, name, type, serialization_format, offered_qos_profiles, \
+             (SELECT count(*) FROM messages WHERE topic_id = topics.id) FROM topics ORDER BY id"
+        } else {
+            "SELECT id, name, type, serialization_format, '', \
+             (SELECT count(*) FROM messages WHERE topic_id = topics.id) FROM topics ORDER BY id"
+        };
+        let mut stmt = db
+            .prepare(sql)
+            .map_err(|e| sql_err(file, "reading the topics table", e))?;
+        type TopicRow = (i64, String, String, String, String, i64);
+        let rows: Vec<TopicRow> = stmt
+            .query_map([], |r| {
+                Ok((
+                    r.get(0)?,
+                    r.get(1)?,
+                    r.get(2)?,
+                    r.get(3)?,
+                    r.get(4)?,
+                    r.get(5)?,
+                ))
+            })
+            .and_then(|rows| rows.collect())
+            .map_err(|e| sql_err(file, "reading the topics table", e))?;
+        let mut map = BTreeMap::new();
+        for (topic_id, name, ty, format, qos, count) in rows {
+            let schema = match definitions.get(&ty) {
+                Some((enc, text)) => SchemaRecord {
+                    name: ty.clone(),
+                    encoding: enc.clone(),
+                    data: text.as_bytes().to_vec(),
+                },
+                None => SchemaRecord {
+                    name: ty.clone(),
+                    encoding: cdr::SCHEMA_ENCODING.to_string(),
+                    data: builtin_definition(&ty).unwrap_or("").as_bytes().to_vec(),
+                },
+            };
+            let schema_id = self.schema(schema);
+            let metadata = if qos.is_empty() {
+                BTreeMap::new()
+            } else {
+                BTreeMap::from([("offered_qos_profiles".to_string(), qos)])
+            };
+            let id = self.channel(
+                file,
+                &name,
+                &format,
+                schema_id,
+                metadata,
+                u64::try_from(count).unwrap_or(0),
+            )?;
+            map.insert(topic_id, id);
+        }
+        Ok(map)
+    }
+}
+
+/// Our own full `ros2msg` definition of a type, for `.db3` bags that store none.
+fn builtin_definition(ty: &str) -> Option<&'static str> {
+    match ty {
+        cdr::POINT_CLOUD2_SCHEMA_NAME => Some(cdr::POINT_CLOUD2_SCHEMA),
+        cdr::POSE_STAMPED_SCHEMA_NAME => Some(cdr::POSE_STAMPED_SCHEMA),
+        cdr::TF_MESSAGE_SCHEMA_NAME => Some(cdr::TF_MESSAGE_SCHEMA),
+        _ => None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn metadata_block_and_flow_lists_and_quotes() {
+        let m = parse_metadata(
+            "rosbag2_bagfile_information:\n  compression_format: ''\n  compression_mode: ''\n  relative_file_paths:\n  - a_0.db3\n  - 'a_1.db3'\n  storage_identifier: sqlite3\n  topics_with_message_count:\n  - message_count: 8\n",
+        );
+        assert_eq!(m.storage_identifier.as_deref(), Some("sqlite3"));
+        assert_eq!(m.relative_file_paths, ["a_0.db3", "a_1.db3"]);
+        assert_eq!(m.compression_mode, "");
+        let m = parse_metadata("x:\n  relative_file_paths: [\"b.mcap\", c.mcap]\n");
+        assert_eq!(m.relative_file_paths, ["b.mcap", "c.mcap"]);
+        assert_eq!(m.storage_identifier, None);
+    }
+}
