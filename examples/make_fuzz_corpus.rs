@@ -7,8 +7,8 @@
 use std::path::Path;
 
 use mcap::records::Record;
-use mireg::fuzzing::small_log;
-use mireg::io::codec::{self, cdr};
+use mireg::fuzzing::{ChunkCompression, small_bag, small_log};
+use mireg::io::codec::{self, cdr, ros1};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion};
 
 fn put(target: &str, name: &str, bytes: &[u8]) {
@@ -152,5 +152,47 @@ fn main() {
         b"1.5 0 0 0 0 0 0 1\n1.6 0.1 0 0 0 0 0 1\n",
     );
     put("pose_files", "poses.kitti", b"1 0 0 0 0 1 0 0 0 0 1 0\n");
+
+    // ROS 1: bags of each chunk compression, their messages, and rosbag2 metadata.
+    for (name, c) in [
+        ("none.bag", ChunkCompression::None),
+        ("bz2.bag", ChunkCompression::Bz2),
+        ("lz4.bag", ChunkCompression::Lz4),
+    ] {
+        put("ros1_bag", name, &small_bag(2, c, None));
+    }
+    let header = codec::Header {
+        stamp: codec::Time { sec: 7, nanosec: 9 },
+        frame_id: "lidar".into(),
+    };
+    let pts = [Point3::new(1.0f32, 2.0, 3.0), Point3::new(-1.0, 0.5, 2.0)];
+    put(
+        "ros1_messages",
+        "cloud",
+        &ros1::encode_point_cloud2(&header, &pts, Some(&[1.0, 2.0])),
+    );
+    let pose = Isometry3::from_parts(
+        Translation3::new(1.0, 2.0, 3.0),
+        UnitQuaternion::from_euler_angles(0.1, 0.2, 0.3),
+    );
+    put(
+        "ros1_messages",
+        "pose",
+        &ros1::encode_pose_stamped(&header, &pose),
+    );
+    put(
+        "ros1_messages",
+        "tf",
+        &ros1::encode_tf_message(&[codec::TransformStamped {
+            header: header.clone(),
+            child_frame_id: "base".into(),
+            transform: pose,
+        }]),
+    );
+    for dir in ["icl8_split", "icl8_mcap"] {
+        let text = std::fs::read(Path::new("fixtures/bags").join(dir).join("metadata.yaml"))
+            .expect("fixtures/bags metadata");
+        put("rosbag2_metadata", &format!("{dir}.yaml"), &text);
+    }
     println!("corpus written to fuzz/corpus/");
 }

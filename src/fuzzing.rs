@@ -7,11 +7,14 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::io::codec::{self, cdr, foxglove};
+use crate::io::codec::{self, cdr, foxglove, ros1};
 use crate::io::{cloud_file, pose_file};
 use crate::odometry::OdometryConfig;
 use crate::pipeline::PairConfig;
 use crate::register::{RegisterOptions, register_log};
+
+mod small_bag;
+pub use small_bag::{ChunkCompression, small_bag};
 
 /// A fuzzed file surface: name (fuzz target and corpus folder) and entry point.
 pub type Target = (&'static str, fn(&[u8]));
@@ -25,6 +28,9 @@ pub const TARGETS: &[Target] = &[
     ("register_input", register_input),
     ("cloud_files", cloud_files),
     ("pose_files", pose_files),
+    ("ros1_messages", ros1_messages),
+    ("ros1_bag", ros1_bag),
+    ("rosbag2_metadata", rosbag2_metadata),
 ];
 
 /// `sensor_msgs/msg/PointCloud2` (cdr) decoding; a decoded cloud holds only finite points.
@@ -55,6 +61,39 @@ pub fn pose_messages(data: &[u8]) {
     let _ = cdr::decode_tf_message(data);
 }
 
+/// ROS 1 `sensor_msgs/PointCloud2`, `geometry_msgs/PoseStamped` and `tf2_msgs/TFMessage`
+/// decoding.
+pub fn ros1_messages(data: &[u8]) {
+    if let Ok(c) = ros1::decode_point_cloud2(data) {
+        assert!(
+            c.points
+                .iter()
+                .all(|p| p.coords.iter().all(|v| v.is_finite()))
+        );
+    }
+    let _ = ros1::decode_pose_stamped(data);
+    let _ = ros1::decode_tf_message(data);
+}
+
+/// A ROS 1 bag: opened (catalogue from the index, or a scan), every message read, then the
+/// whole `mireg register` path on it.
+pub fn ros1_bag(data: &[u8]) {
+    let path = scratch("in.bag");
+    write(&path, data);
+    if let Ok(bag) = crate::io::ros1_bag::Bag::open(&path) {
+        let _ = bag.catalog();
+        let _ = bag.for_each_message(|_, _, _| Ok(std::ops::ControlFlow::Continue(())));
+    }
+    register_file("in.bag", data);
+}
+
+/// The `metadata.yaml` of a ROS 2 bag directory.
+pub fn rosbag2_metadata(data: &[u8]) {
+    if let Ok(text) = std::str::from_utf8(data) {
+        let _ = crate::io::rosbag2::parse_metadata(text);
+    }
+}
+
 /// A scratch file for inputs that are read from a path: in a temporary directory of this
 /// process, one per thread (the replay test runs targets in parallel).
 fn scratch(name: &str) -> PathBuf {
@@ -82,7 +121,12 @@ pub fn mcap_records(data: &[u8]) {
 /// The whole `mireg register` path: catalogue, chunk index, pass-through with validation, cloud
 /// decoding and registration, output. On error no output may be left behind.
 pub fn register_input(data: &[u8]) {
-    let input = scratch("in.mcap");
+    register_file("in.mcap", data);
+}
+
+/// `mireg register` on `data` saved as `name`; on error no output may be left behind.
+fn register_file(name: &str, data: &[u8]) {
+    let input = scratch(name);
     let output = scratch("out.mcap");
     write(&input, data);
     let _ = std::fs::remove_file(&output);
@@ -128,17 +172,10 @@ pub fn pose_files(data: &[u8]) {
     let _ = crate::trajectory::parse_kitti(text, p);
 }
 
-/// A small valid `mireg register` input, the seed of the MCAP corpora and of the hostile-input
-/// suite: `frames` clouds of a room with boxes (≈1 200 points, voxel 0.05 m works) on
-/// `/points` (ROS 2 PointCloud2), seen from a camera moving 4 cm and 1.1° per frame 0.1 s apart,
-/// its reference poses on `/ground_truth/pose`, a JSON channel, a metadata record and an
-/// attachment. `options` sets compression, chunking and indexes.
-pub fn small_log(frames: usize, options: mcap::WriteOptions) -> Vec<u8> {
-    use mcap::records::MessageHeader;
-    use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+/// The room of [`small_log`] and [`small_bag`]: walls and four boxes, ≈1 200 points (metres).
+fn small_scene() -> Vec<nalgebra::Point3<f64>> {
+    use nalgebra::{Point3, Vector3};
     use rand::{RngExt, SeedableRng};
-    use std::collections::BTreeMap;
-
     let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(5);
     let mut world = Vec::new();
     for _ in 0..700 {
@@ -167,6 +204,29 @@ pub fn small_log(frames: usize, options: mcap::WriteOptions) -> Vec<u8> {
             world.push(Point3::from(c + e));
         }
     }
+    world
+}
+
+/// The camera of [`small_log`] and [`small_bag`] at frame `k`: 4 cm and 1.1° per frame.
+fn small_camera(k: usize) -> nalgebra::Isometry3<f64> {
+    use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+    Isometry3::from_parts(
+        Translation3::new(0.04 * k as f64, 0.0, 0.01 * k as f64),
+        UnitQuaternion::from_euler_angles(0.0, 0.02 * k as f64, 0.0),
+    )
+}
+
+/// A small valid `mireg register` input, the seed of the MCAP corpora and of the hostile-input
+/// suite: `frames` clouds of a room with boxes (≈1 200 points, voxel 0.05 m works) on
+/// `/points` (ROS 2 PointCloud2), seen from a camera moving 4 cm and 1.1° per frame 0.1 s apart,
+/// its reference poses on `/ground_truth/pose`, a JSON channel, a metadata record and an
+/// attachment. `options` sets compression, chunking and indexes.
+pub fn small_log(frames: usize, options: mcap::WriteOptions) -> Vec<u8> {
+    use mcap::records::MessageHeader;
+    use nalgebra::Point3;
+    use std::collections::BTreeMap;
+
+    let world = small_scene();
     let mut out = std::io::Cursor::new(Vec::new());
     let mut w = options.profile("ros2").create(&mut out).expect("writer");
     let cloud_schema = w
@@ -211,10 +271,7 @@ pub fn small_log(frames: usize, options: mcap::WriteOptions) -> Vec<u8> {
     let t0 = 1_700_000_000_000_000_000u64;
     for k in 0..frames {
         let t = t0 + k as u64 * 100_000_000;
-        let world_from_camera = Isometry3::from_parts(
-            Translation3::new(0.04 * k as f64, 0.0, 0.01 * k as f64),
-            UnitQuaternion::from_euler_angles(0.0, 0.02 * k as f64, 0.0),
-        );
+        let world_from_camera = small_camera(k);
         let header = codec::Header {
             stamp: codec::Time::from_ns(t as i64).expect("in range"),
             frame_id: "camera".into(),

@@ -208,8 +208,8 @@ impl Bag {
             return Err(self.err(
                 offset,
                 format!(
-                    "record header claims {header_len} bytes, {} remain (truncated bag?)",
-                    remain.saturating_sub(4)
+                    "record header claims {header_len} bytes; with the two lengths that is {} bytes, and {remain} remain (truncated bag?)",
+                    header_len + 8
                 ),
             ));
         }
@@ -328,12 +328,7 @@ impl Bag {
 
     /// Calls `f` on every connection and message record of every chunk from `start`, in file
     /// order, until it breaks.
-    fn walk(
-        &self,
-        r: &mut BufReader<File>,
-        start: u64,
-        f: &mut InnerVisitor<'_>,
-    ) -> Result<()> {
+    fn walk(&self, r: &mut BufReader<File>, start: u64, f: &mut InnerVisitor<'_>) -> Result<()> {
         let end = if self.index_pos == 0 {
             self.size
         } else {

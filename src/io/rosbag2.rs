@@ -73,13 +73,13 @@ fn unquote(v: &str) -> String {
 /// `relative_file_paths` (block or flow style), plus `compression_mode`. A small reader for
 /// the layout rosbag2 (and rosbags) write, not a YAML parser.
 #[derive(Debug, Default, PartialEq, Eq)]
-struct Metadata {
+pub(crate) struct Metadata {
     storage_identifier: Option<String>,
     relative_file_paths: Vec<String>,
     compression_mode: String,
 }
 
-fn parse_metadata(text: &str) -> Metadata {
+pub(crate) fn parse_metadata(text: &str) -> Metadata {
     let mut m = Metadata::default();
     let mut lines = text.lines().peekable();
     while let Some(line) = lines.next() {

@@ -1,3 +1,4 @@
+#![allow(dead_code)] // shared by several test crates, each using a part
 //! What a log holds, read with mireg's bounded record reader, for tests that check that every
 //! input record reaches the output unchanged.
 
