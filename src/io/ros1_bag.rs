@@ -166,7 +166,7 @@ impl Bag {
         };
         let mut pos = MAGIC.len() as u64;
         let header = bag
-            .read_record(&mut r, &mut pos, false)?
+            .read_record(&mut r, &mut pos, Vec::new())?
             .ok_or_else(|| bag.err(pos, "no bag header record (empty bag)"))?;
         if header.op() != Some(op::BAG_HEADER) {
             return Err(bag.err(header.offset, "the first record is not the bag header"));
@@ -190,13 +190,13 @@ impl Bag {
         Ok(bag)
     }
 
-    /// Reads the record at `*pos` (`None` at the end of the file); its data is read only when
-    /// `with_data` or the record is small, else skipped.
+    /// Reads the record at `*pos` (`None` at the end of the file), its data into `buf` (whose
+    /// allocation is reused: pass the previous record's data back).
     fn read_record(
         &self,
         r: &mut BufReader<File>,
         pos: &mut u64,
-        with_data: bool,
+        buf: Vec<u8>,
     ) -> Result<Option<RawRecord>> {
         let offset = *pos;
         if offset == self.size {
@@ -228,16 +228,16 @@ impl Bag {
         let mut rec = RawRecord {
             offset,
             fields,
-            data: Vec::new(),
+            data: buf,
         };
-        let wants_data = with_data || rec.op() != Some(op::CHUNK);
-        if wants_data {
-            rec.data = vec![0u8; data_len as usize];
-            r.read_exact(&mut rec.data)
-                .map_err(|e| io_err(&self.path, e))?;
-        } else {
-            r.seek_relative(data_len as i64)
-                .map_err(|e| io_err(&self.path, e))?;
+        rec.data.clear();
+        // Read without zero-filling first; `data_len` fits in what remains of the file.
+        (&mut *r)
+            .take(data_len)
+            .read_to_end(&mut rec.data)
+            .map_err(|e| io_err(&self.path, e))?;
+        if rec.data.len() as u64 != data_len {
+            return Err(self.err(offset, "the file ends inside the record (truncated bag?)"));
         }
         *pos = offset + 8 + header_len + data_len;
         Ok(Some(rec))
@@ -289,7 +289,7 @@ impl Bag {
         r.seek(SeekFrom::Start(self.index_pos))
             .map_err(|e| io_err(&self.path, e))?;
         let mut pos = self.index_pos;
-        while let Some(rec) = self.read_record(r, &mut pos, true)? {
+        while let Some(rec) = self.read_record(r, &mut pos, Vec::new())? {
             match rec.op() {
                 Some(op::CONNECTION) => self.add_connection(&rec, &rec.data)?,
                 Some(op::CHUNK_INFO) => {
@@ -335,15 +335,16 @@ impl Bag {
             self.index_pos
         };
         let mut pos = start;
-        let mut chunk = Vec::new();
+        // Both buffers are reused from chunk to chunk.
+        let (mut chunk, mut spare) = (Vec::new(), Vec::new());
         while pos < end {
-            let Some(rec) = self.read_record(r, &mut pos, true)? else {
+            let Some(rec) = self.read_record(r, &mut pos, std::mem::take(&mut spare))? else {
                 break;
             };
             match rec.op() {
                 Some(op::CHUNK) => {
-                    self.decompress(&rec, &mut chunk)?;
-                    if self.walk_chunk(&rec, &chunk, f)?.is_break() {
+                    let records = self.decompress(&rec, &mut chunk)?;
+                    if self.walk_chunk(&rec, records, f)?.is_break() {
                         return Ok(());
                     }
                 }
@@ -365,6 +366,7 @@ impl Bag {
                 }
                 None => return Err(self.err(rec.offset, "record without an op field")),
             }
+            spare = rec.data;
         }
         Ok(())
     }
@@ -414,8 +416,9 @@ impl Bag {
         Ok(ControlFlow::Continue(()))
     }
 
-    /// Decompresses a chunk record's data into `out`, checking its declared size.
-    fn decompress(&self, rec: &RawRecord, out: &mut Vec<u8>) -> Result<()> {
+    /// A chunk's records: its data itself when uncompressed, else decompressed into `out`; the
+    /// declared size is checked either way.
+    fn decompress<'a>(&self, rec: &'a RawRecord, out: &'a mut Vec<u8>) -> Result<&'a [u8]> {
         let size = u64::from(u32_field(rec, "size").map_err(|e| self.err(rec.offset, e))?);
         if size > MAX_CHUNK_BYTES {
             return Err(self.err(
@@ -429,9 +432,15 @@ impl Bag {
             .unwrap_or_default();
         out.clear();
         let result = match compression.as_str() {
+            "none" if rec.data.len() as u64 == size => return Ok(&rec.data),
             "none" => {
-                out.extend_from_slice(&rec.data);
-                Ok(())
+                return Err(self.err(
+                    rec.offset,
+                    format!(
+                        "uncompressed chunk holds {} bytes, but declares {size}",
+                        rec.data.len()
+                    ),
+                ));
             }
             "bz2" => read_bounded(bzip2::read::BzDecoder::new(&rec.data[..]), size, out),
             "lz4" => lz4::Decoder::new(&rec.data[..]).and_then(|d| read_bounded(d, size, out)),
@@ -457,7 +466,7 @@ impl Bag {
                 ),
             ));
         }
-        Ok(())
+        Ok(out)
     }
 
     /// Calls `f(connection id, time [ns since the epoch], message bytes)` for every message, in
