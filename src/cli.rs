@@ -288,6 +288,11 @@ pub struct RegisterArgs {
     /// Livox offset_time, time_stamp): auto when the field is present, on (required), off.
     #[arg(long, value_enum, default_value_t = crate::register::DeskewMode::Auto)]
     pub deskew: crate::register::DeskewMode,
+    /// Message family of our /tf and pose channels: auto (the clouds' own: ROS 2, ROS 1 or
+    /// foxglove), or one of them. Rerun decodes ROS 2 and foxglove messages, not ROS 1: pass
+    /// foxglove for a ROS 1 log you open in Rerun.
+    #[arg(long, value_enum, default_value_t = crate::register::OutputMessages::Auto)]
+    pub output_messages: crate::register::OutputMessages,
     /// Points kept per voxel of the local map (its voxel is the ICP voxel).
     #[arg(long, value_name = "N", default_value_t = OdometryConfig::default().map_max_points_per_voxel)]
     pub map_points_per_voxel: usize,
@@ -620,6 +625,7 @@ fn run_register(args: &RegisterArgs) -> Result<()> {
         reorder_window: args.reorder_window,
         derive_voxel: !args.flags.voxel_configured()?,
         deskew: args.deskew,
+        output_messages: args.output_messages,
     };
     let summary = register_log(&opts)?;
     if args.json {

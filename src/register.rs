@@ -9,8 +9,8 @@
 mod motions;
 mod output;
 
-pub use motions::DeskewMode;
 use motions::Motions;
+pub use motions::{DeskewMode, OutputMessages};
 pub use output::stats_json_schema;
 use output::{Outputs, Topics, write_frame};
 
@@ -82,6 +82,9 @@ pub struct RegisterOptions {
     /// Whether clouds with per-point times are motion-compensated. Default
     /// [`DeskewMode::Auto`].
     pub deskew: DeskewMode,
+    /// The message family of our `/tf` and pose channels. Default [`OutputMessages::Auto`]
+    /// (the clouds' family).
+    pub output_messages: OutputMessages,
 }
 
 impl RegisterOptions {
@@ -102,6 +105,7 @@ impl RegisterOptions {
             reorder_window: REORDER_WINDOW,
             derive_voxel: false,
             deskew: DeskewMode::Auto,
+            output_messages: OutputMessages::Auto,
         }
     }
 }
@@ -445,7 +449,13 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     // The input's schemas and channels keep their ids (its chunks are copied as they are); ours
     // get ids above them.
     log.declare_input(input, &catalog)?;
-    let ch = Outputs::create(&mut log, kind, &topics)?;
+    let family = match opts.output_messages {
+        OutputMessages::Auto => kind,
+        OutputMessages::Ros2 => CloudKind::Ros2,
+        OutputMessages::Ros1 => CloudKind::Ros1,
+        OutputMessages::Foxglove => CloudKind::Foxglove,
+    };
+    let ch = Outputs::create(&mut log, family, &topics)?;
     let cloud_channels: Vec<u16> = channels
         .iter()
         .filter(|c| c.topic == topic)

@@ -199,3 +199,32 @@ fn exported_trajectory_of_a_ros1_output_reads_back() {
     let t = mireg::trajectory::read_mcap_pose_topics(&out, &["/mireg/pose"]).unwrap();
     assert_eq!(t[0].poses.len(), 2);
 }
+
+#[test]
+fn output_messages_picks_the_family_of_our_channels() {
+    use mireg::io::codec::cdr;
+    use mireg::register::OutputMessages;
+    let dir = tempfile::tempdir().unwrap();
+    let mut poses = Vec::new();
+    for (family, decode) in [
+        (
+            OutputMessages::Auto,
+            ros1::decode_pose_stamped as mireg::io::codec::PoseStampedDecoder,
+        ),
+        (OutputMessages::Ros2, cdr::decode_pose_stamped),
+    ] {
+        let out = dir.path().join(format!("{family:?}.mcap"));
+        let mut opts = RegisterOptions::new(&ouster(), &out, OdometryConfig::default());
+        opts.output_messages = family;
+        register_log(&opts).unwrap();
+        let p: Vec<_> = contents(&out)
+            .messages
+            .iter()
+            .filter(|m| m.0 == "/mireg/pose")
+            .map(|m| decode(&m.3).unwrap())
+            .collect();
+        assert_eq!(p.len(), 2, "{family:?}");
+        poses.push(p);
+    }
+    assert_eq!(poses[0], poses[1], "same poses in either family");
+}

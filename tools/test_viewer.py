@@ -252,3 +252,32 @@ def test_to_toml_round_trip():
            "sensor_origin": [0.0, 1.5, -2.0]}
     parsed = tomllib.loads(view.to_toml(cfg))
     assert parsed == {k: v for k, v in cfg.items() if v is not None}
+
+
+def ros1_output_mcap() -> Path:
+    value = os.environ.get("MIREG_ROS1_OUTPUT_MCAP")
+    if not value:
+        pytest.skip(
+            "MIREG_ROS1_OUTPUT_MCAP is unset: set it to the output of "
+            "`mireg register fixtures/bags/icl8_lz4.bag -o OUT.mcap` to run the ROS 1 test"
+        )
+    return Path(value)
+
+
+def test_ros1_output_reads_with_its_reference_and_a_chosen_reference_topic():
+    """A ROS 1 bag's output: clouds, estimates and reference poses decode (mcap_ros1), and
+    --reference-topic picks another PoseStamped topic (here the estimate itself)."""
+    run = view.read_run(ros1_output_mcap(), load_clouds=True)
+    assert run.has_reference
+    assert len(run.frames) == 8
+    for f in run.frames:
+        assert f.points is not None and len(f.points) > 1000
+        assert f.estimate is not None and f.reference is not None
+    # The first estimate is the identity; the reference starts at the identity too.
+    np.testing.assert_allclose(run.frames[0].estimate, np.eye(4), atol=1e-12)
+    assert max(np.linalg.norm(f.estimate[:3, 3] - f.reference[:3, 3]) for f in run.frames) < 0.02
+    same = view.read_run(ros1_output_mcap(), load_clouds=False, reference_topic="/mireg/pose")
+    for f in same.frames:
+        np.testing.assert_array_equal(f.reference, f.estimate)
+    none = view.read_run(ros1_output_mcap(), load_clouds=False, reference_topic="/no/such/topic")
+    assert not none.has_reference

@@ -78,6 +78,7 @@ from pathlib import Path
 
 import numpy as np
 from mcap.reader import make_reader
+from mcap_ros1.decoder import DecoderFactory as Ros1DecoderFactory
 from mcap_ros2.decoder import DecoderFactory
 
 TIMELINE = "message_log_time"
@@ -87,6 +88,7 @@ POSE_TOPIC = "/mireg/pose"
 STATS_TOPIC = "/mireg/stats"
 REFERENCE_TOPIC = "/ground_truth/pose"
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
+POINTCLOUD2_TYPES = (POINTCLOUD2, "sensor_msgs/PointCloud2")  # ROS 2, ROS 1
 STAT_SERIES = (
     "num_inliers",
     "num_correspondences",
@@ -208,21 +210,26 @@ def decode_pointcloud2(msg) -> tuple[np.ndarray, np.ndarray | None]:
         )
     xyz = np.stack([arr["x"], arr["y"], arr["z"]], axis=1).astype(np.float64)
     keep = np.isfinite(xyz).all(axis=1)
+    if height > 1:  # organised clouds mark "no return" with (0, 0, 0), as mireg drops them
+        keep &= (xyz != 0).any(axis=1)
     intensity = None
     if "intensity" in names and arr["intensity"].ndim == 1:
         intensity = arr["intensity"].astype(np.float64)[keep]
     return xyz[keep], intensity
 
 
-def read_run(path: str | Path, cloud_topic: str | None = None, load_clouds=True) -> Run:
-    """Read a mireg output MCAP.
+def read_run(path: str | Path, cloud_topic: str | None = None, load_clouds=True,
+             reference_topic: str = REFERENCE_TOPIC) -> Run:
+    """Read a mireg output MCAP (of a ROS 2, ROS 1 or foxglove-free input: ROS messages in
+    ``cdr`` or ``ros1``).
 
     ``load_clouds``: True (decode every cloud), False (none; only poses and stats), or a set of
-    cloud indices to decode (the others keep ``points = None``).
+    cloud indices to decode (the others keep ``points = None``). ``reference_topic``: the
+    PoseStamped topic drawn as the reference trajectory, when the log has it.
     """
     path = Path(path)
     decoders = {}  # channel id -> callable(bytes) -> message
-    factory = DecoderFactory()
+    factory = (DecoderFactory(), Ros1DecoderFactory())
     with open(path, "rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()
@@ -243,12 +250,16 @@ def read_run(path: str | Path, cloud_topic: str | None = None, load_clouds=True)
         if cloud_topic is None:
             for ch in channels:
                 schema = schemas.get(ch.schema_id)
-                if schema is not None and schema.name == POINTCLOUD2:
+                if schema is not None and schema.name in POINTCLOUD2_TYPES:
                     cloud_topic = ch.topic
                     break
         if cloud_topic is None:
             raise SystemExit(f"{path}: no {POINTCLOUD2} channel found (pass --cloud-topic)")
-        has_reference = any(ch.topic == REFERENCE_TOPIC for ch in channels)
+        has_reference = any(ch.topic == reference_topic for ch in channels)
+        # A log registered more than once has its runs' topics in namespaces (/mireg_2/...);
+        # the run's metadata names its own.
+        pose_topic = metadata.get("pose_topic", POSE_TOPIC)
+        stats_topic = metadata.get("stats_topic", STATS_TOPIC)
 
         frames: list[Frame] = []
         by_time: dict[int, Frame] = {}
@@ -257,7 +268,7 @@ def read_run(path: str | Path, cloud_topic: str | None = None, load_clouds=True)
         def attach(frame: Frame, kind: str, value):
             setattr(frame, kind, value)
 
-        topics = [cloud_topic, POSE_TOPIC, STATS_TOPIC, REFERENCE_TOPIC]
+        topics = list(dict.fromkeys([cloud_topic, pose_topic, stats_topic, reference_topic]))
         # log_time_order=True: messages come sorted by log_time, cloud before its outputs is not
         # guaranteed for equal times, hence `pending`.
         for schema, channel, message in reader.iter_messages(topics=topics, log_time_order=True):
@@ -277,23 +288,27 @@ def read_run(path: str | Path, cloud_topic: str | None = None, load_clouds=True)
                 frame.frame_id = msg.header.frame_id
                 frame.points, frame.intensity = decode_pointcloud2(msg)
                 continue
-            if channel.topic == STATS_TOPIC:
-                kind, value = "stats", json.loads(message.data)
+            if channel.topic == stats_topic:
+                values = [("stats", json.loads(message.data))]
             else:
-                msg = _decode(decoders, factory, schema, channel, message)
-                kind = "estimate" if channel.topic == POSE_TOPIC else "reference"
-                value = pose_to_matrix(msg.pose)
-            if t in by_time:
-                attach(by_time[t], kind, value)
-            else:
-                pending.setdefault(t, []).append((kind, value))
+                pose = pose_to_matrix(_decode(decoders, factory, schema, channel, message).pose)
+                # One topic may be both (--reference-topic /mireg/pose).
+                values = [(kind, pose) for kind, topic in (("estimate", pose_topic),
+                                                           ("reference", reference_topic))
+                          if channel.topic == topic]
+            for kind, value in values:
+                if t in by_time:
+                    attach(by_time[t], kind, value)
+                else:
+                    pending.setdefault(t, []).append((kind, value))
     return Run(path, cloud_topic, frames, metadata, has_reference)
 
 
 def _decode(decoders, factory, schema, channel, message):
     dec = decoders.get(channel.id)
     if dec is None:
-        dec = factory.decoder_for(channel.message_encoding, schema)
+        dec = next((d for d in (f.decoder_for(channel.message_encoding, schema) for f in factory)
+                    if d is not None), None)
         if dec is None:
             raise SystemExit(f"cannot decode {channel.topic} ({channel.message_encoding})")
         decoders[channel.id] = dec
@@ -755,6 +770,9 @@ def parse_args(argv=None):
     p.add_argument("--mireg", type=Path, default=Path("target/release/mireg"),
                    help="mireg binary for --frame (default: %(default)s)")
     p.add_argument("--cloud-topic", help="PointCloud2 topic (default: from the mireg metadata)")
+    p.add_argument("--reference-topic", default=REFERENCE_TOPIC, metavar="TOPIC",
+                   help="PoseStamped topic drawn as the reference trajectory, when present "
+                        "(default %(default)s)")
     p.add_argument("--point-radius", type=float, default=0.01, help="point radius [m]")
     p.add_argument("--axis-length", type=float, default=0.15, help="pose axes length [m]")
     p.add_argument("--window-size", default="1280x800", help="screenshot size (default %(default)s)")
@@ -776,7 +794,8 @@ def main(argv=None) -> int:
     import rerun as rr
     import rerun.blueprint as rrb
 
-    run = read_run(args.mcap, args.cloud_topic, load_clouds=True)
+    run = read_run(args.mcap, args.cloud_topic, load_clouds=True,
+                   reference_topic=args.reference_topic)
     if args.frame is not None and args.frame >= len(run.frames):
         raise SystemExit(f"--frame {args.frame}: the log has {len(run.frames)} clouds")
     has_display = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
