@@ -46,6 +46,10 @@ fn register(input: &Path) -> Contents {
     assert_eq!(summary.frames, FRAMES, "{}", input.display());
     assert_eq!(summary.failed_frames, 0, "{}", input.display());
     assert_eq!(summary.messages_copied, 2 * FRAMES as u64);
+    // The reference topic is read in either encoding.
+    let reference = summary.reference.expect("reference poses found");
+    assert_eq!(reference.frames, FRAMES, "{}", input.display());
+    assert!(reference.ate_rmse_m < 0.01, "{}", input.display());
     contents(&out)
 }
 
