@@ -293,6 +293,18 @@ pub struct RegisterArgs {
     /// foxglove for a ROS 1 log you open in Rerun.
     #[arg(long, value_enum, default_value_t = crate::register::OutputMessages::Auto)]
     pub output_messages: crate::register::OutputMessages,
+    /// Register only the clouds from this one on: a cloud index (120, 0-based in log-time
+    /// order), or a log time in seconds (1700000012.5s) or nanoseconds (…ns). The segment's
+    /// first frame is its world.
+    #[arg(long, value_name = "BOUND")]
+    pub start: Option<crate::register::WindowBound>,
+    /// Register only the clouds before this one (exclusive), same forms as --start.
+    #[arg(long, value_name = "BOUND")]
+    pub end: Option<crate::register::WindowBound>,
+    /// Copy only the input messages whose log time lies in the --start/--end segment, instead
+    /// of the whole log.
+    #[arg(long)]
+    pub copy_window: bool,
     /// Points kept per voxel of the local map (its voxel is the ICP voxel).
     #[arg(long, value_name = "N", default_value_t = OdometryConfig::default().map_max_points_per_voxel)]
     pub map_points_per_voxel: usize,
@@ -626,7 +638,16 @@ fn run_register(args: &RegisterArgs) -> Result<()> {
         derive_voxel: !args.flags.voxel_configured()?,
         deskew: args.deskew,
         output_messages: args.output_messages,
+        start: args.start,
+        end: args.end,
+        copy_window_only: args.copy_window,
     };
+    if opts.copy_window_only && opts.start.is_none() && opts.end.is_none() {
+        return Err(crate::Error::InvalidInput(
+            "--copy-window needs a segment: --start and/or --end".into(),
+        )
+        .into());
+    }
     let summary = register_log(&opts)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);

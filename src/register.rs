@@ -8,11 +8,13 @@
 
 mod motions;
 mod output;
+mod window;
 
 use motions::Motions;
 pub use motions::{DeskewMode, OutputMessages};
 pub use output::stats_json_schema;
 use output::{Outputs, Topics, write_frame};
+pub use window::{LogWindow, WindowBound};
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -85,6 +87,14 @@ pub struct RegisterOptions {
     /// The message family of our `/tf` and pose channels. Default [`OutputMessages::Auto`]
     /// (the clouds' family).
     pub output_messages: OutputMessages,
+    /// First cloud of the segment to register (`--start`); `None`: the log's first. The
+    /// segment's first frame is its world. Default `None`.
+    pub start: Option<WindowBound>,
+    /// First cloud after the segment (`--end`, exclusive); `None`: to the end. Default `None`.
+    pub end: Option<WindowBound>,
+    /// Copy only the input messages whose log time lies in the segment (`--copy-window`),
+    /// instead of the whole log. Default `false`.
+    pub copy_window_only: bool,
 }
 
 impl RegisterOptions {
@@ -106,6 +116,9 @@ impl RegisterOptions {
             derive_voxel: false,
             deskew: DeskewMode::Auto,
             output_messages: OutputMessages::Auto,
+            start: None,
+            end: None,
+            copy_window_only: false,
         }
     }
 }
@@ -466,6 +479,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         .filter(|c| Some(&c.topic) == reference_topic.as_ref())
         .map(|c| c.id)
         .collect();
+    let segment = LogWindow::resolve(&input_log, &cloud_channels, opts.start, opts.end)?;
     let wanted: std::collections::BTreeSet<u16> = cloud_channels
         .iter()
         .chain(&reference_channels)
@@ -653,8 +667,13 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         let mut cloud_tx = Some(cloud_tx);
         // Input chunks are copied byte for byte; only messages on the cloud and reference
         // channels come here, in file order.
-        let read = input_log.pass_through(&mut log, &wanted, |log, header, data| {
-            if cloud_channels.contains(&header.channel_id) {
+        let copy_only = opts
+            .copy_window_only
+            .then_some(segment.start_ns..segment.end_ns);
+        let read = input_log.pass_through(&mut log, &wanted, copy_only, |log, header, data| {
+            if !segment.contains(header.log_time) {
+                // Outside the segment: copied (unless --copy-window), not registered.
+            } else if cloud_channels.contains(&header.channel_id) {
                 if let Some(handed) = pending.too_late(header.log_time) {
                     return Err(Error::Format {
                         path: input.to_path_buf(),
@@ -730,6 +749,12 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     meta.insert("pose_topic".to_string(), topics.pose.clone());
     meta.insert("stats_topic".to_string(), topics.stats.clone());
     meta.insert("tf_topic".to_string(), topics.tf.clone());
+    if segment != LogWindow::ALL {
+        meta.insert(
+            "segment".to_string(),
+            serde_json::to_string(&segment).expect("segment JSON"),
+        );
+    }
     log.write_metadata("mireg", meta)?;
     log.finish()?;
 

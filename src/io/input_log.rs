@@ -132,20 +132,29 @@ impl InputLog {
     /// Copies every input message into `log` (bytes, channel ids and times unchanged), calling
     /// `on_message` for those on `wanted` channels, in file order; returns the number of
     /// messages copied. `log` must have declared the catalogue's schemas and channels.
+    ///
+    /// With `only = Some(range)`, only the messages whose log time lies in `range` are copied
+    /// (an MCAP input's chunks are then re-chunked; its metadata records and attachments are
+    /// still all copied), and `on_message` sees only those.
     pub fn pass_through(
         &self,
         log: &mut OutputLog,
         wanted: &BTreeSet<u16>,
+        only: Option<std::ops::Range<u64>>,
         mut on_message: impl FnMut(&mut OutputLog, &MessageHeader, &[u8]) -> Result<()>,
     ) -> Result<u64> {
-        let input_bytes = match self {
-            InputLog::Mcap(path) => return pass_through(path, log, wanted, on_message),
-            InputLog::Bag(bag) => bag.size(),
-            InputLog::Rosbag2(bag) => bag.size(),
+        let input_bytes = match (self, &only) {
+            (InputLog::Mcap(path), None) => return pass_through(path, log, wanted, on_message),
+            (InputLog::Mcap(path), Some(_)) => std::fs::metadata(path).map_or(0, |m| m.len()),
+            (InputLog::Bag(bag), _) => bag.size(),
+            (InputLog::Rosbag2(bag), _) => bag.size(),
         };
         log.reserve(input_bytes)?;
         let mut copied = 0u64;
         let mut copy = |log: &mut OutputLog, header: &MessageHeader, data: &[u8]| -> Result<()> {
+            if only.as_ref().is_some_and(|r| !r.contains(&header.log_time)) {
+                return Ok(());
+            }
             log.copy(&Record::Message {
                 header: *header,
                 data: Cow::Borrowed(data),
@@ -157,7 +166,14 @@ impl InputLog {
             log.write_behind()
         };
         match self {
-            InputLog::Mcap(_) => unreachable!("returned above"),
+            InputLog::Mcap(path) => for_each_record_until(path, |r| {
+                match r {
+                    Record::Message { header, data } => copy(log, &header, &data)?,
+                    r @ (Record::Metadata(_) | Record::Attachment { .. }) => log.copy(&r)?,
+                    _ => {}
+                }
+                Ok(ControlFlow::Continue(()))
+            })?,
             InputLog::Bag(bag) => bag.for_each_message(|conn, t, data| {
                 copy(log, &bag_header(conn, t), data)?;
                 Ok(ControlFlow::Continue(()))

@@ -1,0 +1,128 @@
+//! `--start` / `--end`: one segment of a log registers in the segment's own world, agrees with
+//! the whole-log run up to that world change, and `--copy-window` copies only its messages.
+
+use std::path::{Path, PathBuf};
+
+use mireg::io::codec::cdr;
+use mireg::odometry::OdometryConfig;
+use mireg::pipeline::PairConfig;
+use mireg::register::{RegisterOptions, WindowBound, register_log};
+use nalgebra::Isometry3;
+
+#[path = "common/log_contents.rs"]
+mod log_contents;
+use log_contents::contents;
+
+fn fixture() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/icl_livingroom1.mcap")
+}
+
+fn options(output: &Path) -> RegisterOptions {
+    let config = OdometryConfig {
+        pair: PairConfig {
+            voxel_size_m: 0.05,
+            seed: 2,
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    RegisterOptions::new(&fixture(), output, config)
+}
+
+fn poses(path: &Path) -> Vec<(i64, Isometry3<f64>)> {
+    contents(path)
+        .messages
+        .iter()
+        .filter(|m| m.0 == "/mireg/pose")
+        .map(|m| {
+            let (h, p) = cdr::decode_pose_stamped(&m.3).unwrap();
+            (h.stamp.to_ns(), p)
+        })
+        .collect()
+}
+
+#[test]
+fn a_segment_is_the_whole_run_seen_from_its_first_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let (full, seg) = (dir.path().join("full.mcap"), dir.path().join("seg.mcap"));
+    register_log(&options(&full)).unwrap();
+    let mut opts = options(&seg);
+    opts.start = Some(WindowBound::Frame(30));
+    opts.end = Some(WindowBound::Frame(50));
+    let summary = register_log(&opts).unwrap();
+    assert_eq!(summary.frames, 20);
+
+    let (all, part) = (poses(&full), poses(&seg));
+    assert_eq!(part.len(), 20);
+    assert_eq!(part[0].1, Isometry3::identity(), "the segment's world");
+    // Same stamps as frames 30..50 of the whole run.
+    let stamps: Vec<i64> = all[30..50].iter().map(|p| p.0).collect();
+    assert_eq!(part.iter().map(|p| p.0).collect::<Vec<_>>(), stamps);
+    // The whole run re-expressed in frame 30's world: within a few millimetres of the segment
+    // (each builds its own local map, so they are not identical).
+    let world30_from_world = all[30].1.inverse();
+    for (k, (_, p)) in part.iter().enumerate() {
+        let q = world30_from_world * all[30 + k].1;
+        let d = (p.translation.vector - q.translation.vector).norm();
+        let a = p.rotation.angle_to(&q.rotation).to_degrees();
+        assert!(d < 0.01 && a < 0.5, "frame {}: {d} m, {a} deg", 30 + k);
+    }
+
+    // Every input message is copied by default; the metadata records the segment.
+    let c = contents(&seg);
+    assert_eq!(summary.messages_copied, 142);
+    let meta = &c.metadata.iter().find(|m| m.0 == "mireg").unwrap().1;
+    let segment: serde_json::Value = serde_json::from_str(&meta["segment"]).unwrap();
+    assert_eq!(segment["first_frame"], 30);
+    assert_eq!(segment["start_ns"], stamps[0]);
+    assert_eq!(segment["end_ns"], all[50].0);
+}
+
+#[test]
+fn copy_window_keeps_only_the_segments_messages_and_time_bounds_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("w.mcap");
+    let mut opts = options(&out);
+    // Frames 20..25 of the fixture: stamps 1.7e9 s + 2.0 s .. + 2.5 s.
+    opts.start = Some("1700000002s".parse().unwrap());
+    opts.end = Some("1700000002500000000ns".parse().unwrap());
+    opts.copy_window_only = true;
+    let summary = register_log(&opts).unwrap();
+    assert_eq!(summary.frames, 5);
+    let input = contents(&fixture());
+    let want: Vec<_> = input
+        .messages
+        .iter()
+        .filter(|m| (1_700_000_002_000_000_000..1_700_000_002_500_000_000).contains(&m.1))
+        .collect();
+    assert_eq!(want.len(), 10, "5 clouds and 5 reference poses");
+    assert_eq!(summary.messages_copied, 10);
+    let output = contents(&out);
+    for m in want {
+        assert!(output.messages.contains(m), "{} at {}", m.0, m.1);
+    }
+    let outside = output
+        .messages
+        .iter()
+        .filter(|m| !m.0.starts_with("/mireg") && m.0 != "/tf")
+        .count();
+    assert_eq!(outside, 10, "nothing from outside the window");
+    // Metadata records of the input are still copied.
+    for m in &input.metadata {
+        assert!(output.metadata.contains(m), "{}", m.0);
+    }
+}
+
+#[test]
+fn an_empty_segment_is_an_error_naming_the_log_extent() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("e.mcap");
+    let mut opts = options(&out);
+    opts.start = Some(WindowBound::Frame(71));
+    let e = register_log(&opts).unwrap_err().to_string();
+    assert!(
+        e.contains("no cloud in the segment") && e.contains("71 clouds"),
+        "{e}"
+    );
+    assert!(!out.exists());
+}
