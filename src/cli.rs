@@ -41,6 +41,10 @@ pub enum Command {
     Evaluate(crate::cli_eval::EvaluateArgs),
     /// Write the estimated trajectory of a `register` output as TUM or KITTI text.
     Export(crate::cli_eval::ExportArgs),
+    /// List a log's channels and message counts, and the point cloud topic `register` reads.
+    Info(crate::cli_log::InfoArgs),
+    /// Join the outputs of overlapping `register --start/--end` segments into one output.
+    Stitch(crate::cli_log::StitchArgs),
 }
 
 /// Sampler choice on the command line.
@@ -388,6 +392,8 @@ pub fn run(cli: Cli) -> Result<()> {
         Some(Command::Register(args)) => run_register(&args),
         Some(Command::Evaluate(args)) => crate::cli_eval::run_evaluate(&args),
         Some(Command::Export(args)) => crate::cli_eval::run_export(&args),
+        Some(Command::Info(args)) => crate::cli_log::run_info(&args),
+        Some(Command::Stitch(args)) => crate::cli_log::run_stitch(&args),
         None => run_default(),
     }
 }

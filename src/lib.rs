@@ -20,6 +20,7 @@ pub mod simulate;
 
 pub use error::{Error, Result};
 pub mod cli_eval;
+pub mod cli_log;
 pub mod evaluate;
 pub mod odometry;
 pub mod pipeline;

@@ -8,12 +8,14 @@
 
 mod motions;
 mod output;
+mod stitch;
 mod window;
 
 use motions::Motions;
 pub use motions::{DeskewMode, OutputMessages};
 pub use output::stats_json_schema;
 use output::{Outputs, Topics, write_frame};
+pub use stitch::{Seam, StitchSummary, stitch};
 pub use window::{LogWindow, WindowBound};
 
 use std::collections::BTreeMap;
@@ -254,6 +256,20 @@ fn conversion_hint(schema_name: &str) -> Option<&'static str> {
         "sensor_msgs/LaserScan" => "2-D laser scans are not supported",
         _ => return None,
     })
+}
+
+/// The point cloud topic `register` reads from `channels` of `path`: `requested` if it carries
+/// clouds, else the only cloud topic.
+///
+/// # Errors
+/// [`Error::InvalidInput`] as `register` reports it: no cloud topic, several, or `requested`
+/// missing or not a cloud.
+pub fn point_cloud_topic(
+    path: &Path,
+    channels: &[ChannelInfo],
+    requested: Option<&str>,
+) -> Result<String> {
+    choose_topic(path, channels, requested).map(|(t, _)| t)
 }
 
 /// Picks the point cloud channel: the one named `requested`, or the only cloud topic.

@@ -126,3 +126,72 @@ fn an_empty_segment_is_an_error_naming_the_log_extent() {
     );
     assert!(!out.exists());
 }
+
+fn segment(dir: &Path, name: &str, start: Option<u64>, end: Option<u64>) -> PathBuf {
+    let out = dir.join(name);
+    let mut opts = options(&out);
+    opts.start = start.map(WindowBound::Frame);
+    opts.end = end.map(WindowBound::Frame);
+    register_log(&opts).unwrap();
+    out
+}
+
+#[test]
+fn stitched_segments_follow_the_sequential_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let full = segment(d, "full.mcap", None, None);
+    // Three segments overlapping by 12 frames.
+    let segs = vec![
+        segment(d, "s0.mcap", None, Some(36)),
+        segment(d, "s1.mcap", Some(24), Some(60)),
+        segment(d, "s2.mcap", Some(48), None),
+    ];
+    let out = d.join("stitched.mcap");
+    let s = mireg::register::stitch(&fixture(), &segs, &out, false, "test").unwrap();
+    assert_eq!((s.frames, s.segments, s.messages_copied), (71, 3, 142));
+    assert_eq!(s.seams.len(), 2);
+    for seam in &s.seams {
+        assert_eq!(seam.shared_frames, 12);
+        assert!(seam.max_translation_m < 0.01, "{seam:?}");
+    }
+    let (a, b) = (poses(&full), poses(&out));
+    assert_eq!(
+        a.iter().map(|p| p.0).collect::<Vec<_>>(),
+        b.iter().map(|p| p.0).collect::<Vec<_>>()
+    );
+    // Both start in frame 0's world: compare directly.
+    let worst = a
+        .iter()
+        .zip(&b)
+        .map(|(x, y)| (x.1.translation.vector - y.1.translation.vector).norm())
+        .fold(0.0, f64::max);
+    assert!(worst < 0.005, "stitched vs sequential: {worst} m");
+    // Up to the first anchor (frame 35) the stitched trajectory is segment 0's, bit for bit.
+    assert_eq!(poses(&segs[0])[..36], b[..36]);
+    // Statistics cover the log, renumbered, each naming its segment.
+    let stats: Vec<serde_json::Value> = contents(&out)
+        .messages
+        .iter()
+        .filter(|m| m.0 == "/mireg/stats")
+        .map(|m| serde_json::from_slice(&m.3).unwrap())
+        .collect();
+    assert_eq!(stats.len(), 71);
+    assert_eq!(stats[70]["frame"], 70);
+    assert_eq!(stats[70]["segment"], 2);
+    assert_eq!(stats[0]["segment"], 0);
+
+    // Segments that do not overlap are refused, and nothing is written.
+    let gap = segment(d, "gap.mcap", Some(40), None);
+    let e = mireg::register::stitch(
+        &fixture(),
+        &[segs[0].clone(), gap],
+        &d.join("g.mcap"),
+        false,
+        "t",
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("shares no frame"), "{e}");
+    assert!(!d.join("g.mcap").exists());
+}

@@ -228,14 +228,43 @@ pub(super) fn write_frame(
     world_frame: &str,
     out: &FrameOut,
 ) -> Result<()> {
-    let world_from_frame = out.est.world_from_frame;
-    let header = codec::Header {
+    let stats = serde_json::to_vec(&frame_stats(out)).expect("JSON of plain values");
+    let pose = StampedPose {
         stamp: out.header.stamp,
+        child_frame: &out.header.frame_id,
+        world_from_frame: out.est.world_from_frame,
+        log_time: out.log_time,
+        publish_time: out.publish_time,
+    };
+    write_pose(log, ch, world_frame, &pose, &stats)
+}
+
+/// One frame's pose as our channels carry it.
+pub(super) struct StampedPose<'a> {
+    pub(super) stamp: codec::Time,
+    /// The cloud's frame: the child of `/tf`'s transform.
+    pub(super) child_frame: &'a str,
+    pub(super) world_from_frame: nalgebra::Isometry3<f64>,
+    pub(super) log_time: u64,
+    pub(super) publish_time: u64,
+}
+
+/// Writes a frame's `/tf`, pose and statistics messages in the channels' family.
+pub(super) fn write_pose(
+    log: &mut OutputLog,
+    ch: &Outputs,
+    world_frame: &str,
+    p: &StampedPose<'_>,
+    stats: &[u8],
+) -> Result<()> {
+    let world_from_frame = p.world_from_frame;
+    let header = codec::Header {
+        stamp: p.stamp,
         frame_id: world_frame.to_string(),
     };
     let transforms = [codec::TransformStamped {
         header: header.clone(),
-        child_frame_id: out.header.frame_id.clone(),
+        child_frame_id: p.child_frame.to_string(),
         transform: world_from_frame,
     }];
     let (pose, tf) = match ch.kind {
@@ -248,20 +277,19 @@ pub(super) fn write_frame(
             ros1::encode_tf_message(&transforms),
         ),
         CloudKind::Foxglove => {
-            let stamp = u64::try_from(out.header.stamp.to_ns()).unwrap_or(0);
+            let stamp = u64::try_from(p.stamp.to_ns()).unwrap_or(0);
             (
                 foxglove::encode_pose_in_frame(stamp, world_frame, &world_from_frame),
                 foxglove::encode_frame_transforms(&[(
                     stamp,
                     world_frame,
-                    &out.header.frame_id,
+                    p.child_frame,
                     world_from_frame,
                 )]),
             )
         }
     };
-    let stats = serde_json::to_vec(&frame_stats(out)).expect("JSON of plain values");
-    log.write(ch.tf, out.log_time, out.publish_time, &tf)?;
-    log.write(ch.pose, out.log_time, out.publish_time, &pose)?;
-    log.write(ch.stats, out.log_time, out.publish_time, &stats)
+    log.write(ch.tf, p.log_time, p.publish_time, &tf)?;
+    log.write(ch.pose, p.log_time, p.publish_time, &pose)?;
+    log.write(ch.stats, p.log_time, p.publish_time, stats)
 }

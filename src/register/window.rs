@@ -37,7 +37,7 @@ impl FromStr for WindowBound {
         }
         if let Some(sec) = s.strip_suffix('s') {
             let v: f64 = sec.parse().map_err(|_| bad())?;
-            if !(v.is_finite() && v >= 0.0 && v < 1.8e10) {
+            if !(0.0..1.8e10).contains(&v) {
                 return Err(bad());
             }
             // Whole seconds and the fraction apart, so that the nanoseconds are exact.

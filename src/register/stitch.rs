@@ -1,0 +1,315 @@
+//! `mireg stitch`: one trajectory for a whole log from the outputs of overlapping segments
+//! (`register --start/--end`, e.g. run in parallel by `tools/mireg_ray`).
+//!
+//! Each segment's poses are in its own world, its first frame. Segment `i` is brought into the
+//! stitched world by the transform that puts its pose of the **last** frame it shares with
+//! segment `i − 1` onto the stitched pose of that frame: there segment `i` has had the whole
+//! overlap to build its local map, so its estimate is settled. Frames up to that anchor come
+//! from the earlier segment, frames after it from segment `i`. How far the two segments disagree
+//! on the other overlap frames (after alignment) is reported per seam.
+//!
+//! The output copies the input log as `register` does (chunks byte for byte) and adds our `/tf`,
+//! pose and statistics channels over the whole log; each statistics message keeps its segment's
+//! fields, with `frame` renumbered over the log and `segment` added.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use mcap::records::Record;
+use nalgebra::Isometry3;
+
+use super::output::{Outputs, StampedPose, Topics, write_pose};
+use super::{CloudKind, choose_topic};
+use crate::io::codec::{Time, cdr, pose_stamped_decoder, ros1};
+use crate::io::input_log::InputLog;
+use crate::io::mcap_log::{OutputLog, for_each_record};
+use crate::io::{atomic_file::same_file, format_err};
+use crate::{Error, Result};
+
+/// A frame of one segment output.
+#[derive(Debug, Clone)]
+struct SegFrame {
+    stamp_ns: i64,
+    log_time: u64,
+    publish_time: u64,
+    pose: Isometry3<f64>,
+    child_frame: String,
+    stats: serde_json::Value,
+}
+
+/// One segment output, read back.
+struct Segment {
+    path: PathBuf,
+    kind: CloudKind,
+    world_frame: String,
+    frames: Vec<SegFrame>,
+}
+
+/// How two consecutive segments agree on their shared frames after alignment.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Seam {
+    /// The later segment's index (1 = between segments 0 and 1).
+    pub segment: usize,
+    /// Frames the two segments share.
+    pub shared_frames: usize,
+    /// The anchor frame's stamp \[ns\].
+    pub anchor_stamp_ns: i64,
+    /// Largest translation difference over the shared frames \[m\].
+    pub max_translation_m: f64,
+    /// Largest rotation difference over the shared frames \[deg\].
+    pub max_rotation_deg: f64,
+}
+
+/// What a stitch did.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct StitchSummary {
+    /// Output file.
+    pub output: PathBuf,
+    /// Frames in the stitched trajectory.
+    pub frames: usize,
+    /// Segments stitched.
+    pub segments: usize,
+    /// One per pair of consecutive segments.
+    pub seams: Vec<Seam>,
+    /// Input messages copied.
+    pub messages_copied: u64,
+}
+
+fn read_segment(path: &Path) -> Result<Segment> {
+    let mut meta = BTreeMap::new();
+    let mut topics = BTreeMap::new();
+    let mut schemas = BTreeMap::new();
+    for_each_record(path, |r| {
+        match r {
+            Record::Metadata(m) if m.name == "mireg" => meta = m.metadata,
+            Record::Schema { header, .. } => {
+                schemas.insert(header.id, header.name);
+            }
+            Record::Channel(c) => {
+                topics.insert(c.id, (c.topic, c.schema_id, c.message_encoding));
+            }
+            _ => {}
+        }
+        Ok(())
+    })?;
+    let get = |k: &str| {
+        meta.get(k).cloned().ok_or_else(|| {
+            format_err(
+                path,
+                format!("not a mireg register output: its mireg metadata has no {k}"),
+            )
+        })
+    };
+    let (pose_topic, stats_topic, tf_topic) =
+        (get("pose_topic")?, get("stats_topic")?, get("tf_topic")?);
+    let channel_of = |topic: &str| topics.iter().find(|(_, c)| c.0 == topic);
+    let (pose_id, (_, schema_id, encoding)) = channel_of(&pose_topic)
+        .ok_or_else(|| format_err(path, format!("no channel {pose_topic}")))?;
+    let schema_name = schemas.get(schema_id).cloned().unwrap_or_default();
+    let decode = pose_stamped_decoder(&schema_name, encoding).ok_or_else(|| {
+        format_err(
+            path,
+            format!("{pose_topic} carries {schema_name} ({encoding}); stitch reads ROS PoseStamped outputs (not --output-messages foxglove)"),
+        )
+    })?;
+    let kind = if encoding == ros1::MESSAGE_ENCODING {
+        CloudKind::Ros1
+    } else {
+        CloudKind::Ros2
+    };
+    let (pose_id, stats_id) = (*pose_id, channel_of(&stats_topic).map(|(id, _)| *id));
+    let tf_id = channel_of(&tf_topic).map(|(id, _)| *id);
+    let mut poses = BTreeMap::new();
+    let mut stats = BTreeMap::new();
+    let mut children = BTreeMap::new();
+    let mut world_frame = String::new();
+    for_each_record(path, |r| {
+        if let Record::Message { header, data } = r {
+            let at = || format!("message at log time {} ns", header.log_time);
+            if header.channel_id == pose_id {
+                let (h, p) =
+                    decode(&data).map_err(|e| format_err(path, format!("{}: {e}", at())))?;
+                world_frame = h.frame_id;
+                poses.insert(header.log_time, (h.stamp.to_ns(), header.publish_time, p));
+            } else if Some(header.channel_id) == stats_id {
+                let v: serde_json::Value = serde_json::from_slice(&data)
+                    .map_err(|e| format_err(path, format!("{}: {e}", at())))?;
+                stats.insert(header.log_time, v);
+            } else if Some(header.channel_id) == tf_id {
+                let tfs = match kind {
+                    CloudKind::Ros1 => ros1::decode_tf_message(&data),
+                    _ => cdr::decode_tf_message(&data),
+                };
+                if let Some(t) = tfs.ok().and_then(|v| v.into_iter().next()) {
+                    children.insert(header.log_time, t.child_frame_id);
+                }
+            }
+        }
+        Ok(())
+    })?;
+    let mut frames: Vec<SegFrame> = poses
+        .into_iter()
+        .map(|(log_time, (stamp_ns, publish_time, pose))| SegFrame {
+            stamp_ns,
+            log_time,
+            publish_time,
+            pose,
+            child_frame: children.remove(&log_time).unwrap_or_default(),
+            stats: stats.remove(&log_time).unwrap_or(serde_json::Value::Null),
+        })
+        .collect();
+    frames.sort_by_key(|f| f.stamp_ns);
+    if frames.is_empty() {
+        return Err(format_err(path, format!("no poses on {pose_topic}")));
+    }
+    Ok(Segment {
+        path: path.to_path_buf(),
+        kind,
+        world_frame,
+        frames,
+    })
+}
+
+/// Stitches the segment outputs `segments` (in log order) of `log` into `output`.
+///
+/// # Errors
+/// [`Error::InvalidInput`] when fewer than one segment is given, two consecutive segments share
+/// no frame, or their families differ; the readers' errors for unreadable files. On any error
+/// the output path is left untouched.
+pub fn stitch(
+    log: &Path,
+    segments: &[PathBuf],
+    output: &Path,
+    force: bool,
+    command_line: &str,
+) -> Result<StitchSummary> {
+    if segments.is_empty() {
+        return Err(Error::InvalidInput(
+            "stitch needs at least one segment".into(),
+        ));
+    }
+    if same_file(log, output) || segments.iter().any(|s| same_file(s, output)) {
+        return Err(Error::InvalidInput(format!(
+            "output {} is one of the inputs; mireg never writes over its input",
+            output.display()
+        )));
+    }
+    let segs = segments
+        .iter()
+        .map(|p| read_segment(p))
+        .collect::<Result<Vec<_>>>()?;
+    let mut stitched: Vec<(usize, SegFrame)> =
+        segs[0].frames.iter().cloned().map(|f| (0, f)).collect();
+    let mut seams = Vec::new();
+    for (i, seg) in segs.iter().enumerate().skip(1) {
+        if seg.kind != segs[0].kind {
+            return Err(Error::InvalidInput(format!(
+                "{} and {} carry poses of different message families",
+                segs[0].path.display(),
+                seg.path.display()
+            )));
+        }
+        let by_stamp: BTreeMap<i64, &SegFrame> =
+            stitched.iter().map(|(_, f)| (f.stamp_ns, f)).collect();
+        let shared: Vec<(&SegFrame, &SegFrame)> = seg
+            .frames
+            .iter()
+            .filter_map(|f| by_stamp.get(&f.stamp_ns).map(|p| (*p, f)))
+            .collect();
+        let Some(&(prev_anchor, anchor)) = shared.last() else {
+            return Err(Error::InvalidInput(format!(
+                "{} shares no frame with the segment before it ({}): segments must overlap",
+                seg.path.display(),
+                segs[i - 1].path.display()
+            )));
+        };
+        let stitched_from_seg = prev_anchor.pose * anchor.pose.inverse();
+        let (mut max_t, mut max_r) = (0.0f64, 0.0f64);
+        for (p, f) in &shared {
+            let q = stitched_from_seg * f.pose;
+            max_t = max_t.max((p.pose.translation.vector - q.translation.vector).norm());
+            max_r = max_r.max(p.pose.rotation.angle_to(&q.rotation).to_degrees());
+        }
+        seams.push(Seam {
+            segment: i,
+            shared_frames: shared.len(),
+            anchor_stamp_ns: anchor.stamp_ns,
+            max_translation_m: max_t,
+            max_rotation_deg: max_r,
+        });
+        let anchor_stamp = anchor.stamp_ns;
+        stitched.retain(|(_, f)| f.stamp_ns <= anchor_stamp);
+        stitched.extend(
+            seg.frames
+                .iter()
+                .filter(|f| f.stamp_ns > anchor_stamp)
+                .map(|f| {
+                    let mut f = f.clone();
+                    f.pose = stitched_from_seg * f.pose;
+                    (i, f)
+                }),
+        );
+    }
+
+    let (input_log, catalog) = InputLog::open(log)?;
+    let channels = catalog.channel_infos();
+    let (topic, _) = choose_topic(log, &channels, None)?;
+    let topics = Topics::for_input(&channels);
+    let profile = match segs[0].kind {
+        CloudKind::Ros1 => "ros1",
+        _ => "ros2",
+    };
+    let mut out = OutputLog::create(output, force, profile)?;
+    out.declare_input(log, &catalog)?;
+    let ch = Outputs::create(&mut out, segs[0].kind, &topics)?;
+    let copied = input_log.pass_through(&mut out, &Default::default(), None, |_, _, _| Ok(()))?;
+    for (k, (segment, f)) in stitched.iter().enumerate() {
+        let mut stats = f.stats.clone();
+        if let Some(o) = stats.as_object_mut() {
+            o.insert("frame".into(), k.into());
+            o.insert("segment".into(), (*segment).into());
+        }
+        let stamp = Time::from_ns(f.stamp_ns).unwrap_or_default();
+        let pose = StampedPose {
+            stamp,
+            child_frame: &f.child_frame,
+            world_from_frame: f.pose,
+            log_time: f.log_time,
+            publish_time: f.publish_time,
+        };
+        let bytes = serde_json::to_vec(&stats).expect("JSON");
+        write_pose(&mut out, &ch, &segs[0].world_frame, &pose, &bytes)?;
+    }
+    let meta = BTreeMap::from([
+        ("version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
+        ("command_line".to_string(), command_line.to_string()),
+        ("input".to_string(), log.display().to_string()),
+        ("topic".to_string(), topic),
+        ("pose_topic".to_string(), topics.pose.clone()),
+        ("stats_topic".to_string(), topics.stats.clone()),
+        ("tf_topic".to_string(), topics.tf.clone()),
+        (
+            "stitched_from".to_string(),
+            serde_json::to_string(
+                &segments
+                    .iter()
+                    .map(|p| p.display().to_string())
+                    .collect::<Vec<_>>(),
+            )
+            .expect("JSON"),
+        ),
+        (
+            "seams".to_string(),
+            serde_json::to_string(&seams).expect("JSON"),
+        ),
+    ]);
+    out.write_metadata("mireg", meta)?;
+    out.finish()?;
+    Ok(StitchSummary {
+        output: output.to_path_buf(),
+        frames: stitched.len(),
+        segments: segs.len(),
+        seams,
+        messages_copied: copied,
+    })
+}
