@@ -1,0 +1,107 @@
+"""The Ray driver on a local Ray (2 CPUs), against the mireg binary (``MIREG_BIN``, else
+target/release/mireg): several copies of the fixture and a corrupt log, a task killed once,
+re-runs, a changed config, and one log in stitched segments against a sequential run.
+
+    MIREG_BIN=target/debug/mireg tools/.venv-ray/bin/python -m pytest -q tools/mireg_ray/tests
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from mireg_ray import __main__ as cli
+from mireg_ray import common
+
+REPO = Path(__file__).resolve().parents[3]
+FIXTURE = REPO / "fixtures" / "icl_livingroom1.mcap"
+
+
+@pytest.fixture(scope="module")
+def binary():
+    b = common.mireg_bin()
+    if not Path(b).exists() and shutil.which(b) is None:
+        pytest.skip(f"no mireg binary at {b}: build it or set MIREG_BIN")
+    return b
+
+
+def manifest(out: Path) -> dict[str, dict]:
+    return {e["input"]: e for e in map(json.loads, (out / "manifest.jsonl").read_text().split("\n")[:-1])}
+
+
+def test_many_logs_kill_retry_rerun_and_config_change(tmp_path, monkeypatch, binary):
+    logs = tmp_path / "logs"
+    (logs / "a").mkdir(parents=True)
+    (logs / "b").mkdir()
+    for name in ("a/one.mcap", "a/killme.mcap", "b/two.mcap"):
+        shutil.copy(FIXTURE, logs / name)
+    (logs / "b" / "corrupt.mcap").write_bytes(FIXTURE.read_bytes()[:100_000])
+    out = tmp_path / "out"
+    markers = tmp_path / "markers"
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv(common.KILL_ONCE_ENV, f"killme:{markers}")
+    args = ["run", "logs/**/*.mcap", "--out", str(out), "--local-cpus", "2"]
+
+    assert cli.main(args) == 1  # one failure
+    m = manifest(out)
+    assert sorted(m) == ["logs/a/killme.mcap", "logs/a/one.mcap", "logs/b/corrupt.mcap",
+                         "logs/b/two.mcap"]
+    assert len(list(markers.iterdir())) == 1, "the killme task's worker was killed once"
+    for key, e in m.items():
+        assert {"input", "output", "status", "error", "summary"} <= set(e)
+        if key.endswith("corrupt.mcap"):
+            assert e["status"] == "failed"
+            assert "corrupt.mcap" in e["error"] and "truncated" in e["error"]
+            assert not Path(e["output"]).exists()
+        else:
+            assert e["status"] == "done", e
+            assert e["error"] is None
+            assert Path(e["output"]).is_file()
+            assert Path(e["output"]) == out / Path(key).relative_to("logs").with_suffix(".mireg.mcap")
+            assert e["summary"]["frames"] == 71 and e["summary"]["failed_frames"] == 0
+            assert Path(e["summary"]["output"]) == Path(e["output"])
+    done = {k: Path(e["output"]).stat().st_mtime_ns for k, e in m.items() if e["status"] == "done"}
+
+    # A re-run recomputes nothing that is done (the corrupt log is tried again, and fails again).
+    assert cli.main(args) == 1
+    m2 = manifest(out)
+    for k, mtime in done.items():
+        assert m2[k]["status"] == "skipped"
+        assert m2[k]["summary"] == m[k]["summary"]
+        assert Path(m2[k]["output"]).stat().st_mtime_ns == mtime
+    assert m2["logs/b/corrupt.mcap"]["status"] == "failed"
+
+    # A changed config recomputes.
+    assert cli.main(args + ["--", "--voxel", "0.06"]) == 1
+    m3 = manifest(out)
+    for k in done:
+        assert m3[k]["status"] == "done"
+        assert m3[k]["config_hash"] != m[k]["config_hash"]
+        assert m3[k]["summary"]["voxel_m"] == 0.06
+
+
+def ate_between(binary: str, est: Path, ref: Path, tmp: Path) -> float:
+    tum = tmp / "ref.tum"
+    subprocess.run([binary, "export", str(ref), "-o", str(tum), "--format", "tum"], check=True)
+    out = subprocess.run([binary, "evaluate", str(est), "--gt", str(tum), "--gt-format", "tum"],
+                         capture_output=True, text=True, check=True).stdout
+    return float(re.search(r"ATE RMSE\s+([0-9.]+) m", out).group(1))
+
+
+def test_segments_are_stitched_into_the_sequential_trajectory(tmp_path, binary):
+    seq = tmp_path / "sequential.mcap"
+    subprocess.run([binary, "register", str(FIXTURE), "-o", str(seq), "--quiet"], check=True)
+    out = tmp_path / "stitched.mcap"
+    assert cli.main(["segments", str(FIXTURE), "--segments", "3", "--out", str(out),
+                     "--local-cpus", "2"]) == 0
+    assert ate_between(binary, out, seq, tmp_path) < 0.001  # target: within 1 mm
+    info = json.loads(subprocess.run([binary, "info", str(out), "--json"], capture_output=True,
+                                     text=True, check=True).stdout)
+    counts = {c["topic"]: c["message_count"] for c in info["channels"]}
+    assert counts["/mireg/pose"] == counts["/camera/depth/points"] == 71
+    assert not list(tmp_path.glob(".mireg-segments-*")), "segment outputs removed"
