@@ -6,11 +6,14 @@
 //! `k + 1` while a *register* thread registers frame `k`. Memory is bounded by one chunk plus the
 //! queue capacity, whatever the log length.
 
+mod clouds;
 mod motions;
 mod output;
 mod stitch;
 mod window;
 
+pub use clouds::point_cloud_topic;
+use clouds::{CloudKind, choose_topic};
 use motions::Motions;
 pub use motions::{DeskewMode, OutputMessages};
 pub use output::stats_json_schema;
@@ -27,7 +30,7 @@ use nalgebra::Isometry3;
 
 use crate::geometry::deskew::deskew;
 use crate::io::atomic_file::same_file;
-use crate::io::codec::{self, cdr, foxglove, pose_stamped_decoder, ros1};
+use crate::io::codec::{self, pose_stamped_decoder};
 use crate::io::input_log::InputLog;
 use crate::io::log_order::Reorder;
 use crate::io::mcap_log::{ChannelInfo, OutputLog};
@@ -183,170 +186,6 @@ pub struct RegisterSummary {
     pub frames_per_s: f64,
     /// Errors against the reference pose topic, when the log has one.
     pub reference: Option<ReferenceErrors>,
-}
-
-/// The point cloud message types `register` reads.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum CloudKind {
-    /// ROS 2 `sensor_msgs/msg/PointCloud2`, cdr.
-    Ros2,
-    /// ROS 1 `sensor_msgs/PointCloud2`, ros1.
-    Ros1,
-    /// `foxglove.PointCloud`, protobuf (its `pose` applied).
-    Foxglove,
-}
-
-const FOXGLOVE_POINT_CLOUD: &str = "foxglove.PointCloud";
-
-fn cloud_kind(c: &ChannelInfo) -> Option<CloudKind> {
-    if c.schema_name == cdr::POINT_CLOUD2_SCHEMA_NAME && c.message_encoding == cdr::MESSAGE_ENCODING
-    {
-        Some(CloudKind::Ros2)
-    } else if c.schema_name == ros1::POINT_CLOUD2_SCHEMA_NAME
-        && c.message_encoding == ros1::MESSAGE_ENCODING
-    {
-        Some(CloudKind::Ros1)
-    } else if c.schema_name == FOXGLOVE_POINT_CLOUD
-        && c.message_encoding == foxglove::MESSAGE_ENCODING
-    {
-        Some(CloudKind::Foxglove)
-    } else {
-        None
-    }
-}
-
-impl CloudKind {
-    /// The MCAP profile of a log whose clouds are of this kind (and so of ours).
-    fn profile(self) -> &'static str {
-        match self {
-            CloudKind::Ros1 => "ros1",
-            CloudKind::Ros2 | CloudKind::Foxglove => "ros2",
-        }
-    }
-
-    fn decode(self, payload: &[u8]) -> std::result::Result<codec::PointCloud, codec::DecodeError> {
-        match self {
-            CloudKind::Ros2 => cdr::decode_point_cloud2(payload),
-            CloudKind::Ros1 => ros1::decode_point_cloud2(payload),
-            CloudKind::Foxglove => foxglove::decode_foxglove_point_cloud(payload),
-        }
-    }
-}
-
-/// The cloud messages `register` reads, for error messages.
-const CLOUD_TYPES: &str =
-    "sensor_msgs/PointCloud2 in ros1 or cdr, or foxglove.PointCloud in protobuf";
-
-/// How to turn a point message mireg does not read into one it does, for the types users meet.
-fn conversion_hint(schema_name: &str) -> Option<&'static str> {
-    let name = schema_name.replace("/msg/", "/");
-    Some(match name.as_str() {
-        "livox_ros_driver/CustomMsg" | "livox_ros_driver2/CustomMsg" => {
-            "Livox's own point format is not supported; record the driver's PointCloud2 output instead (xfer_format 0 in the livox_ros_driver launch file), or republish the log's CustomMsg as sensor_msgs/PointCloud2 and record that"
-        }
-        "sensor_msgs/PointCloud" => {
-            "the old sensor_msgs/PointCloud is not supported; convert it to PointCloud2 (ROS 1 point_cloud_converter, or sensor_msgs::convertPointCloudToPointCloud2)"
-        }
-        "velodyne_msgs/VelodyneScan" => {
-            "these are raw Velodyne packets; turn them into PointCloud2 with velodyne_pointcloud (its transform or cloud node) while replaying the log, and record that"
-        }
-        "ouster_ros/PacketMsg" | "ouster_sensor_msgs/PacketMsg" => {
-            "these are raw Ouster packets; turn them into PointCloud2 with ouster_ros's os_cloud node while replaying the log, and record that"
-        }
-        "sensor_msgs/LaserScan" => "2-D laser scans are not supported",
-        _ => return None,
-    })
-}
-
-/// The point cloud topic `register` reads from `channels` of `path`: `requested` if it carries
-/// clouds, else the only cloud topic.
-///
-/// # Errors
-/// [`Error::InvalidInput`] as `register` reports it: no cloud topic, several, or `requested`
-/// missing or not a cloud.
-pub fn point_cloud_topic(
-    path: &Path,
-    channels: &[ChannelInfo],
-    requested: Option<&str>,
-) -> Result<String> {
-    choose_topic(path, channels, requested).map(|(t, _)| t)
-}
-
-/// Picks the point cloud channel: the one named `requested`, or the only cloud topic.
-fn choose_topic(
-    path: &Path,
-    channels: &[ChannelInfo],
-    requested: Option<&str>,
-) -> Result<(String, CloudKind)> {
-    let clouds: Vec<&ChannelInfo> = channels
-        .iter()
-        .filter(|c| cloud_kind(c).is_some())
-        .collect();
-    if let Some(topic) = requested {
-        let c = channels.iter().find(|c| c.topic == topic).ok_or_else(|| {
-            Error::InvalidInput(format!(
-                "{}: no topic {topic:?} (topics: {})",
-                path.display(),
-                channels
-                    .iter()
-                    .map(|c| c.topic.as_str())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ))
-        })?;
-        let kind = cloud_kind(c).ok_or_else(|| {
-            Error::InvalidInput(format!(
-                "{}: topic {topic:?} carries {} ({}), not a point cloud mireg reads ({CLOUD_TYPES}){}",
-                path.display(),
-                c.schema_name,
-                c.message_encoding,
-                conversion_hint(&c.schema_name)
-                    .map(|h| format!("; {h}"))
-                    .unwrap_or_default()
-            ))
-        })?;
-        return Ok((topic.to_string(), kind));
-    }
-    match clouds.as_slice() {
-        [] => Err(Error::InvalidInput(format!(
-            "{}: no point cloud topic ({CLOUD_TYPES}); topics: {}{}",
-            path.display(),
-            channels
-                .iter()
-                .map(|c| format!("{} [{}]", c.topic, c.schema_name))
-                .collect::<Vec<_>>()
-                .join(", "),
-            channels
-                .iter()
-                .find_map(|c| conversion_hint(&c.schema_name)
-                    .map(|h| format!("; topic {:?}: {h}", c.topic)))
-                .unwrap_or_default()
-        ))),
-        // Several channels on one topic (e.g. two recorder sessions) are one stream.
-        [first, rest @ ..]
-            if rest
-                .iter()
-                .all(|c| c.topic == first.topic && cloud_kind(c) == cloud_kind(first)) =>
-        {
-            Ok((first.topic.clone(), cloud_kind(first).expect("filtered")))
-        }
-        many => {
-            let topics: std::collections::BTreeSet<&str> =
-                many.iter().map(|c| c.topic.as_str()).collect();
-            let detail = if topics.len() == 1 {
-                format!(
-                    "topic {:?} has channels of different point cloud types; mireg registers one type per run",
-                    many[0].topic
-                )
-            } else {
-                format!(
-                    "several point cloud topics, choose one with --topic: {}",
-                    topics.into_iter().collect::<Vec<_>>().join(", ")
-                )
-            };
-            Err(Error::InvalidInput(format!("{}: {detail}", path.display())))
-        }
-    }
 }
 
 struct CloudMsg {
