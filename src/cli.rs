@@ -45,6 +45,9 @@ pub enum Command {
     Info(crate::cli_log::InfoArgs),
     /// Join the outputs of overlapping `register --start/--end` segments into one output.
     Stitch(crate::cli_log::StitchArgs),
+    /// The paper's registration experiment (Fig. 6): recall and precision per sampler, μ and
+    /// ranking on frame pairs of a log with a reference trajectory.
+    Sweep(crate::cli_sweep::SweepArgs),
 }
 
 /// Sampler choice on the command line.
@@ -394,6 +397,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Some(Command::Export(args)) => crate::cli_eval::run_export(&args),
         Some(Command::Info(args)) => crate::cli_log::run_info(&args),
         Some(Command::Stitch(args)) => crate::cli_log::run_stitch(&args),
+        Some(Command::Sweep(args)) => crate::cli_sweep::run_sweep(&args),
         None => run_default(),
     }
 }

@@ -17,10 +17,12 @@ pub mod io;
 pub mod ransac;
 pub mod refine;
 pub mod simulate;
+pub mod sweep;
 
 pub use error::{Error, Result};
 pub mod cli_eval;
 pub mod cli_log;
+pub mod cli_sweep;
 pub mod evaluate;
 pub mod odometry;
 pub mod pipeline;

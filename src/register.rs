@@ -12,8 +12,8 @@ mod output;
 mod stitch;
 mod window;
 
-pub use clouds::point_cloud_topic;
 use clouds::{CloudKind, choose_topic};
+pub use clouds::{for_each_cloud, point_cloud_topic};
 use motions::Motions;
 pub use motions::{DeskewMode, OutputMessages};
 pub use output::stats_json_schema;

@@ -173,3 +173,33 @@ pub(super) fn choose_topic(
         }
     }
 }
+
+/// Calls `f(log time [ns], cloud)` for every cloud on the point cloud topic of `input` (any
+/// container; `topic` as `register --topic`), in file order, until `f` breaks; a cloud that does
+/// not decode is skipped. Returns the topic.
+///
+/// # Errors
+/// As `register` for the input and the topic choice; `f`'s errors.
+pub fn for_each_cloud(
+    input: &Path,
+    topic: Option<&str>,
+    mut f: impl FnMut(u64, codec::PointCloud) -> Result<std::ops::ControlFlow<()>>,
+) -> Result<String> {
+    let (log, catalog) = crate::io::input_log::InputLog::open(input)?;
+    let channels = catalog.channel_infos();
+    let (topic, kind) = choose_topic(input, &channels, topic)?;
+    let ids: Vec<u16> = channels
+        .iter()
+        .filter(|c| c.topic == topic)
+        .map(|c| c.id)
+        .collect();
+    log.for_each_message_until(|h, data| {
+        if ids.contains(&h.channel_id)
+            && let Ok(cloud) = kind.decode(data)
+        {
+            return f(h.log_time, cloud);
+        }
+        Ok(std::ops::ControlFlow::Continue(()))
+    })?;
+    Ok(topic)
+}

@@ -1,0 +1,214 @@
+//! `mireg sweep`: clap arguments → frames and pairs from a log with a reference trajectory →
+//! [`crate::sweep`].
+
+use std::collections::BTreeMap;
+use std::ops::ControlFlow;
+use std::path::PathBuf;
+
+use anyhow::{Result, bail};
+use clap::Args;
+use nalgebra::{Isometry3, Point3};
+
+use crate::pipeline::{PairConfig, prepare_frame, voxel_for_cloud};
+use crate::sweep::{
+    Acceptance, CSV_HEADER, PAPER_MUS, SweepConfig, Thresholds, pairs_from_trajectory, samplers,
+    sweep,
+};
+
+/// Arguments of `mireg sweep`.
+#[derive(Debug, Args)]
+pub struct SweepArgs {
+    /// A log with point clouds and a reference PoseStamped topic (e.g. a fixture, or a
+    /// `register` output of a log that has one).
+    pub input: PathBuf,
+    /// Point cloud topic [default: the only one].
+    #[arg(long)]
+    pub topic: Option<String>,
+    /// Reference PoseStamped topic, matched to clouds by stamp.
+    #[arg(long, default_value = crate::trajectory::DEFAULT_GROUND_TRUTH_TOPIC)]
+    pub reference_topic: String,
+    /// Frame gaps k of the pairs (i, i + k), comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "5,10,20")]
+    pub gaps: Vec<usize>,
+    /// Seeded runs per pair and cell (the paper's M).
+    #[arg(long, default_value_t = 20)]
+    pub runs: usize,
+    /// First seed (run r uses seed + r).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Rankings, comma-separated: ratio, distance, count_most (the authors'), count_fewest.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "ratio,distance,count_most"
+    )]
+    pub rankings: Vec<String>,
+    /// Lévy locations μ, comma-separated [default: the paper's −1, −50, −1e2 … −1e6].
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    pub mus: Option<Vec<f64>>,
+    /// At most this many pairs (evenly spaced over all of them).
+    #[arg(long)]
+    pub max_pairs: Option<usize>,
+    /// A quick look (under a minute on the fixture, 2 cores): 3 runs, μ ∈ {−1, −50, −1e3, −1e6},
+    /// rankings ratio and count_most, at most 20 pairs.
+    #[arg(long)]
+    pub quick: bool,
+    /// Voxel size [m] [default: the first cloud's median range / 40, as register].
+    #[arg(long)]
+    pub voxel: Option<f64>,
+    /// A reported registration is correct within this rotation error [deg].
+    #[arg(long, default_value_t = 2.0)]
+    pub max_re_deg: f64,
+    /// ... and this translation error [m] [default: one voxel].
+    #[arg(long)]
+    pub max_te_m: Option<f64>,
+    /// Reported needs at least this many RANSAC inliers (register's test).
+    #[arg(long, default_value_t = Acceptance::default().min_inliers)]
+    pub min_inliers: usize,
+    /// ... and at least this ICP fitness.
+    #[arg(long, default_value_t = Acceptance::default().min_fitness)]
+    pub min_fitness: f64,
+    /// Dataset name in the table [default: the input's file stem].
+    #[arg(long)]
+    pub dataset: Option<String>,
+    /// Print CSV: dataset,ranking,sampler,mu,runs,pairs,recall,precision,hypotheses_median,time_s_median.
+    #[arg(long)]
+    pub csv: bool,
+}
+
+/// `mireg sweep`.
+pub fn run_sweep(args: &SweepArgs) -> Result<()> {
+    let reference = crate::trajectory::read_mcap_pose_topic(&args.input, &args.reference_topic)?;
+    let by_stamp: BTreeMap<i64, Isometry3<f64>> = reference
+        .stamps_ns
+        .iter()
+        .copied()
+        .zip(reference.poses.iter().copied())
+        .collect();
+    let mut clouds: Vec<(Vec<Point3<f64>>, Isometry3<f64>)> = Vec::new();
+    crate::register::for_each_cloud(&args.input, args.topic.as_deref(), |_, cloud| {
+        if let Some(pose) = by_stamp.get(&cloud.header.stamp.to_ns()) {
+            clouds.push((cloud.points, *pose));
+        }
+        Ok(ControlFlow::Continue(()))
+    })?;
+    if clouds.len() < 2 {
+        bail!(
+            "{}: {} clouds have a pose on {} at the same stamp; a sweep needs at least 2",
+            args.input.display(),
+            clouds.len(),
+            args.reference_topic
+        );
+    }
+    let voxel = match args.voxel {
+        Some(v) => v,
+        None => voxel_for_cloud(&clouds[0].0).unwrap_or(PairConfig::default().voxel_size_m),
+    };
+    let pair = PairConfig {
+        voxel_size_m: voxel,
+        ..Default::default()
+    };
+    let frames = clouds
+        .iter()
+        .map(|(p, _)| prepare_frame(p, &pair))
+        .collect::<crate::Result<Vec<_>>>()?;
+    let poses: Vec<Isometry3<f64>> = clouds.iter().map(|c| c.1).collect();
+    let mut pairs = pairs_from_trajectory(&poses, &args.gaps);
+    let max_pairs = if args.quick {
+        Some(args.max_pairs.unwrap_or(20).min(20))
+    } else {
+        args.max_pairs
+    };
+    if let Some(m) = max_pairs.filter(|&m| m < pairs.len()) {
+        let n = pairs.len();
+        pairs = (0..m).map(|i| pairs[i * n / m].clone()).collect();
+    }
+    let thresholds = Thresholds {
+        max_re_deg: args.max_re_deg,
+        max_te_m: args.max_te_m.unwrap_or(voxel),
+    };
+    // Pairs whose motion is within the thresholds would count the identity as correct.
+    let trivial = pairs
+        .iter()
+        .filter(|p| {
+            let (re, te) =
+                crate::pipeline::pose_error(&p.target_from_source, &Isometry3::identity());
+            re <= thresholds.max_re_deg && te <= thresholds.max_te_m
+        })
+        .count();
+    if trivial > 0 {
+        eprintln!(
+            "warning: {trivial} of {} pairs move less than the thresholds ({} deg, {} m): the identity would count as correct there; use larger --gaps or smaller --max-re-deg/--max-te-m",
+            pairs.len(),
+            thresholds.max_re_deg,
+            thresholds.max_te_m
+        );
+    }
+    let (runs, mus, rankings) = if args.quick {
+        (
+            args.runs.min(3),
+            vec![-1.0, -50.0, -1e3, -1e6],
+            vec!["ratio".to_string(), "count_most".to_string()],
+        )
+    } else {
+        (
+            args.runs,
+            args.mus.clone().unwrap_or_else(|| PAPER_MUS.to_vec()),
+            args.rankings.clone(),
+        )
+    };
+    let config = SweepConfig {
+        dataset: args.dataset.clone().unwrap_or_else(|| {
+            args.input
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default()
+        }),
+        rankings,
+        samplers: samplers(&mus),
+        runs,
+        seed: args.seed,
+        pair,
+        acceptance: Acceptance {
+            min_inliers: args.min_inliers,
+            min_fitness: args.min_fitness,
+        },
+        thresholds,
+    };
+    eprintln!(
+        "{}: {} frames, {} pairs (gaps {:?}), voxel {voxel:.3} m, {} cells × {} runs; correct within {} deg / {} m",
+        args.input.display(),
+        frames.len(),
+        pairs.len(),
+        args.gaps,
+        config.rankings.len() * config.samplers.len(),
+        config.runs,
+        thresholds.max_re_deg,
+        thresholds.max_te_m
+    );
+    let rows = sweep(&frames, &pairs, &config)?;
+    if args.csv {
+        println!("{CSV_HEADER}");
+        for r in &rows {
+            println!("{}", r.csv_row());
+        }
+    } else {
+        println!(
+            "{:<12} {:<8} {:>8} {:>7} {:>9} {:>12} {:>10}",
+            "ranking", "sampler", "mu", "recall", "precision", "hypotheses", "time [s]"
+        );
+        for r in &rows {
+            println!(
+                "{:<12} {:<8} {:>8} {:>7.3} {:>9.3} {:>12} {:>10.4}",
+                r.ranking,
+                r.sampler,
+                r.mu.map(|m| format!("{m}")).unwrap_or_default(),
+                r.recall,
+                r.precision,
+                r.hypotheses_median,
+                r.time_s_median
+            );
+        }
+    }
+    Ok(())
+}
