@@ -11,16 +11,22 @@ use nalgebra::{Isometry3, Point3};
 
 use crate::pipeline::{PairConfig, prepare_frame, voxel_for_cloud};
 use crate::sweep::{
-    Acceptance, CSV_HEADER, PAPER_MUS, SweepConfig, Thresholds, pairs_from_trajectory, samplers,
-    sweep,
+    Acceptance, CSV_HEADER, PAPER_MUS, SweepConfig, SweepPair, Thresholds, pairs_from_trajectory,
+    samplers, sweep,
 };
 
 /// Arguments of `mireg sweep`.
 #[derive(Debug, Args)]
 pub struct SweepArgs {
     /// A log with point clouds and a reference PoseStamped topic (e.g. a fixture, or a
-    /// `register` output of a log that has one).
+    /// `register` output of a log that has one); with --gt-log, the folder of the clouds.
     pub input: PathBuf,
+    /// Pairs and ground truth from a file instead of a log: a Redwood/3DMatch `gt.log` (records
+    /// `i j n` + 4×4 `i_from_j`; clouds `cloud_bin_{i}.ply|.pcd|.npy|.bin` in INPUT; pairs whose
+    /// clouds are absent are skipped), or a Stanford `bun.conf` (every pair of its scans, files
+    /// as named there).
+    #[arg(long, value_name = "FILE")]
+    pub gt_log: Option<PathBuf>,
     /// Point cloud topic [default: the only one].
     #[arg(long)]
     pub topic: Option<String>,
@@ -76,8 +82,80 @@ pub struct SweepArgs {
     pub csv: bool,
 }
 
+/// Clouds and pairs from a `gt.log` or `bun.conf` (see [`SweepArgs::gt_log`]).
+fn pairs_from_file(
+    dir: &std::path::Path,
+    gt: &std::path::Path,
+) -> Result<(Vec<Vec<Point3<f64>>>, Vec<SweepPair>)> {
+    use crate::io::{cloud_file, pose_file};
+    let mut clouds = Vec::new();
+    let mut index: BTreeMap<String, usize> = BTreeMap::new();
+    let mut load = |file: std::path::PathBuf| -> Result<usize> {
+        let key = file.display().to_string();
+        if let Some(&k) = index.get(&key) {
+            return Ok(k);
+        }
+        clouds.push(cloud_file::read_points(&file)?);
+        index.insert(key, clouds.len() - 1);
+        Ok(clouds.len() - 1)
+    };
+    let mut pairs = Vec::new();
+    let text = std::fs::read_to_string(gt).map_err(|e| anyhow::anyhow!("{}: {e}", gt.display()))?;
+    if text.lines().any(|l| l.starts_with("bmesh")) {
+        let scans = pose_file::parse_bunny_conf(&text, gt)?;
+        for (a, sa) in scans.iter().enumerate() {
+            for sb in &scans[a + 1..] {
+                pairs.push(SweepPair {
+                    target: load(dir.join(&sa.file))?,
+                    source: load(dir.join(&sb.file))?,
+                    target_from_source: sa.world_from_scan.inverse() * sb.world_from_scan,
+                });
+            }
+        }
+    } else {
+        let find = |i: usize| {
+            ["ply", "pcd", "npy", "bin"]
+                .iter()
+                .map(|e| dir.join(format!("cloud_bin_{i}.{e}")))
+                .find(|p| p.is_file())
+        };
+        let (mut skipped, records) = (0, pose_file::parse_log(&text, gt)?);
+        for r in &records {
+            match (find(r.i), find(r.j)) {
+                (Some(ti), Some(sj)) => pairs.push(SweepPair {
+                    target: load(ti)?,
+                    source: load(sj)?,
+                    target_from_source: r.pose,
+                }),
+                _ => skipped += 1,
+            }
+        }
+        if skipped > 0 {
+            eprintln!(
+                "{}: {skipped} of {} pairs skipped: their clouds are not in {}",
+                gt.display(),
+                records.len(),
+                dir.display()
+            );
+        }
+    }
+    Ok((clouds, pairs))
+}
+
 /// `mireg sweep`.
 pub fn run_sweep(args: &SweepArgs) -> Result<()> {
+    let (clouds, pairs) = match &args.gt_log {
+        Some(gt) => pairs_from_file(&args.input, gt)?,
+        None => log_pairs(args)?,
+    };
+    if pairs.is_empty() {
+        bail!("{}: no pair to register", args.input.display());
+    }
+    sweep_pairs(args, clouds, pairs)
+}
+
+/// Clouds matched to the reference topic by stamp, and the pairs (i, i + k) of `--gaps`.
+fn log_pairs(args: &SweepArgs) -> Result<(Vec<Vec<Point3<f64>>>, Vec<SweepPair>)> {
     let reference = crate::trajectory::read_mcap_pose_topic(&args.input, &args.reference_topic)?;
     let by_stamp: BTreeMap<i64, Isometry3<f64>> = reference
         .stamps_ns
@@ -100,9 +178,19 @@ pub fn run_sweep(args: &SweepArgs) -> Result<()> {
             args.reference_topic
         );
     }
+    let poses: Vec<Isometry3<f64>> = clouds.iter().map(|c| c.1).collect();
+    let pairs = pairs_from_trajectory(&poses, &args.gaps);
+    Ok((clouds.into_iter().map(|c| c.0).collect(), pairs))
+}
+
+fn sweep_pairs(
+    args: &SweepArgs,
+    clouds: Vec<Vec<Point3<f64>>>,
+    mut pairs: Vec<SweepPair>,
+) -> Result<()> {
     let voxel = match args.voxel {
         Some(v) => v,
-        None => voxel_for_cloud(&clouds[0].0).unwrap_or(PairConfig::default().voxel_size_m),
+        None => voxel_for_cloud(&clouds[0]).unwrap_or(PairConfig::default().voxel_size_m),
     };
     let pair = PairConfig {
         voxel_size_m: voxel,
@@ -110,10 +198,8 @@ pub fn run_sweep(args: &SweepArgs) -> Result<()> {
     };
     let frames = clouds
         .iter()
-        .map(|(p, _)| prepare_frame(p, &pair))
+        .map(|p| prepare_frame(p, &pair))
         .collect::<crate::Result<Vec<_>>>()?;
-    let poses: Vec<Isometry3<f64>> = clouds.iter().map(|c| c.1).collect();
-    let mut pairs = pairs_from_trajectory(&poses, &args.gaps);
     let max_pairs = if args.quick {
         Some(args.max_pairs.unwrap_or(20).min(20))
     } else {
@@ -176,7 +262,7 @@ pub fn run_sweep(args: &SweepArgs) -> Result<()> {
         thresholds,
     };
     eprintln!(
-        "{}: {} frames, {} pairs (gaps {:?}), voxel {voxel:.3} m, {} cells × {} runs; correct within {} deg / {} m",
+        "{}: {} frames, {} pairs (gaps {:?}; ignored with --gt-log), voxel {voxel:.3} m, {} cells × {} runs; correct within {} deg / {} m",
         args.input.display(),
         frames.len(),
         pairs.len(),

@@ -63,3 +63,128 @@ fn csv_columns_cells_and_thread_independence() {
     }
     assert_eq!(untimed(&one), untimed(&sweep_csv("2")));
 }
+
+/// A room with boxes (metres), seeded.
+fn scene() -> Vec<[f32; 3]> {
+    use rand::{RngExt, SeedableRng};
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(8);
+    let mut v = Vec::new();
+    for _ in 0..2500 {
+        let (u, w): (f32, f32) = (rng.random_range(-2.0..2.0), rng.random_range(0.0..2.0));
+        v.push(match rng.random_range(0..3u32) {
+            0 => [u, w - 1.0, 3.0],
+            1 => [-2.0, w - 1.0, u + 3.0],
+            _ => [u, 1.0, w * 1.5 + 1.0],
+        });
+    }
+    for k in 0..5 {
+        let c = [
+            rng.random_range(-1.5..1.5f32),
+            rng.random_range(-0.5..0.5f32),
+            rng.random_range(1.5..2.8f32),
+        ];
+        for _ in 0..300 {
+            let mut e = [
+                rng.random_range(-0.3..0.3f32),
+                rng.random_range(-0.3..0.3f32),
+                rng.random_range(-0.3..0.3f32),
+            ];
+            let axis = (k + rng.random_range(0..3usize)) % 3;
+            e[axis] = 0.3 * e[axis].signum();
+            v.push([c[0] + e[0], c[1] + e[1], c[2] + e[2]]);
+        }
+    }
+    v
+}
+
+fn write_bin(path: &std::path::Path, pts: &[[f32; 3]]) {
+    let bytes: Vec<u8> = pts
+        .iter()
+        .flat_map(|p| [p[0], p[1], p[2], 0.0f32])
+        .flat_map(f32::to_le_bytes)
+        .collect();
+    std::fs::write(path, bytes).unwrap();
+}
+
+fn sweep_file(dir: &std::path::Path, gt: &std::path::Path) -> Vec<Vec<String>> {
+    let out = Command::new(env!("CARGO_BIN_EXE_mireg"))
+        .args([
+            "sweep",
+            dir.to_str().unwrap(),
+            "--gt-log",
+            gt.to_str().unwrap(),
+        ])
+        .args(["--quick", "--csv", "--voxel", "0.05", "--max-te-m", "0.05"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').map(str::to_string).collect())
+        .collect()
+}
+
+#[test]
+fn gt_log_and_bun_conf_pairs_register_to_their_ground_truth() {
+    use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let world = scene();
+    // Source = the scene seen from a pose moved by target_from_source⁻¹.
+    let target_from_source = Isometry3::from_parts(
+        Translation3::new(0.15, -0.05, 0.1),
+        UnitQuaternion::from_euler_angles(0.02, 0.12, -0.03),
+    );
+    let source: Vec<[f32; 3]> = world
+        .iter()
+        .map(|p| {
+            let q = target_from_source.inverse()
+                * Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+            [q.x as f32, q.y as f32, q.z as f32]
+        })
+        .collect();
+    write_bin(&d.join("cloud_bin_0.bin"), &world);
+    write_bin(&d.join("cloud_bin_1.bin"), &source);
+    let m = target_from_source.to_homogeneous();
+    let rows: String = (0..4)
+        .map(|r| format!("{} {} {} {}\n", m[(r, 0)], m[(r, 1)], m[(r, 2)], m[(r, 3)]))
+        .collect();
+    // A second record names a fragment that is absent: skipped.
+    std::fs::write(d.join("gt.log"), format!("0 1 2\n{rows}0 7 8\n{rows}")).unwrap();
+    for row in sweep_file(d, &d.join("gt.log")) {
+        assert_eq!(
+            row[5], "1",
+            "one pair: the record with absent clouds is skipped"
+        );
+        if row[1] == "ratio" && row[2] != "prosac" {
+            assert_eq!(row[6], "1.0000", "{row:?}");
+        }
+    }
+    // The same pair as a bun.conf: translation only, so world = x + t in either convention.
+    let t = [0.2f32, 0.0, -0.1];
+    let shifted: Vec<[f32; 3]> = world
+        .iter()
+        .map(|p| [p[0] - t[0], p[1] - t[1], p[2] - t[2]])
+        .collect();
+    write_bin(&d.join("b.bin"), &shifted);
+    std::fs::write(
+        d.join("bun.conf"),
+        format!(
+            "bmesh cloud_bin_0.bin 0 0 0 0 0 0 1\nbmesh b.bin {} {} {} 0 0 0 1\n",
+            t[0], t[1], t[2]
+        ),
+    )
+    .unwrap();
+    let rows = sweep_file(d, &d.join("bun.conf"));
+    let uniform = rows
+        .iter()
+        .find(|r| r[1] == "ratio" && r[2] == "uniform")
+        .unwrap();
+    assert_eq!((uniform[5].as_str(), uniform[6].as_str()), ("1", "1.0000"));
+}
