@@ -82,11 +82,14 @@ pub struct SweepArgs {
     pub csv: bool,
 }
 
+/// The clouds of a sweep and its pairs (indices into them).
+type CloudsAndPairs = (Vec<Vec<Point3<f64>>>, Vec<SweepPair>);
+
 /// Clouds and pairs from a `gt.log` or `bun.conf` (see [`SweepArgs::gt_log`]).
 fn pairs_from_file(
     dir: &std::path::Path,
     gt: &std::path::Path,
-) -> Result<(Vec<Vec<Point3<f64>>>, Vec<SweepPair>)> {
+) -> Result<CloudsAndPairs> {
     use crate::io::{cloud_file, pose_file};
     let mut clouds = Vec::new();
     let mut index: BTreeMap<String, usize> = BTreeMap::new();
@@ -155,7 +158,7 @@ pub fn run_sweep(args: &SweepArgs) -> Result<()> {
 }
 
 /// Clouds matched to the reference topic by stamp, and the pairs (i, i + k) of `--gaps`.
-fn log_pairs(args: &SweepArgs) -> Result<(Vec<Vec<Point3<f64>>>, Vec<SweepPair>)> {
+fn log_pairs(args: &SweepArgs) -> Result<CloudsAndPairs> {
     let reference = crate::trajectory::read_mcap_pose_topic(&args.input, &args.reference_topic)?;
     let by_stamp: BTreeMap<i64, Isometry3<f64>> = reference
         .stamps_ns
