@@ -86,10 +86,7 @@ pub struct SweepArgs {
 type CloudsAndPairs = (Vec<Vec<Point3<f64>>>, Vec<SweepPair>);
 
 /// Clouds and pairs from a `gt.log` or `bun.conf` (see [`SweepArgs::gt_log`]).
-fn pairs_from_file(
-    dir: &std::path::Path,
-    gt: &std::path::Path,
-) -> Result<CloudsAndPairs> {
+fn pairs_from_file(dir: &std::path::Path, gt: &std::path::Path) -> Result<CloudsAndPairs> {
     use crate::io::{cloud_file, pose_file};
     let mut clouds = Vec::new();
     let mut index: BTreeMap<String, usize> = BTreeMap::new();
