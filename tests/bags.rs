@@ -113,6 +113,9 @@ fn every_kind_of_bag_gives_the_poses_of_the_same_frames_in_mcap() {
         let got = poses(&register(&bags().join(input)));
         assert_eq!(got, want, "{input}");
     }
+    // A bag directory named by its metadata.yaml is the same bag.
+    let got = poses(&register(&bags().join("icl8_split/metadata.yaml")));
+    assert_eq!(got, want, "icl8_split/metadata.yaml");
 }
 
 #[test]

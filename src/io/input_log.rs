@@ -39,8 +39,8 @@ pub enum InputLog {
 }
 
 impl InputLog {
-    /// Opens `path` as whichever container it is: a directory with a `metadata.yaml` is a ROS 2
-    /// bag (one of a single MCAP file is read as that MCAP file); a file starting with `#ROSBAG`
+    /// Opens `path` as whichever container it is: a directory with a `metadata.yaml` (or that
+    /// `metadata.yaml` itself) is a ROS 2 bag (one of a single MCAP file is read as that MCAP file); a file starting with `#ROSBAG`
     /// is a ROS 1 bag; an SQLite database is a rosbag2 `.db3` file on its own; anything else is
     /// read as MCAP (whose reader names what is wrong with a file that is not one).
     ///
@@ -64,6 +64,11 @@ impl InputLog {
             }
             Ok(m) => m,
         };
+        if meta.is_file() && path.file_name().is_some_and(|n| n == "metadata.yaml") {
+            // A ROS 2 bag named by its metadata file: the bag is the directory.
+            let dir = path.parent().filter(|p| !p.as_os_str().is_empty());
+            return Self::open(dir.unwrap_or(Path::new(".")));
+        }
         if meta.is_dir() {
             if !path.join("metadata.yaml").is_file() {
                 return Err(Error::InvalidInput(format!(
