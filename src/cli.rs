@@ -618,7 +618,8 @@ fn write_pair_text(
     Ok(())
 }
 
-fn command_line() -> String {
+/// The command line as typed, recorded in outputs' metadata.
+pub(crate) fn command_line() -> String {
     std::env::args().collect::<Vec<_>>().join(" ")
 }
 

@@ -92,13 +92,12 @@ pub fn run_info(args: &InfoArgs) -> Result<()> {
 
 /// `mireg stitch`.
 pub fn run_stitch(args: &StitchArgs) -> Result<()> {
-    let command_line = std::env::args().collect::<Vec<_>>().join(" ");
     let s = crate::register::stitch(
         &args.log,
         &args.segments,
         &args.output,
         args.force,
-        &command_line,
+        &crate::cli::command_line(),
     )?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&s)?);

@@ -205,24 +205,12 @@ fn bag_header(conn: u32, time_ns: u64) -> MessageHeader {
 }
 
 fn starts_with(path: &Path, prefix: &[u8]) -> Result<bool> {
-    use std::io::Read;
-    let mut f = std::fs::File::open(path).map_err(|source| Error::Io {
+    let io = |source| Error::Io {
         path: path.to_path_buf(),
         source,
-    })?;
+    };
+    let mut f = std::fs::File::open(path).map_err(io)?;
     let mut b = vec![0u8; prefix.len()];
-    let mut got = 0;
-    while got < b.len() {
-        match f.read(&mut b[got..]) {
-            Ok(0) => break,
-            Ok(n) => got += n,
-            Err(source) => {
-                return Err(Error::Io {
-                    path: path.to_path_buf(),
-                    source,
-                });
-            }
-        }
-    }
+    let got = ros1_bag::read_up_to(&mut f, &mut b).map_err(io)?;
     Ok(got == b.len() && b == prefix)
 }

@@ -20,7 +20,7 @@ use nalgebra::{Isometry3, Point3};
 use super::point_cloud2;
 use super::{
     DecodeError, Header, PointCloud, Time, TransformStamped, WireRead, WireWrite, read_isometry,
-    truncated, write_isometry,
+    read_tf_body, truncated, write_isometry, write_tf_body,
 };
 
 /// MCAP message encoding of every message in this module.
@@ -479,12 +479,7 @@ const MIN_TRANSFORM_STAMPED_BYTES: usize = 72;
 /// Encodes a `tf2_msgs/msg/TFMessage` (little-endian CDR).
 pub fn encode_tf_message(transforms: &[TransformStamped]) -> Vec<u8> {
     let mut w = CdrWriter::with_capacity(8 + transforms.len() * 128);
-    w.sequence_len(transforms.len());
-    for t in transforms {
-        write_header(&mut w, &t.header);
-        w.string(&t.child_frame_id);
-        write_isometry(&mut w, &t.transform);
-    }
+    write_tf_body(&mut w, transforms, write_header);
     w.finish()
 }
 
@@ -494,23 +489,7 @@ pub fn encode_tf_message(transforms: &[TransformStamped]) -> Vec<u8> {
 /// [`DecodeError`] naming `transforms[i]…` as for [`decode_pose_stamped`].
 pub fn decode_tf_message(payload: &[u8]) -> Result<Vec<TransformStamped>, DecodeError> {
     let mut r = CdrReader::new(payload)?;
-    let n = r.sequence_len("transforms", MIN_TRANSFORM_STAMPED_BYTES)?;
-    let mut out = Vec::with_capacity(n);
-    for i in 0..n {
-        let header = read_header(&mut r, &format!("transforms[{i}].header."))?;
-        let child_frame_id = r.string(&format!("transforms[{i}].child_frame_id"))?;
-        let transform = read_isometry(
-            &mut r,
-            &format!("transforms[{i}].transform.translation"),
-            &format!("transforms[{i}].transform.rotation"),
-        )?;
-        out.push(TransformStamped {
-            header,
-            child_frame_id,
-            transform,
-        });
-    }
-    Ok(out)
+    read_tf_body(&mut r, MIN_TRANSFORM_STAMPED_BYTES, read_header)
 }
 #[cfg(test)]
 mod tests;

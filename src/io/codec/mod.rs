@@ -314,6 +314,48 @@ pub(crate) fn isometry_from_parts(
     ))
 }
 
+/// Writes the `transforms` sequence of a `tf2_msgs/TFMessage` (the same fields in ROS 1 and
+/// ROS 2), each header with the codec's `write_header`.
+pub(crate) fn write_tf_body<W: WireWrite>(
+    w: &mut W,
+    transforms: &[TransformStamped],
+    write_header: fn(&mut W, &Header),
+) {
+    w.sequence_len(transforms.len());
+    for t in transforms {
+        write_header(w, &t.header);
+        w.string(&t.child_frame_id);
+        write_isometry(w, &t.transform);
+    }
+}
+
+/// Reads the `transforms` sequence of a `tf2_msgs/TFMessage`, each header with the codec's
+/// `read_header` (called with the field prefix `transforms[i].header.`); `min_transform_bytes`
+/// is the smallest serialized `TransformStamped` of the encoding, which bounds the count.
+pub(crate) fn read_tf_body<'a, R: WireRead<'a>>(
+    r: &mut R,
+    min_transform_bytes: usize,
+    read_header: fn(&mut R, &str) -> Result<Header, DecodeError>,
+) -> Result<Vec<TransformStamped>, DecodeError> {
+    let n = r.sequence_len("transforms", min_transform_bytes)?;
+    let mut out = Vec::with_capacity(n);
+    for i in 0..n {
+        let header = read_header(r, &format!("transforms[{i}].header."))?;
+        let child_frame_id = r.string(&format!("transforms[{i}].child_frame_id"))?;
+        let transform = read_isometry(
+            r,
+            &format!("transforms[{i}].transform.translation"),
+            &format!("transforms[{i}].transform.rotation"),
+        )?;
+        out.push(TransformStamped {
+            header,
+            child_frame_id,
+            transform,
+        });
+    }
+    Ok(out)
+}
+
 /// A `geometry_msgs/PoseStamped` decoder: the header and the pose it carries.
 pub type PoseStampedDecoder = fn(&[u8]) -> Result<(Header, Isometry3<f64>), DecodeError>;
 

@@ -19,7 +19,7 @@ use nalgebra::Isometry3;
 use super::point_cloud2;
 use super::{
     DecodeError, Header, PointCloud, Time, TransformStamped, WireRead, WireWrite, read_isometry,
-    truncated, write_isometry,
+    read_tf_body, truncated, write_isometry, write_tf_body,
 };
 
 /// MCAP message encoding of every message in this module.
@@ -53,6 +53,20 @@ MSG: std_msgs/Header
 uint32 seq
 time stamp
 string frame_id
+"
+    };
+}
+
+/// The `geometry_msgs/Quaternion` dependency section (ROS 1 has no default values).
+macro_rules! ros1_quaternion_section {
+    () => {
+        "
+================================================================================
+MSG: geometry_msgs/Quaternion
+float64 x
+float64 y
+float64 z
+float64 w
 "
     };
 }
@@ -110,14 +124,8 @@ MSG: geometry_msgs/Point
 float64 x
 float64 y
 float64 z
-
-================================================================================
-MSG: geometry_msgs/Quaternion
-float64 x
-float64 y
-float64 z
-float64 w
-"
+",
+    ros1_quaternion_section!()
 );
 
 /// Complete `ros1msg` definition of `tf2_msgs/TFMessage` with
@@ -145,14 +153,8 @@ MSG: geometry_msgs/Vector3
 float64 x
 float64 y
 float64 z
-
-================================================================================
-MSG: geometry_msgs/Quaternion
-float64 x
-float64 y
-float64 z
-float64 w
-"
+",
+    ros1_quaternion_section!()
 );
 
 // ---------------------------------------------------------------------------------------------
@@ -358,12 +360,7 @@ const MIN_TRANSFORM_STAMPED_BYTES: usize = 76;
 /// Encodes a ROS 1 `tf2_msgs/TFMessage`.
 pub fn encode_tf_message(transforms: &[TransformStamped]) -> Vec<u8> {
     let mut w = Ros1Writer::with_capacity(4 + transforms.len() * 128);
-    w.sequence_len(transforms.len());
-    for t in transforms {
-        write_header(&mut w, &t.header);
-        w.string(&t.child_frame_id);
-        write_isometry(&mut w, &t.transform);
-    }
+    write_tf_body(&mut w, transforms, write_header);
     w.finish()
 }
 
@@ -373,23 +370,7 @@ pub fn encode_tf_message(transforms: &[TransformStamped]) -> Vec<u8> {
 /// [`DecodeError`] naming `transforms[i]…` as for [`decode_pose_stamped`].
 pub fn decode_tf_message(payload: &[u8]) -> Result<Vec<TransformStamped>, DecodeError> {
     let mut r = Ros1Reader::new(payload);
-    let n = r.sequence_len("transforms", MIN_TRANSFORM_STAMPED_BYTES)?;
-    let mut out = Vec::with_capacity(n);
-    for i in 0..n {
-        let header = read_header(&mut r, &format!("transforms[{i}].header."))?;
-        let child_frame_id = r.string(&format!("transforms[{i}].child_frame_id"))?;
-        let transform = read_isometry(
-            &mut r,
-            &format!("transforms[{i}].transform.translation"),
-            &format!("transforms[{i}].transform.rotation"),
-        )?;
-        out.push(TransformStamped {
-            header,
-            child_frame_id,
-            transform,
-        });
-    }
-    Ok(out)
+    read_tf_body(&mut r, MIN_TRANSFORM_STAMPED_BYTES, read_header)
 }
 
 #[cfg(test)]
