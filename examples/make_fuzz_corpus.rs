@@ -189,7 +189,7 @@ fn main() {
             transform: pose,
         }]),
     );
-    for dir in ["icl8_split", "icl8_mcap"] {
+    for dir in ["icl4_split", "icl4_mcap"] {
         let text = std::fs::read(Path::new("fixtures/bags").join(dir).join("metadata.yaml"))
             .expect("fixtures/bags metadata");
         put("rosbag2_metadata", &format!("{dir}.yaml"), &text);

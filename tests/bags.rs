@@ -1,5 +1,5 @@
 //! ROS 1 bags and ROS 2 bag directories written by a third-party writer (PyPI `rosbags`, see
-//! fixtures/bags/README.md) from the first 8 frames of the ICL-NUIM fixture:
+//! fixtures/bags/README.md) from the first 4 frames of the ICL-NUIM fixture:
 //! - every kind registers to exactly the poses of the same frames given as a ROS 2 MCAP;
 //! - every input message reaches the output (ROS 2 bags: byte for byte the source MCAP's
 //!   messages; ROS 1 bags: the same point data, re-serialized by rosbags);
@@ -20,7 +20,7 @@ use log_contents::{Contents, contents};
 
 const CLOUDS: &str = "/camera/depth/points";
 const REFERENCE: &str = "/ground_truth/pose";
-const FRAMES: usize = 8;
+const FRAMES: usize = 4;
 
 fn bags() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/bags")
@@ -66,7 +66,7 @@ fn poses(c: &Contents) -> Vec<(i64, Isometry3<f64>)> {
         .collect()
 }
 
-/// The source frames: the first 8 clouds and reference poses of the ROS 2 fixture, as (topic,
+/// The source frames: the first 4 clouds and reference poses of the ROS 2 fixture, as (topic,
 /// log time, bytes).
 fn source_messages() -> Vec<(String, u64, Vec<u8>)> {
     let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/icl_livingroom1.mcap");
@@ -99,30 +99,30 @@ fn input_messages_of(c: &Contents) -> Vec<(String, u64, Vec<u8>)> {
 #[test]
 fn every_kind_of_bag_gives_the_poses_of_the_same_frames_in_mcap() {
     // The same frames as a ROS 2 MCAP file (rosbags' own MCAP, read as a plain file).
-    let reference = register(&bags().join("icl8_mcap/icl8_mcap.mcap"));
+    let reference = register(&bags().join("icl4_mcap/icl4_mcap.mcap"));
     let want = poses(&reference);
     assert_eq!(want.len(), FRAMES);
     for input in [
-        "icl8_mcap",
-        "icl8_db3",
-        "icl8_split",
-        "icl8_none.bag",
-        "icl8_bz2.bag",
-        "icl8_lz4.bag",
+        "icl4_mcap",
+        "icl4_db3",
+        "icl4_split",
+        "icl4_none.bag",
+        "icl4_bz2.bag",
+        "icl4_lz4.bag",
     ] {
         let got = poses(&register(&bags().join(input)));
         assert_eq!(got, want, "{input}");
     }
     // A bag directory named by its metadata.yaml is the same bag.
-    let got = poses(&register(&bags().join("icl8_split/metadata.yaml")));
-    assert_eq!(got, want, "icl8_split/metadata.yaml");
+    let got = poses(&register(&bags().join("icl4_split/metadata.yaml")));
+    assert_eq!(got, want, "icl4_split/metadata.yaml");
 }
 
 #[test]
 fn ros2_bags_keep_every_source_message_byte_for_byte() {
     let want = source_messages();
     assert_eq!(want.len(), 2 * FRAMES);
-    for input in ["icl8_mcap", "icl8_db3", "icl8_split"] {
+    for input in ["icl4_mcap", "icl4_db3", "icl4_split"] {
         let out = register(&bags().join(input));
         assert_eq!(input_messages_of(&out), want, "{input}");
     }
@@ -131,7 +131,7 @@ fn ros2_bags_keep_every_source_message_byte_for_byte() {
 #[test]
 fn ros1_bags_keep_every_message_and_the_source_point_data() {
     let source = source_messages();
-    for input in ["icl8_none.bag", "icl8_bz2.bag", "icl8_lz4.bag"] {
+    for input in ["icl4_none.bag", "icl4_bz2.bag", "icl4_lz4.bag"] {
         let out = register(&bags().join(input));
         let got = input_messages_of(&out);
         assert_eq!(got.len(), 2 * FRAMES, "{input}");
@@ -164,7 +164,7 @@ fn index_pos_field(bytes: &[u8]) -> usize {
 #[test]
 fn a_bag_whose_index_was_never_written_is_scanned() {
     // What a killed recorder leaves: index_pos 0 and nothing after the last chunk.
-    let mut bytes = std::fs::read(bags().join("icl8_lz4.bag")).unwrap();
+    let mut bytes = std::fs::read(bags().join("icl4_lz4.bag")).unwrap();
     let at = index_pos_field(&bytes);
     let index_pos = u64::from_le_bytes(bytes[at..at + 8].try_into().unwrap()) as usize;
     bytes.truncate(index_pos);
@@ -172,7 +172,7 @@ fn a_bag_whose_index_was_never_written_is_scanned() {
     let dir = tempfile::tempdir().unwrap();
     let unindexed = dir.path().join("unindexed.bag");
     std::fs::write(&unindexed, &bytes).unwrap();
-    let want = poses(&register(&bags().join("icl8_lz4.bag")));
+    let want = poses(&register(&bags().join("icl4_lz4.bag")));
     assert_eq!(poses(&register(&unindexed)), want);
 }
 
@@ -194,7 +194,7 @@ fn assert_fails_cleanly(input: &Path, needles: &[&str]) {
 #[test]
 fn truncated_bags_corrupt_databases_and_missing_metadata_are_clear_errors() {
     let dir = tempfile::tempdir().unwrap();
-    let bag = std::fs::read(bags().join("icl8_bz2.bag")).unwrap();
+    let bag = std::fs::read(bags().join("icl4_bz2.bag")).unwrap();
 
     // Cut inside the chunks (the index is gone too).
     let cut = dir.path().join("cut.bag");
@@ -220,37 +220,37 @@ fn truncated_bags_corrupt_databases_and_missing_metadata_are_clear_errors() {
     let broken = dir.path().join("broken_db3");
     std::fs::create_dir(&broken).unwrap();
     std::fs::copy(
-        bags().join("icl8_db3/metadata.yaml"),
+        bags().join("icl4_db3/metadata.yaml"),
         broken.join("metadata.yaml"),
     )
     .unwrap();
-    let mut db = std::fs::read(bags().join("icl8_db3/icl8_db3.db3")).unwrap();
+    let mut db = std::fs::read(bags().join("icl4_db3/icl4_db3.db3")).unwrap();
     db[100..8192].fill(0xff);
-    std::fs::write(broken.join("icl8_db3.db3"), &db).unwrap();
-    assert_fails_cleanly(&broken, &["icl8_db3.db3", "SQLite"]);
+    std::fs::write(broken.join("icl4_db3.db3"), &db).unwrap();
+    assert_fails_cleanly(&broken, &["icl4_db3.db3", "SQLite"]);
 
     // A directory without metadata.yaml, and metadata naming a missing file.
     let no_meta = dir.path().join("no_meta");
     std::fs::create_dir(&no_meta).unwrap();
     std::fs::copy(
-        bags().join("icl8_db3/icl8_db3.db3"),
-        no_meta.join("icl8_db3.db3"),
+        bags().join("icl4_db3/icl4_db3.db3"),
+        no_meta.join("icl4_db3.db3"),
     )
     .unwrap();
     assert_fails_cleanly(&no_meta, &["no_meta", "metadata.yaml", "ROS 1 bag (.bag)"]);
     let missing = dir.path().join("missing_file");
     std::fs::create_dir(&missing).unwrap();
     std::fs::copy(
-        bags().join("icl8_split/metadata.yaml"),
+        bags().join("icl4_split/metadata.yaml"),
         missing.join("metadata.yaml"),
     )
     .unwrap();
     std::fs::copy(
-        bags().join("icl8_split/icl8_split_0.db3"),
-        missing.join("icl8_split_0.db3"),
+        bags().join("icl4_split/icl4_split_0.db3"),
+        missing.join("icl4_split_0.db3"),
     )
     .unwrap();
-    assert_fails_cleanly(&missing, &["metadata.yaml", "icl8_split_1.db3"]);
+    assert_fails_cleanly(&missing, &["metadata.yaml", "icl4_split_1.db3"]);
 
     // No such path: the reason once, and what is accepted.
     let e = register_log(&options(
@@ -266,10 +266,10 @@ fn truncated_bags_corrupt_databases_and_missing_metadata_are_clear_errors() {
 #[test]
 fn nothing_in_the_bag_directory_is_altered() {
     let dir = tempfile::tempdir().unwrap();
-    let copy = dir.path().join("icl8_split");
+    let copy = dir.path().join("icl4_split");
     std::fs::create_dir(&copy).unwrap();
-    for f in ["metadata.yaml", "icl8_split_0.db3", "icl8_split_1.db3"] {
-        std::fs::copy(bags().join("icl8_split").join(f), copy.join(f)).unwrap();
+    for f in ["metadata.yaml", "icl4_split_0.db3", "icl4_split_1.db3"] {
+        std::fs::copy(bags().join("icl4_split").join(f), copy.join(f)).unwrap();
     }
     let before: Vec<_> = std::fs::read_dir(&copy)
         .unwrap()

@@ -1,34 +1,37 @@
 #!/usr/bin/env python3
-"""Write third-party ROS bag fixtures (fixtures/bags/) with the `rosbags` package from the first 8
+"""Write third-party ROS bag fixtures (fixtures/bags/) with the `rosbags` package from the first 4
 frames of fixtures/icl_livingroom1.mcap.
 
-Input: the first ``--frames`` (8) messages of ``/camera/depth/points`` (sensor_msgs/msg/PointCloud2,
+Input: the first ``--frames`` (4) messages of ``/camera/depth/points`` (sensor_msgs/msg/PointCloud2,
 cdr) of the source MCAP and the ``/ground_truth/pose`` (geometry_msgs/msg/PoseStamped, cdr)
 messages with the same log times, read with the official ``mcap`` reader.
 
 Output (every file is written by rosbags' writers; no byte is written by hand except the composed
-metadata.yaml of the split bag, see below):
+metadata.yaml of the split bag, see below). Every name starts with ``icl{frames}_`` (``icl4_``
+with the default ``--frames 4``):
 
-* ROS 1 bags, format 2.0 (``rosbags.rosbag1.Writer``): ``icl8_none.bag``, ``icl8_bz2.bag``,
-  ``icl8_lz4.bag`` -- chunk compression none / bz2 / lz4, chunk threshold ``--chunk-threshold``
-  (100,000 bytes of uncompressed chunk data) so each bag has several chunks. The CDR messages are
-  deserialised with rosbags' ROS 2 (jazzy) typestore and re-built as ROS 1 noetic messages
-  (``sensor_msgs/PointCloud2``, ``geometry_msgs/PoseStamped``; header seq = frame index 0..7, same
-  stamp and frame_id, the point data bytes unchanged) and serialised with ``serialize_ros1`` of the
-  noetic typestore. Connections: message definition and md5sum from the noetic typestore;
-  ``/camera/depth/points`` has callerid ``/icl_player`` and latching 0, ``/ground_truth/pose`` has
-  latching 0 and no callerid (so readers see both cases). Message time = the MCAP log_time.
-* rosbag2 bags, metadata version 9 (``rosbags.rosbag2.Writer``): ``icl8_mcap/`` (storage mcap,
-  uncompressed), ``icl8_db3/`` (storage sqlite3) -- the source's CDR bytes copied unchanged
-  (``Writer.write`` takes the serialised bytes), timestamps = log_time; type definitions and
-  RIHS01 hashes from rosbags' ROS 2 jazzy typestore; no QoS profiles.
-* ``icl8_split/``: one rosbag2 sqlite3 bag in two files. rosbags cannot split a bag, so each half
-  (first 4 frames' messages, then the remaining 4) is written as its own bag by rosbags, the two
-  .db3 files are moved into icl8_split/ as ``icl8_split_0.db3`` / ``icl8_split_1.db3`` and one
-  metadata.yaml is composed from the two halves' rosbags-written metadata.yaml (same keys, same
-  ruamel.yaml dumper settings as rosbags): relative_file_paths and files list both files with
-  their own starting times, durations and counts, the totals and per-topic counts are the sums.
-  Each .db3 keeps its own ``metadata`` table row, which describes only its half.
+* ROS 1 bags, format 2.0 (``rosbags.rosbag1.Writer``): ``icl4_none.bag``, ``icl4_bz2.bag``,
+  ``icl4_lz4.bag`` -- chunk compression none / bz2 / lz4, chunk threshold ``--chunk-threshold``
+  (100,000 bytes of uncompressed chunk data) so each bag has several chunks (at least 3; 3 with 4
+  frames). The CDR messages are deserialised with rosbags' ROS 2 (jazzy) typestore and re-built as
+  ROS 1 noetic messages (``sensor_msgs/PointCloud2``, ``geometry_msgs/PoseStamped``; header seq =
+  frame index 0..frames-1, same stamp and frame_id, the point data bytes unchanged) and serialised
+  with ``serialize_ros1`` of the noetic typestore. Connections: message definition and md5sum from
+  the noetic typestore; ``/camera/depth/points`` has callerid ``/icl_player`` and latching 0,
+  ``/ground_truth/pose`` has latching 0 and no callerid (so readers see both cases). Message time =
+  the MCAP log_time.
+* rosbag2 bags, metadata version 9 (``rosbags.rosbag2.Writer``): ``icl4_mcap/`` (storage mcap,
+  uncompressed), ``icl4_db3/`` (storage sqlite3) -- the source's CDR bytes copied unchanged
+  (``Writer.write`` takes the serialised bytes), timestamps = log_time; type definitions and RIHS01
+  hashes from rosbags' ROS 2 jazzy typestore; no QoS profiles.
+* ``icl4_split/``: one rosbag2 sqlite3 bag in two files. rosbags cannot split a bag, so each half
+  (the first frames // 2 frames' messages, then the rest: frames 0-1 and 2-3 by default) is written
+  as its own bag by rosbags, the two .db3 files are moved into icl4_split/ as ``icl4_split_0.db3`` /
+  ``icl4_split_1.db3`` and one metadata.yaml is composed from the two halves' rosbags-written
+  metadata.yaml (same keys, same ruamel.yaml dumper settings as rosbags): relative_file_paths and
+  files list both files with their own starting times, durations and counts, the totals and
+  per-topic counts are the sums. Each .db3 keeps its own ``metadata`` table row, which describes
+  only its half.
 
 Checks after writing: every bag is read back with rosbags' AnyReader (counts per topic, times,
 bytes: CDR identical for rosbag2, ROS 1 messages re-decoded and their point data identical to the
@@ -71,8 +74,8 @@ POSE_TYPE = "geometry_msgs/msg/PoseStamped"
 CALLERID = "/icl_player"
 ROSBAG2_VERSION = 9
 
-ROS1_BAGS = (("icl8_none.bag", None), ("icl8_bz2.bag", Writer1.CompressionFormat.BZ2),
-             ("icl8_lz4.bag", Writer1.CompressionFormat.LZ4))
+ROS1_COMPRESSIONS = (("none", None), ("bz2", Writer1.CompressionFormat.BZ2),
+                     ("lz4", Writer1.CompressionFormat.LZ4))
 
 
 def read_source(path, frames):
@@ -167,7 +170,8 @@ def yaml_dumper():
 
 
 def write_split(path, msgs, stamps, ts2, tmp):
-    """One sqlite3 rosbag2 bag in two files: frames 0-3, then 4-7 (see the module docstring)."""
+    """One sqlite3 rosbag2 bag in two files: the first half of the frames, then the rest (frames
+    0-1, then 2-3 with 4 frames; see the module docstring)."""
     half = stamps[len(stamps) // 2]
     parts = [[m for m in msgs if m[1] < half], [m for m in msgs if m[1] >= half]]
     infos = []
@@ -247,24 +251,29 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--src", type=Path, default=DEFAULT_SRC, help="source MCAP [%(default)s]")
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output directory [%(default)s]")
-    ap.add_argument("--frames", type=int, default=8, help="clouds to take [%(default)s]")
+    ap.add_argument("--frames", type=int, default=4, help="clouds to take [%(default)s]")
     ap.add_argument("--chunk-threshold", type=int, default=100_000,
                     help="ROS 1 chunk threshold, uncompressed bytes [%(default)s]")
     args = ap.parse_args()
+    if args.frames < 2:
+        sys.exit("--frames must be at least 2 (the split bag has two halves)")
+    prefix = f"icl{args.frames}"
+    ros1 = [(f"{prefix}_{kind}.bag", compression) for kind, compression in ROS1_COMPRESSIONS]
+    ros2 = ((f"{prefix}_mcap", StoragePlugin.MCAP), (f"{prefix}_db3", StoragePlugin.SQLITE3))
+    split = f"{prefix}_split"
 
     ts1 = get_typestore(Stores.ROS1_NOETIC)
     ts2 = get_typestore(Stores.ROS2_JAZZY)
     msgs, stamps = read_source(args.src, args.frames)
     args.out.mkdir(parents=True, exist_ok=True)
-    ros2 = (("icl8_mcap", StoragePlugin.MCAP), ("icl8_db3", StoragePlugin.SQLITE3))
-    for name in [n for n, _ in ROS1_BAGS] + [n for n, _ in ros2] + ["icl8_split"]:
+    for name in [n for n, _ in ros1] + [n for n, _ in ros2] + [split]:
         target = args.out / name
         if target.is_dir():
             shutil.rmtree(target)
         elif target.exists():
             target.unlink()
 
-    for name, compression in ROS1_BAGS:
+    for name, compression in ros1:
         chunks = write_ros1(args.out / name, compression, msgs, stamps, ts1, ts2,
                             args.chunk_threshold)
         if chunks < 3:
@@ -273,11 +282,11 @@ def main():
     for name, storage in ros2:
         write_ros2(args.out / name, storage, msgs, ts2)
     with tempfile.TemporaryDirectory() as tmp:
-        write_split(args.out / "icl8_split", msgs, stamps, ts2, Path(tmp))
+        write_split(args.out / split, msgs, stamps, ts2, Path(tmp))
 
-    for name, _ in ROS1_BAGS:
+    for name, _ in ros1:
         print(f"{name}: read back {verify(args.out / name, msgs, stamps, ts1, ts2, True)}")
-    for name in ("icl8_mcap", "icl8_db3", "icl8_split"):
+    for name in [n for n, _ in ros2] + [split]:
         print(f"{name}/: read back {verify(args.out / name, msgs, stamps, ts1, ts2, False)}")
 
     total = 0

@@ -1,5 +1,5 @@
-"""A large ROS 1 bag for the pass-through benchmark (docs/BENCHMARKS.md, "Bags"): the 8 clouds
-and poses of fixtures/bags/icl8_none.bag plus BALLAST incompressible messages of MB megabytes
+"""A large ROS 1 bag for the pass-through benchmark (docs/BENCHMARKS.md, "Bags"): the 4 clouds
+and poses of fixtures/bags/icl4_none.bag plus BALLAST incompressible messages of MB megabytes
 (std_msgs/UInt8MultiArray with random bytes) on /ballast, interleaved with the clouds, written by
 rosbags with uncompressed chunks (rosbag record's default).
 
@@ -21,7 +21,7 @@ ap.add_argument("--mb", type=float, default=1.0)
 ap.add_argument("--seed", type=int, default=1)
 args = ap.parse_args()
 
-src = Path(__file__).resolve().parent.parent / "fixtures/bags/icl8_none.bag"
+src = Path(__file__).resolve().parent.parent / "fixtures/bags/icl4_none.bag"
 typestore = get_typestore(Stores.ROS1_NOETIC)
 rng_bytes = __import__("random").Random(args.seed).randbytes
 size = int(args.mb * 1_000_000)
