@@ -315,6 +315,11 @@ pub struct RegisterArgs {
     /// Points kept per voxel of the local map (its voxel is the ICP voxel).
     #[arg(long, value_name = "N", default_value_t = OdometryConfig::default().map_max_points_per_voxel)]
     pub map_points_per_voxel: usize,
+    /// Global registration (descriptors, matching, RANSAC) runs on a coarser cloud of at most
+    /// N points when the first frame's voxel cloud has more; ICP and the local map keep the
+    /// voxel cloud. 0: everything on the voxel cloud.
+    #[arg(long, value_name = "N", default_value_t = OdometryConfig::default().feature_points)]
+    pub feature_points: usize,
     /// Name of the world frame (the first cloud's sensor frame) in /tf and /mireg/pose.
     #[arg(long, default_value = "world")]
     pub world_frame: String,
@@ -631,6 +636,7 @@ fn run_register(args: &RegisterArgs) -> Result<()> {
         min_fitness: args.min_fitness,
         local_map: !args.no_local_map,
         map_max_points_per_voxel: args.map_points_per_voxel,
+        feature_points: args.feature_points,
     };
     let opts = RegisterOptions {
         input: args.input.clone(),
@@ -713,6 +719,12 @@ fn print_summary(s: &RegisterSummary) {
         _ => "configured",
     };
     println!("voxel {:.3} m ({source})", s.voxel_m);
+    if s.feature_voxel_m != s.voxel_m {
+        println!(
+            "global registration on a {:.3} m voxel cloud (at most {} points in the first frame; --feature-points sets it)",
+            s.feature_voxel_m, s.feature_points
+        );
+    }
     println!(
         "failed frames {} ({:.1} %), mean inliers {:.1}, {:.2} frames/s ({:.2} s), {} input messages copied, poses on {} and {}",
         s.failed_frames,

@@ -38,6 +38,12 @@ pub struct OdometryConfig {
     /// Points kept per map voxel (the map voxel is the ICP voxel). Default 5
     /// (KISS-ICP: 20; 5 gave the same fixture ATE at less cost, docs/ODOMETRY.md).
     pub map_max_points_per_voxel: usize,
+    /// `mireg register` runs descriptors, matching and RANSAC on a coarser cloud of at most
+    /// this many points when the voxel cloud of the first frame has more
+    /// ([`crate::pipeline::feature_voxel_for_cloud`]); ICP and the local map keep the voxel
+    /// cloud. 0 keeps everything on the voxel cloud. Default
+    /// [`crate::pipeline::DEFAULT_FEATURE_POINTS`] (4 000).
+    pub feature_points: usize,
 }
 
 impl Default for OdometryConfig {
@@ -48,6 +54,7 @@ impl Default for OdometryConfig {
             min_fitness: 0.3,
             local_map: true,
             map_max_points_per_voxel: 5,
+            feature_points: crate::pipeline::DEFAULT_FEATURE_POINTS,
         }
     }
 }
@@ -67,6 +74,20 @@ pub enum Fallback {
 /// distance). Open3D's 1e-6 took 10 iterations on the KAIST03 keyframes where the pose had
 /// settled after a few (docs/ODOMETRY.md).
 pub const MAP_ICP_RELATIVE_CHANGE: f64 = 1e-4;
+
+/// ICP against the local map also stops once an update moves the pose by less than this
+/// fraction of the correspondence distance and rotates it by less than this many degrees:
+/// (0.003, 0.0057°), i.e. 1.1 mm and 1e-4 rad at KAIST03's 0.37 m voxel. On the KAIST03
+/// keyframes the fitness and RMSE criteria alone took 9 iterations from the global estimate,
+/// the last ones moving the pose by tenths of a millimetre (docs/ODOMETRY.md).
+pub const MAP_ICP_MIN_UPDATE: (f64, f64) = (0.003, 0.0057);
+
+/// The same for the coarse stage of map ICP (the global-registration cloud as source), whose
+/// result the fine stage refines: (0.02, 0.029°), 7 mm and 5e-4 rad at a 0.37 m voxel. With a
+/// few thousand source points one point more or less among the inliers moves the fitness by more
+/// than [`MAP_ICP_RELATIVE_CHANGE`], so that criterion alone ran to 20+ iterations of millimetre
+/// jitter.
+pub const MAP_ICP_MIN_UPDATE_COARSE: (f64, f64) = (0.02, 0.029);
 
 /// Where the local-map refinement of a frame started.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -97,8 +118,11 @@ pub struct MapFit {
     pub fitness: f64,
     /// RMSE of those correspondences \[m\].
     pub inlier_rmse_m: f64,
-    /// ICP iterations of the winning refinement.
+    /// ICP iterations of the winning refinement (with the ICP cloud as source).
     pub iterations: usize,
+    /// ICP iterations before those, with the coarser global-registration cloud as source (0 when
+    /// global registration runs on the ICP cloud).
+    pub coarse_iterations: usize,
     /// Points in the map it was registered to.
     pub map_points: usize,
     /// Whether the refined pose was used (its fitness reached `min_fitness`).
@@ -144,6 +168,9 @@ pub struct Odometry {
     velocity: Isometry3<f64>,
     frames: usize,
     map: Option<LocalMap>,
+    /// The previous frame was accepted and is still to be added to the map: that happens while
+    /// the next frame is registered globally (the two overlap on two cores).
+    map_pending: bool,
 }
 
 impl Odometry {
@@ -171,6 +198,7 @@ impl Odometry {
             velocity: Isometry3::identity(),
             frames: 0,
             map,
+            map_pending: false,
         })
     }
 
@@ -197,11 +225,11 @@ impl Odometry {
             map: None,
         };
         let usable = frame.points.len() >= 3 && frame.icp.is_some();
-        let Some((prev, world_from_prev)) = &self.previous else {
+        let Some((_, world_from_prev)) = &self.previous else {
             // The first frame defines the world.
             if usable {
-                self.add_to_map(&frame, &Isometry3::identity());
                 self.previous = Some((frame, Isometry3::identity()));
+                self.map_pending = true;
             } else {
                 est.success = false;
                 est.failure = Some(FailureReason::TooFewPoints);
@@ -211,6 +239,8 @@ impl Odometry {
         };
         let world_from_prev = *world_from_prev;
         if !usable {
+            // The previous frame's pose is about to change: add it at the pose it was accepted at.
+            self.flush_map();
             est.success = false;
             est.failure = Some(FailureReason::TooFewPoints);
             est.fallback = Some(Fallback::ConstantVelocity);
@@ -223,16 +253,41 @@ impl Odometry {
 
         // The constant-velocity prediction, before this frame updates the velocity.
         let predicted = world_from_prev * self.velocity;
-        let mut pair = register_prepared_coarse(&frame, prev, &self.config.pair)?;
+        // Global registration, and meanwhile the map (with the previous frame added) as an ICP
+        // target for this frame's refinements.
+        let distance = map_icp_distance(&self.config.pair)?;
+        let Self {
+            config,
+            previous,
+            map,
+            map_pending,
+            ..
+        } = &mut *self;
+        let (prev, _) = previous.as_ref().expect("checked above");
+        let (pair, target) = rayon::join(
+            || register_prepared_coarse(&frame, prev, &config.pair),
+            || -> Result<Option<(IcpTarget, f64)>> {
+                let t = std::time::Instant::now();
+                let Some(map) = map.as_mut() else {
+                    return Ok(None);
+                };
+                if std::mem::take(map_pending) {
+                    add_to_map(map, prev, &world_from_prev);
+                }
+                if frame.icp.is_none() {
+                    return Ok(None);
+                }
+                let Some(target) = map.target()? else {
+                    return Ok(None);
+                };
+                target.prepare_for_distance(distance)?;
+                Ok(Some((target, t.elapsed().as_secs_f64())))
+            },
+        );
+        let (mut pair, target) = (pair?, target?);
+        let (prev, _) = self.previous.as_ref().expect("checked above");
         // With a map, the RANSAC model is refined against it directly; only where that does not
         // fit is it refined frame to frame, as without a map.
-        // The map as an ICP target, built once for this frame's refinements.
-        let t = std::time::Instant::now();
-        let target = match (&self.map, &frame.icp) {
-            (Some(map), Some(_)) => map.target()?,
-            _ => None,
-        };
-        let target = target.map(|target| (target, t.elapsed().as_secs_f64()));
         if let Some(target) = &target
             && pair.failure.is_none()
             && pair.num_inliers >= self.config.min_inliers
@@ -251,8 +306,8 @@ impl Odometry {
                 est.world_from_frame = pose;
                 est.map = Some(fit);
                 est.pair = Some(pair);
-                self.add_to_map(&frame, &pose);
                 self.previous = Some((frame, pose));
+                self.map_pending = true;
                 return Ok(est);
             }
         }
@@ -294,9 +349,7 @@ impl Odometry {
             }
             est.map = Some(fit);
         }
-        if est.success || est.map.is_some_and(|m| m.used) {
-            self.add_to_map(&frame, &est.world_from_frame);
-        }
+        self.map_pending = est.success || est.map.is_some_and(|m| m.used);
         self.previous = Some((frame, est.world_from_frame));
         Ok(est)
     }
@@ -326,18 +379,39 @@ impl Odometry {
         let target_s = *target_s;
         let t = std::time::Instant::now();
         let c = self.config.pair.resolved()?;
-        let distance = c.icp_max_distance_m.unwrap_or(c.voxel_size_m);
+        let distance = map_icp_distance(&c)?;
         let icp = IcpConfig::new(distance)
             .max_iterations(c.icp_max_iterations)
             .relative_fitness(MAP_ICP_RELATIVE_CHANGE)
             .relative_rmse(MAP_ICP_RELATIVE_CHANGE * distance);
+        let dense_icp = icp.min_update(
+            MAP_ICP_MIN_UPDATE.0 * distance,
+            MAP_ICP_MIN_UPDATE.1.to_radians(),
+        );
+        let coarse_icp = icp.min_update(
+            MAP_ICP_MIN_UPDATE_COARSE.0 * distance,
+            MAP_ICP_MIN_UPDATE_COARSE.1.to_radians(),
+        );
+        // Coarse to fine: where global registration ran on a coarser cloud than ICP
+        // (`OdometryConfig::feature_points`), ICP against the map first converges with that
+        // cloud as source, a fifth of the points, and then finishes with the ICP cloud.
+        let coarse = (frame.points.as_slice() != icp_cloud.points()).then_some(&frame.points);
         let fit = |guess, start: &Isometry3<f64>| -> Result<(Isometry3<f64>, MapFit)> {
-            let r = registration_icp_point_to_plane(icp_cloud.points(), target, start, &icp)?;
+            let (start, coarse_iterations) = match coarse {
+                Some(points) => {
+                    let r = registration_icp_point_to_plane(points, target, start, &coarse_icp)?;
+                    (r.target_from_source, r.iterations)
+                }
+                None => (*start, 0),
+            };
+            let r =
+                registration_icp_point_to_plane(icp_cloud.points(), target, &start, &dense_icp)?;
             let fit = MapFit {
                 guess,
                 fitness: r.fitness,
                 inlier_rmse_m: r.inlier_rmse_m,
                 iterations: r.iterations,
+                coarse_iterations,
                 map_points: map.len(),
                 used: r.fitness >= self.config.min_fitness,
                 target_s,
@@ -374,19 +448,13 @@ impl Odometry {
         Ok(Some((pose, MapFit { icp_s, ..best })))
     }
 
-    /// Adds an accepted frame's ICP cloud at `world_from_frame` to the map; voxels farther than
-    /// the frame's farthest point from its origin are dropped.
-    fn add_to_map(&mut self, frame: &PreparedFrame, world_from_frame: &Isometry3<f64>) {
-        let (Some(map), Some(icp)) = (&mut self.map, &frame.icp) else {
-            return;
-        };
-        let Some(normals) = icp.normals() else { return };
-        let range = icp
-            .points()
-            .iter()
-            .map(|p| p.coords.norm())
-            .fold(0.0f64, f64::max);
-        map.insert(world_from_frame, icp.points(), normals, range);
+    /// Adds the previous frame to the map now if it is pending.
+    fn flush_map(&mut self) {
+        if let (Some(map), Some((prev, pose))) = (&mut self.map, &self.previous)
+            && std::mem::take(&mut self.map_pending)
+        {
+            add_to_map(map, prev, pose);
+        }
     }
 
     fn constant_velocity(
@@ -409,4 +477,23 @@ impl Odometry {
         }
         Ok((self.velocity, Fallback::ConstantVelocity, 0))
     }
+}
+
+/// The correspondence distance of ICP against the map \[m\]: the ICP distance.
+fn map_icp_distance(pair: &PairConfig) -> Result<f64> {
+    let c = pair.resolved()?;
+    Ok(c.icp_max_distance_m.unwrap_or(c.voxel_size_m))
+}
+
+/// Adds an accepted frame's ICP cloud at `world_from_frame` to `map`; voxels farther than the
+/// frame's farthest point from its origin are dropped.
+fn add_to_map(map: &mut LocalMap, frame: &PreparedFrame, world_from_frame: &Isometry3<f64>) {
+    let Some(icp) = &frame.icp else { return };
+    let Some(normals) = icp.normals() else { return };
+    let range = icp
+        .points()
+        .iter()
+        .map(|p| p.coords.norm())
+        .fold(0.0f64, f64::max);
+    map.insert(world_from_frame, icp.points(), normals, range);
 }

@@ -29,6 +29,12 @@ use crate::refine::icp::{
 };
 use crate::{Error, Result};
 
+mod resolution;
+pub use resolution::{
+    DEFAULT_FEATURE_POINTS, FEATURE_VOXEL_STEP, VOXEL_PER_MEDIAN_RANGE, feature_voxel_for_cloud,
+    voxel_for_cloud, with_feature_voxel,
+};
+
 /// Which sampler draws RANSAC hypotheses.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
@@ -291,30 +297,6 @@ pub struct PreparedFrame {
 #[derive(Debug, Default)]
 pub struct PrepareScratch {
     neighbourhoods: Neighbourhoods,
-}
-
-/// Voxel edge per metre of median range for [`voxel_for_cloud`]: 1/40. Chosen by measurement
-/// (docs/ODOMETRY.md): it gives 0.049 m on the ICL-NUIM RGB-D frames (median range 1.96 m; 0.05 m
-/// is their best voxel), 0.37 m on the MulRan KAIST03 Ouster keyframes (14.8 m) and 0.25 m on
-/// KITTI HDL-64 scans (10.1 m).
-pub const VOXEL_PER_MEDIAN_RANGE: f64 = 1.0 / 40.0;
-
-/// A voxel edge \[m\] that fits the sensor of `points` (sensor frame): the median distance of
-/// its finite, non-zero points from the origin times [`VOXEL_PER_MEDIAN_RANGE`], so that an
-/// indoor RGB-D cloud and an outdoor LiDAR scan both get a workable resolution. `None` for
-/// fewer than 3 such points.
-pub fn voxel_for_cloud(points: &[Point3<f64>]) -> Option<f64> {
-    let mut ranges: Vec<f64> = points
-        .iter()
-        .map(|p| p.coords.norm())
-        .filter(|r| r.is_finite() && *r > 0.0)
-        .collect();
-    if ranges.len() < 3 {
-        return None;
-    }
-    let mid = ranges.len() / 2;
-    let (_, median, _) = ranges.select_nth_unstable_by(mid, f64::total_cmp);
-    Some(*median * VOXEL_PER_MEDIAN_RANGE)
 }
 
 /// Mean of `points` (non-empty), summed in order.

@@ -36,8 +36,8 @@ use crate::io::log_order::Reorder;
 use crate::io::mcap_log::{ChannelInfo, OutputLog};
 use crate::odometry::{FrameEstimate, Odometry, OdometryConfig};
 use crate::pipeline::{
-    FailureReason, PrepareScratch, PreparedFrame, prepare_frame, prepare_frame_with,
-    voxel_for_cloud,
+    FailureReason, PrepareScratch, PreparedFrame, feature_voxel_for_cloud, prepare_frame,
+    prepare_frame_with, voxel_for_cloud, with_feature_voxel,
 };
 use crate::trajectory::{Trajectory, evaluate};
 use crate::{Error, Result};
@@ -180,6 +180,11 @@ pub struct RegisterSummary {
     pub voxel_m: f64,
     /// Where it came from: `"configured"` (flag or configuration) or `"first_cloud"`.
     pub voxel_source: &'static str,
+    /// Voxel of the cloud global registration ran on \[m\] (the voxel itself, or coarser:
+    /// [`OdometryConfig::feature_points`]).
+    pub feature_voxel_m: f64,
+    /// The bound on that cloud's points in the first frame (0: none).
+    pub feature_points: usize,
     /// Wall-clock seconds for the whole run.
     pub elapsed_s: f64,
     /// Frames per second (wall clock).
@@ -246,34 +251,35 @@ fn stamp_of_log_time(log_time: u64) -> codec::Time {
         .unwrap_or_default()
 }
 
-/// The voxel for the log's sensor ([`voxel_for_cloud`]) from the first cloud on `topic` that
-/// decodes to at least 3 points; `None` when none does (the configured voxel is then used).
-fn first_cloud_voxel(
+/// The first cloud on `topic` that decodes to at least 3 finite, non-zero points (one that
+/// [`voxel_for_cloud`] can size); `None` when none does.
+fn first_usable_cloud(
     input: &InputLog,
     channels: &[ChannelInfo],
     topic: &str,
     kind: CloudKind,
-) -> Result<Option<f64>> {
+) -> Result<Option<Vec<nalgebra::Point3<f64>>>> {
     use std::ops::ControlFlow::{Break, Continue};
     let ids: Vec<u16> = channels
         .iter()
         .filter(|c| c.topic == topic)
         .map(|c| c.id)
         .collect();
-    let mut voxel = None;
+    let mut first = None;
     input.for_each_message_until(|header, data| {
         if ids.contains(&header.channel_id)
             && let Ok(cloud) = kind.decode(data)
+            && voxel_for_cloud(&cloud.points).is_some()
         {
-            voxel = voxel_for_cloud(&cloud.points);
+            first = Some(cloud.points);
         }
-        Ok(if voxel.is_some() {
+        Ok(if first.is_some() {
             Break(())
         } else {
             Continue(())
         })
     })?;
-    Ok(voxel)
+    Ok(first)
 }
 
 /// Runs the whole job. On any error the output path is left untouched.
@@ -291,12 +297,19 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     let (topic, kind) = choose_topic(input, &channels, opts.topic.as_deref())?;
     let mut config = opts.config.clone();
     let mut voxel_source = "configured";
+    let first = first_usable_cloud(&input_log, &channels, &topic, kind)?;
     if opts.derive_voxel
-        && let Some(v) = first_cloud_voxel(&input_log, &channels, &topic, kind)?
+        && let Some(v) = first.as_deref().and_then(voxel_for_cloud)
     {
         config.pair.voxel_size_m = v;
         voxel_source = "first_cloud";
     }
+    let voxel_m = config.pair.voxel_size_m;
+    if let Some(points) = &first {
+        let fv = feature_voxel_for_cloud(points, voxel_m, config.feature_points)?;
+        config.pair = with_feature_voxel(&config.pair, fv);
+    }
+    drop(first);
     let mut odometry = Odometry::new(config.clone())?;
     // A log registered before keeps its mireg topics; this run's go to the next namespace
     // (`/mireg_2/…`), so that no topic mixes two runs.
@@ -597,6 +610,11 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         serde_json::to_string(config).expect("config JSON"),
     );
     meta.insert("voxel_source".to_string(), voxel_source.to_string());
+    meta.insert("voxel_m".to_string(), voxel_m.to_string());
+    meta.insert(
+        "feature_voxel_m".to_string(),
+        config.pair.voxel_size_m.to_string(),
+    );
     meta.insert("seed".to_string(), config.pair.seed.to_string());
     meta.insert("command_line".to_string(), opts.command_line.clone());
     meta.insert("input".to_string(), input.display().to_string());
@@ -638,8 +656,10 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         failed_frames,
         mean_inliers,
         messages_copied: copied,
-        voxel_m: config.pair.voxel_size_m,
+        voxel_m,
         voxel_source,
+        feature_voxel_m: config.pair.voxel_size_m,
+        feature_points: config.feature_points,
         elapsed_s,
         frames_per_s: frames as f64 / elapsed_s.max(1e-9),
         reference,

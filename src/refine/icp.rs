@@ -103,6 +103,10 @@ pub struct IcpConfig {
     pub relative_rmse: f64,
     /// Weighting of residuals. Default: [`RobustKernel::L2`].
     pub robust_kernel: RobustKernel,
+    /// Also stop once an update translates by less than `.0` \[m\] and rotates by less than
+    /// `.1` \[rad\] (KISS-ICP's criterion, on the update itself). Default: `None` (Open3D's
+    /// criteria only).
+    pub min_update: Option<(f64, f64)>,
 }
 
 impl IcpConfig {
@@ -114,6 +118,7 @@ impl IcpConfig {
             relative_fitness: DEFAULT_RELATIVE_FITNESS,
             relative_rmse: DEFAULT_RELATIVE_RMSE_M,
             robust_kernel: RobustKernel::L2,
+            min_update: None,
         }
     }
 
@@ -138,6 +143,13 @@ impl IcpConfig {
         self
     }
 
+    /// Sets [`Self::min_update`]: translation \[m\] and rotation \[rad\]. Default: none.
+    #[must_use]
+    pub fn min_update(mut self, translation_m: f64, rotation_rad: f64) -> Self {
+        self.min_update = Some((translation_m, rotation_rad));
+        self
+    }
+
     /// Sets [`Self::robust_kernel`]. Default: [`RobustKernel::L2`].
     #[must_use]
     pub fn robust_kernel(mut self, robust_kernel: RobustKernel) -> Self {
@@ -153,10 +165,14 @@ impl IcpConfig {
             )));
         }
         let non_negative = |x: f64| x >= 0.0;
-        if !non_negative(self.relative_fitness) || !non_negative(self.relative_rmse) {
+        let (min_t, min_r) = self.min_update.unwrap_or((0.0, 0.0));
+        if ![self.relative_fitness, self.relative_rmse, min_t, min_r]
+            .into_iter()
+            .all(non_negative)
+        {
             return Err(Error::InvalidInput(format!(
-                "convergence thresholds must be >= 0, got relative_fitness {} relative_rmse {}",
-                self.relative_fitness, self.relative_rmse
+                "convergence thresholds must be >= 0, got relative_fitness {} relative_rmse {} min_update {:?}",
+                self.relative_fitness, self.relative_rmse, self.min_update
             )));
         }
         self.robust_kernel.validate()
@@ -198,6 +214,10 @@ pub struct IcpTarget {
     /// Built on first use: ICP answers from a radius grid where it can, so a target that only
     /// serves ICP (a local map rebuilt every frame) never pays for the tree.
     tree: std::sync::OnceLock<ImmutableKdTree<f64, 3>>,
+    /// The correspondence grid of the first search radius asked for, kept: a target that serves
+    /// several ICP runs at one distance (a local map, refined from two starts and at two
+    /// resolutions) buckets its points once.
+    grid: std::sync::OnceLock<(f64, Option<RadiusGrid>)>,
 }
 
 impl std::fmt::Debug for IcpTarget {
@@ -262,6 +282,7 @@ impl IcpTarget {
             points: points.to_vec(),
             normals: Some(normals.to_vec()),
             tree: std::sync::OnceLock::from(tree),
+            grid: std::sync::OnceLock::new(),
         })
     }
 
@@ -286,7 +307,20 @@ impl IcpTarget {
             points: points.to_vec(),
             normals: None,
             tree: std::sync::OnceLock::new(),
+            grid: std::sync::OnceLock::new(),
         })
+    }
+
+    /// Builds now, instead of at the first ICP call, the search structure that ICP and
+    /// [`evaluate_registration`] at `max_distance_m` \[m\] use (kept in the target), so that a
+    /// caller can overlap its construction with other work.
+    pub fn prepare_for_distance(&self, max_distance_m: f64) -> Result<()> {
+        if !(max_distance_m.is_finite() && max_distance_m > 0.0) {
+            return Err(Error::InvalidInput(format!(
+                "max_correspondence_distance_m must be finite and > 0, got {max_distance_m}"
+            )));
+        }
+        correspondence_grid(self, max_distance_m).map(|_| ())
     }
 
     /// The target points.
@@ -486,12 +520,32 @@ fn update_from_vector(x: &Vector6<f64>) -> Isometry3<f64> {
 }
 
 /// A grid over the target at the correspondence distance, where its extent allows: every
-/// correspondence search then scans a few cells (one grid build per call, linear in the target)
-/// instead of descending the kd-tree. Measured on the KITTI pair at 0.5 m (docs/BENCHMARKS.md).
-/// Same pairs as the tree except between exactly equidistant target points.
-fn correspondence_grid(target: &IcpTarget, max_distance_m: f64) -> Result<Option<RadiusGrid>> {
-    let cap = (DEFAULT_COLUMNS_PER_POINT * target.points.len()).max(DEFAULT_MIN_COLUMNS);
-    RadiusGrid::new(&target.points, max_distance_m, cap)
+/// correspondence search then scans a few cells instead of descending the kd-tree. Measured on
+/// the KITTI pair at 0.5 m (docs/BENCHMARKS.md). Same pairs as the tree except between exactly
+/// equidistant target points. Built once per target for the first distance asked for (kept in
+/// the target); another distance builds a grid for that call.
+fn correspondence_grid(
+    target: &IcpTarget,
+    max_distance_m: f64,
+) -> Result<std::borrow::Cow<'_, Option<RadiusGrid>>> {
+    let build = || {
+        let cap = (DEFAULT_COLUMNS_PER_POINT * target.points.len()).max(DEFAULT_MIN_COLUMNS);
+        RadiusGrid::new(&target.points, max_distance_m, cap)
+    };
+    let (d, grid) = match target.grid.get() {
+        Some(kept) => kept,
+        None => {
+            let grid = build()?;
+            // Another thread may have set it meanwhile: either answers the same.
+            let _ = target.grid.set((max_distance_m, grid));
+            target.grid.get().expect("just set")
+        }
+    };
+    Ok(if *d == max_distance_m {
+        std::borrow::Cow::Borrowed(grid)
+    } else {
+        std::borrow::Cow::Owned(build()?)
+    })
 }
 
 /// Fitness and inlier RMSE of `target_from_source`, exactly as Open3D's `evaluate_registration`:
@@ -514,7 +568,14 @@ pub fn evaluate_registration(
         )));
     }
     let grid = correspondence_grid(target, d)?;
-    let sums = correspondence_pass(source, target, grid.as_ref(), target_from_source, d, None);
+    let sums = correspondence_pass(
+        source,
+        target,
+        grid.as_ref().as_ref(),
+        target_from_source,
+        d,
+        None,
+    );
     Ok(sums.evaluation(source.len()))
 }
 
@@ -546,7 +607,14 @@ pub fn registration_icp_point_to_plane(
     let mut target_from_source = *init_target_from_source;
     let grid = correspondence_grid(target, max_distance_m)?;
     let pass = |pose: &Isometry3<f64>| {
-        correspondence_pass(source, target, grid.as_ref(), pose, max_distance_m, kernel)
+        correspondence_pass(
+            source,
+            target,
+            grid.as_ref().as_ref(),
+            pose,
+            max_distance_m,
+            kernel,
+        )
     };
     let mut sums = pass(&target_from_source);
     let mut evaluation = sums.evaluation(source.len());
@@ -568,8 +636,12 @@ pub fn registration_icp_point_to_plane(
         iterations += 1;
         sums = pass(&target_from_source);
         let next = sums.evaluation(source.len());
-        let small_change = (next.fitness - evaluation.fitness).abs() < config.relative_fitness
-            && (next.inlier_rmse_m - evaluation.inlier_rmse_m).abs() < config.relative_rmse;
+        let small_update = config.min_update.is_some_and(|(t, r)| {
+            x.fixed_rows::<3>(3).norm() < t && x.fixed_rows::<3>(0).norm() < r
+        });
+        let small_change = small_update
+            || ((next.fitness - evaluation.fitness).abs() < config.relative_fitness
+                && (next.inlier_rmse_m - evaluation.inlier_rmse_m).abs() < config.relative_rmse);
         evaluation = next;
         if small_change {
             converged = true;

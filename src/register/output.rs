@@ -37,7 +37,9 @@ pub fn stats_json_schema() -> serde_json::Value {
             "map_guess": {"type": ["string", "null"], "enum": ["global", "constant_velocity", null]},
             "map_used": {"type": "boolean"}, "map_fitness": {"type": ["number", "null"]},
             "map_inlier_rmse_m": {"type": ["number", "null"]},
-            "map_icp_iterations": {"type": ["integer", "null"]}, "map_points": {"type": ["integer", "null"]},
+            "map_icp_iterations": {"type": ["integer", "null"]},
+            "map_coarse_icp_iterations": {"type": ["integer", "null"]},
+            "map_points": {"type": ["integer", "null"]},
             "timings_s": {"type": "object", "additionalProperties": num}
         },
         "required": ["frame", "stamp_ns", "success", "failure_reason", "num_points", "num_points_downsampled",
@@ -81,6 +83,7 @@ fn frame_stats(out: &FrameOut) -> serde_json::Value {
         "map_fitness": e.map.map(|m| m.fitness),
         "map_inlier_rmse_m": e.map.map(|m| m.inlier_rmse_m),
         "map_icp_iterations": e.map.map(|m| m.iterations),
+        "map_coarse_icp_iterations": e.map.map(|m| m.coarse_iterations),
         "map_points": e.map.map(|m| m.map_points),
         "timings_s": {
             "decode": out.decode_s,
