@@ -266,7 +266,7 @@ impl Odometry {
         let (prev, _) = previous.as_ref().expect("checked above");
         let (pair, target) = rayon::join(
             || register_prepared_coarse(&frame, prev, &config.pair),
-            || -> Result<Option<(IcpTarget, f64)>> {
+            || -> Result<Option<f64>> {
                 let t = std::time::Instant::now();
                 let Some(map) = map.as_mut() else {
                     return Ok(None);
@@ -281,10 +281,14 @@ impl Odometry {
                     return Ok(None);
                 };
                 target.prepare_for_distance(distance)?;
-                Ok(Some((target, t.elapsed().as_secs_f64())))
+                Ok(Some(t.elapsed().as_secs_f64()))
             },
         );
-        let (mut pair, target) = (pair?, target?);
+        let (mut pair, target_s) = (pair?, target?);
+        let target = target_s.and_then(|s| {
+            let map = self.map.as_ref()?;
+            Some((map.built_target()?, s))
+        });
         let (prev, _) = self.previous.as_ref().expect("checked above");
         // With a map, the RANSAC model is refined against it directly; only where that does not
         // fit is it refined frame to frame, as without a map.
@@ -294,7 +298,7 @@ impl Odometry {
         {
             let global = world_from_prev * pair.target_from_source;
             if let Some((pose, fit)) =
-                self.refine_on_map(&frame, target, Some(&global), &predicted)?
+                self.refine_on_map(&frame, *target, Some(&global), &predicted)?
                 && fit.used
                 && fit.guess == InitialGuess::Global
             {
@@ -338,7 +342,7 @@ impl Odometry {
         est.world_from_frame = world_from_prev * est.prev_from_curr;
         let global = est.success.then_some(est.world_from_frame);
         let refined = match &target {
-            Some(target) => self.refine_on_map(&frame, target, global.as_ref(), &predicted)?,
+            Some(target) => self.refine_on_map(&frame, *target, global.as_ref(), &predicted)?,
             None => None,
         };
         if let Some((pose, fit)) = refined {
@@ -369,14 +373,13 @@ impl Odometry {
     fn refine_on_map(
         &self,
         frame: &PreparedFrame,
-        (target, target_s): &(IcpTarget, f64),
+        (target, target_s): (&IcpTarget, f64),
         global: Option<&Isometry3<f64>>,
         predicted: &Isometry3<f64>,
     ) -> Result<Option<(Isometry3<f64>, MapFit)>> {
         let (Some(map), Some(icp_cloud)) = (&self.map, &frame.icp) else {
             return Ok(None);
         };
-        let target_s = *target_s;
         let t = std::time::Instant::now();
         let c = self.config.pair.resolved()?;
         let distance = map_icp_distance(&c)?;

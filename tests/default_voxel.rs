@@ -103,6 +103,13 @@ fn register_without_voxel_derives_it_from_the_first_cloud() {
     .unwrap();
     let expected = median_range(&first.unwrap()) * VOXEL_PER_MEDIAN_RANGE;
     assert!((s["voxel_m"].as_f64().unwrap() - expected).abs() < 1e-12);
+    // Few points: global registration stays on the voxel cloud; a bound below its size moves
+    // it up the ladder voxel · 2^(k/4).
+    assert_eq!(s["feature_voxel_m"], s["voxel_m"]);
+    let s = register(&["--voxel", "0.07", "--feature-points", "10"]);
+    let k = (s["feature_voxel_m"].as_f64().unwrap() / 0.07).ln()
+        / mireg::pipeline::FEATURE_VOXEL_STEP.ln();
+    assert!(k > 0.5 && (k - k.round()).abs() < 1e-9, "{s}");
     let s = register(&["--voxel", "0.07"]);
     assert_eq!(
         (s["voxel_source"].as_str(), s["voxel_m"].as_f64()),

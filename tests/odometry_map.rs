@@ -59,7 +59,6 @@ fn run(
     world_from_camera: &[Isometry3<f64>],
     local_map: bool,
 ) -> (Vec<mireg::odometry::FrameEstimate>, f64, f64) {
-    let world = scene();
     let config = OdometryConfig {
         pair: PairConfig {
             voxel_size_m: 0.1,
@@ -69,6 +68,15 @@ fn run(
         local_map,
         ..Default::default()
     };
+    run_with(world_from_camera, &config)
+}
+
+/// [`run`] with any configuration.
+fn run_with(
+    world_from_camera: &[Isometry3<f64>],
+    config: &OdometryConfig,
+) -> (Vec<mireg::odometry::FrameEstimate>, f64, f64) {
+    let world = scene();
     let mut odo = Odometry::new(config.clone()).unwrap();
     let noise = Normal::new(0.0, 0.002).unwrap();
     let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(9);
@@ -156,4 +164,40 @@ fn a_static_sensor_does_not_drift() {
     let last = est.last().unwrap().world_from_frame;
     assert!(t < 0.002 && r < 0.05, "worst error {t} m, {r} deg");
     assert!(last.translation.vector.norm() < 0.001, "{last:?}");
+}
+
+/// Global registration on a coarser cloud than ICP (`mireg register` on dense frames): the map
+/// refinement runs coarse to fine, and the known motion, a dropped frame and a 90° jump are
+/// still recovered.
+#[test]
+fn global_registration_on_a_coarser_cloud_tracks_known_motion() {
+    let fine = PairConfig {
+        voxel_size_m: 0.05,
+        seed: 4,
+        ..Default::default()
+    };
+    let config = OdometryConfig {
+        pair: mireg::pipeline::with_feature_voxel(&fine, 0.12),
+        ..Default::default()
+    };
+    let mut poses: Vec<_> = (0..14)
+        .filter(|&k| k != 5)
+        .map(|k| pose(0.05 * k as f64, 0.02 * k as f64, 1.0 * k as f64))
+        .collect();
+    let turn = pose(0.7, 0.3, 100.0);
+    poses.extend((0..4).map(|k| turn * pose(0.03 * k as f64, 0.0, 0.0)));
+    let (est, t, r) = run_with(&poses, &config);
+    assert!(t < 0.01 && r < 0.2, "worst error {t} m, {r} deg");
+    assert!(est.iter().all(|e| e.success));
+    for e in &est[1..] {
+        let map = e.map.unwrap();
+        // Coarse iterations happen only where the feature cloud is not the ICP cloud.
+        assert!(
+            map.used && map.coarse_iterations > 0,
+            "frame {}: {map:?}",
+            e.index
+        );
+    }
+    // The jump (frame 13) is recovered from the global estimate.
+    assert_eq!(est[13].map.unwrap().guess, InitialGuess::Global);
 }

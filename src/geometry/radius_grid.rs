@@ -50,6 +50,28 @@ pub struct RadiusGrid {
     xyz: Vec<[f64; 3]>,
     /// Index in the input cloud of each entry of `xyz`.
     index: Vec<u32>,
+    /// The construction's temporaries, kept for [`RadiusGrid::into_storage`].
+    scratch: Scratch,
+}
+
+#[derive(Debug, Clone, Default)]
+struct Scratch {
+    cell: Vec<(usize, u32)>,
+    range: Vec<(u32, u32)>,
+    next: Vec<u32>,
+}
+
+/// The vectors of a [`RadiusGrid`] (its cells and the temporaries of building it), emptied, for
+/// building another grid without allocating ([`RadiusGrid::new_reusing`]).
+#[derive(Debug, Default)]
+pub struct GridStorage {
+    columns: Vec<(u32, u32)>,
+    starts: Vec<u32>,
+    xyz: Vec<[f64; 3]>,
+    index: Vec<u32>,
+    cell: Vec<(usize, u32)>,
+    range: Vec<(u32, u32)>,
+    next: Vec<u32>,
 }
 
 impl RadiusGrid {
@@ -59,6 +81,23 @@ impl RadiusGrid {
     /// Errors: [`Error::InvalidInput`](crate::Error::InvalidInput) on a non-finite coordinate, a
     /// radius that is not finite and positive, or more than `u32::MAX` points.
     pub fn new(points: &[Point3<f64>], radius_m: f64, max_columns: usize) -> Result<Option<Self>> {
+        let grid = Self::new_reusing(points, radius_m, max_columns, GridStorage::default())?;
+        // A grid built once needs no temporaries afterwards.
+        Ok(grid.map(|g| Self {
+            scratch: Scratch::default(),
+            ..g
+        }))
+    }
+
+    /// [`RadiusGrid::new`] building into `storage` (that of an earlier grid, from
+    /// [`RadiusGrid::into_storage`]): a grid rebuilt every frame over a similar cloud (a local
+    /// map) then allocates, and faults in, its megabytes once. Same grid as [`RadiusGrid::new`].
+    pub fn new_reusing(
+        points: &[Point3<f64>],
+        radius_m: f64,
+        max_columns: usize,
+        storage: GridStorage,
+    ) -> Result<Option<Self>> {
         if !(radius_m.is_finite() && radius_m > 0.0) {
             return Err(crate::Error::InvalidInput(format!(
                 "radius must be finite and > 0, got {radius_m}"
@@ -79,6 +118,15 @@ impl RadiusGrid {
         if !(n0 * n1 <= max_columns as f64 && cells(2) <= u32::MAX as f64) {
             return Ok(None);
         }
+        let GridStorage {
+            mut columns,
+            mut starts,
+            mut xyz,
+            mut index,
+            mut cell,
+            mut range,
+            mut next,
+        } = storage;
         let dims = [n0 as usize, n1 as usize];
         let n2 = cells(2) as usize;
         let cell_of = |p: &Point3<f64>| -> (usize, u32) {
@@ -86,16 +134,19 @@ impl RadiusGrid {
                 |k: usize, n: usize| (((p[axes[k]] - min[k]) / edge).floor() as usize).min(n - 1);
             (c(0, dims[0]) * dims[1] + c(1, dims[1]), c(2, n2) as u32)
         };
-        let cell: Vec<(usize, u32)> = points.iter().map(cell_of).collect();
+        cell.clear();
+        cell.extend(points.iter().map(cell_of));
         // Occupied range of each column.
         let num_columns = dims[0] * dims[1];
-        let mut range = vec![(u32::MAX, 0u32); num_columns];
+        range.clear();
+        range.resize(num_columns, (u32::MAX, 0u32));
         for &(col, z) in &cell {
             let r = &mut range[col];
             r.0 = r.0.min(z);
             r.1 = r.1.max(z);
         }
-        let mut columns = Vec::with_capacity(num_columns + 1);
+        columns.clear();
+        columns.reserve(num_columns + 1);
         let mut offset = 0usize;
         for &(z_lo, z_hi) in &range {
             columns.push((z_lo, offset as u32));
@@ -109,7 +160,8 @@ impl RadiusGrid {
         }
         // Counting sort by (column, cell along it): count into starts[slot + 1], prefix-sum.
         let slot = |(col, z): (usize, u32)| columns[col].1 as usize + (z - columns[col].0) as usize;
-        let mut starts = vec![0u32; offset];
+        starts.clear();
+        starts.resize(offset, 0);
         for &c in &cell {
             starts[slot(c) + 1] += 1;
         }
@@ -125,9 +177,12 @@ impl RadiusGrid {
                 *start = total;
             }
         }
-        let mut next = starts.clone();
-        let mut xyz = vec![[0.0; 3]; points.len()];
-        let mut index = vec![0u32; points.len()];
+        next.clear();
+        next.extend_from_slice(&starts);
+        xyz.clear();
+        xyz.resize(points.len(), [0.0; 3]);
+        index.clear();
+        index.resize(points.len(), 0);
         for (i, (p, &c)) in points.iter().zip(&cell).enumerate() {
             let s = &mut next[slot(c)];
             xyz[*s as usize] = [p.x, p.y, p.z];
@@ -144,7 +199,22 @@ impl RadiusGrid {
             starts,
             xyz,
             index,
+            scratch: Scratch { cell, range, next },
         }))
+    }
+
+    /// The grid's storage, for [`RadiusGrid::new_reusing`].
+    pub fn into_storage(self) -> GridStorage {
+        let Scratch { cell, range, next } = self.scratch;
+        GridStorage {
+            columns: self.columns,
+            starts: self.starts,
+            xyz: self.xyz,
+            index: self.index,
+            cell,
+            range,
+            next,
+        }
     }
 
     /// Squared distance \[m²\] from `q` to the nearest point of the cloud if that is strictly below
@@ -393,5 +463,31 @@ mod tests {
         assert!(RadiusGrid::new(&far, f64::NAN, 1 << 20).is_err());
         let nan = [Point3::new(f64::NAN, 0.0, 0.0)];
         assert!(RadiusGrid::new(&nan, 0.1, 1 << 20).is_err());
+    }
+
+    #[test]
+    fn a_grid_built_in_reused_storage_answers_as_a_new_one() {
+        let mut rng = Pcg64::seed_from_u64(11);
+        let cloud = |rng: &mut Pcg64, n: usize, size: f64| -> Vec<Point3<f64>> {
+            (0..n)
+                .map(|_| Point3::from(std::array::from_fn(|_| rng.random_range(0.0..size))))
+                .collect()
+        };
+        // Storage of a larger and of a smaller cloud, at another radius.
+        for (n, size) in [(5000, 30.0), (200, 2.0)] {
+            let old = RadiusGrid::new(&cloud(&mut rng, n, size), 0.7, usize::MAX)
+                .unwrap()
+                .unwrap();
+            let points = cloud(&mut rng, 1500, 10.0);
+            let fresh = RadiusGrid::new(&points, 0.4, usize::MAX).unwrap().unwrap();
+            let reused = RadiusGrid::new_reusing(&points, 0.4, usize::MAX, old.into_storage())
+                .unwrap()
+                .unwrap();
+            for _ in 0..3000 {
+                let q = Point3::from(std::array::from_fn(|_| rng.random_range(-1.0..11.0)));
+                assert_eq!(reused.nearest_within(&q), fresh.nearest_within(&q));
+                assert_eq!(reused.any_within(&q), fresh.any_within(&q));
+            }
+        }
     }
 }

@@ -14,7 +14,7 @@ use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3
 use rayon::prelude::*;
 
 use crate::geometry::RadiusGrid;
-use crate::geometry::radius_grid::{DEFAULT_COLUMNS_PER_POINT, DEFAULT_MIN_COLUMNS};
+use crate::geometry::radius_grid::{DEFAULT_COLUMNS_PER_POINT, DEFAULT_MIN_COLUMNS, GridStorage};
 use crate::{Error, Result};
 
 /// Default [`IcpConfig::max_iterations`] (Open3D's `ICPConvergenceCriteria` default).
@@ -218,6 +218,8 @@ pub struct IcpTarget {
     /// several ICP runs at one distance (a local map, refined from two starts and at two
     /// resolutions) buckets its points once.
     grid: std::sync::OnceLock<(f64, Option<RadiusGrid>)>,
+    /// The storage of the grid before the last [`IcpTarget::refill`], for building the next.
+    spare: std::sync::Mutex<GridStorage>,
 }
 
 impl std::fmt::Debug for IcpTarget {
@@ -244,6 +246,25 @@ fn check_normals(points: &[Point3<f64>], normals: &[Vector3<f64>]) -> Result<()>
     {
         return Err(Error::InvalidInput(format!(
             "target normal {i} is not finite"
+        )));
+    }
+    Ok(())
+}
+
+/// A target cloud is non-empty, finite and indexable by `u32`.
+fn check_target_points(points: &[Point3<f64>]) -> Result<()> {
+    if points.is_empty() {
+        return Err(Error::InvalidInput("target cloud is empty".into()));
+    }
+    if points.len() > u32::MAX as usize {
+        return Err(Error::InvalidInput(format!(
+            "target cloud has {} points, more than u32::MAX",
+            points.len()
+        )));
+    }
+    if let Some(i) = points.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+        return Err(Error::InvalidInput(format!(
+            "target point {i} is not finite"
         )));
     }
     Ok(())
@@ -283,32 +304,45 @@ impl IcpTarget {
             normals: Some(normals.to_vec()),
             tree: std::sync::OnceLock::from(tree),
             grid: std::sync::OnceLock::new(),
+            spare: Default::default(),
         })
     }
 
     /// Builds the kd-tree over `points` without normals: enough for [`evaluate_registration`],
     /// not for ICP. Fails on an empty cloud or non-finite coordinates.
     pub fn points_only(points: &[Point3<f64>]) -> Result<Self> {
-        if points.is_empty() {
-            return Err(Error::InvalidInput("target cloud is empty".into()));
-        }
-        if points.len() > u32::MAX as usize {
-            return Err(Error::InvalidInput(format!(
-                "target cloud has {} points, more than u32::MAX",
-                points.len()
-            )));
-        }
-        if let Some(i) = points.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
-            return Err(Error::InvalidInput(format!(
-                "target point {i} is not finite"
-            )));
-        }
+        check_target_points(points)?;
         Ok(Self {
             points: points.to_vec(),
             normals: None,
             tree: std::sync::OnceLock::new(),
             grid: std::sync::OnceLock::new(),
+            spare: Default::default(),
         })
+    }
+
+    /// Replaces the points and normals by those `fill` appends to the two (empty) vectors,
+    /// keeping the storage of the old ones and of the correspondence grid: a target rebuilt every
+    /// frame (a local map) allocates and faults in its megabytes once. Fails like
+    /// [`IcpTarget::new`] (the target is then empty).
+    pub fn refill(
+        &mut self,
+        fill: impl FnOnce(&mut Vec<Point3<f64>>, &mut Vec<Vector3<f64>>),
+    ) -> Result<()> {
+        let mut points = std::mem::take(&mut self.points);
+        let mut normals = self.normals.take().unwrap_or_default();
+        points.clear();
+        normals.clear();
+        fill(&mut points, &mut normals);
+        self.tree = std::sync::OnceLock::new();
+        if let Some((_, Some(grid))) = self.grid.take() {
+            *self.spare.lock().unwrap_or_else(|e| e.into_inner()) = grid.into_storage();
+        }
+        check_normals(&points, &normals)?;
+        check_target_points(&points)?;
+        self.points = points;
+        self.normals = Some(normals);
+        Ok(())
     }
 
     /// Builds now, instead of at the first ICP call, the search structure that ICP and
@@ -528,14 +562,14 @@ fn correspondence_grid(
     target: &IcpTarget,
     max_distance_m: f64,
 ) -> Result<std::borrow::Cow<'_, Option<RadiusGrid>>> {
-    let build = || {
-        let cap = (DEFAULT_COLUMNS_PER_POINT * target.points.len()).max(DEFAULT_MIN_COLUMNS);
-        RadiusGrid::new(&target.points, max_distance_m, cap)
-    };
+    let cap = (DEFAULT_COLUMNS_PER_POINT * target.points.len()).max(DEFAULT_MIN_COLUMNS);
+    let build = || RadiusGrid::new(&target.points, max_distance_m, cap);
     let (d, grid) = match target.grid.get() {
         Some(kept) => kept,
         None => {
-            let grid = build()?;
+            let spare =
+                std::mem::take(&mut *target.spare.lock().unwrap_or_else(|e| e.into_inner()));
+            let grid = RadiusGrid::new_reusing(&target.points, max_distance_m, cap, spare)?;
             // Another thread may have set it meanwhile: either answers the same.
             let _ = target.grid.set((max_distance_m, grid));
             target.grid.get().expect("just set")
@@ -658,327 +692,4 @@ pub fn registration_icp_point_to_plane(
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use nalgebra::Unit;
-    use rand::{RngExt, SeedableRng};
-    use rand_pcg::Pcg64Mcg;
-
-    /// Box corner (floor + two walls) and a sphere, ~6k points at 4 cm spacing, with analytic
-    /// normals. Centred near the origin; all six degrees of freedom are constrained.
-    fn corner_and_sphere() -> (Vec<Point3<f64>>, Vec<Vector3<f64>>) {
-        let spacing = 0.04;
-        let offset = Vector3::new(-1.0, -1.0, -0.5);
-        let mut points = Vec::new();
-        let mut normals = Vec::new();
-        let steps = |len: f64| (0..(len / spacing) as usize).map(|i| (i as f64 + 0.5) * spacing);
-        for a in steps(2.0) {
-            for b in steps(2.0) {
-                points.push(Point3::new(a, b, 0.0) + offset);
-                normals.push(Vector3::z());
-            }
-            for b in steps(1.5) {
-                points.push(Point3::new(0.0, a, b) + offset);
-                normals.push(Vector3::x());
-                points.push(Point3::new(a, 0.0, b) + offset);
-                normals.push(Vector3::y());
-            }
-        }
-        // Fibonacci sphere.
-        let centre = Point3::new(1.2, 1.1, 0.5) + offset;
-        let radius = 0.35;
-        let n = 1000;
-        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
-        for i in 0..n {
-            let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
-            let r = (1.0 - z * z).sqrt();
-            let phi = golden * i as f64;
-            let dir = Vector3::new(r * phi.cos(), r * phi.sin(), z);
-            points.push(centre + radius * dir);
-            normals.push(dir);
-        }
-        (points, normals)
-    }
-
-    fn ground_truth() -> Isometry3<f64> {
-        let axis = Unit::new_normalize(Vector3::new(0.3, -0.5, 0.8));
-        Isometry3::from_parts(
-            Translation3::new(0.4, -0.2, 0.1),
-            UnitQuaternion::from_axis_angle(&axis, 25f64.to_radians()),
-        )
-    }
-
-    /// Rotation by `angle_deg` about a random axis and translation of `shift_m` in a random
-    /// direction.
-    fn perturbation(rng: &mut Pcg64Mcg, angle_deg: f64, shift_m: f64) -> Isometry3<f64> {
-        let mut random_unit = || {
-            Unit::new_normalize(Vector3::new(
-                rng.random_range(-1.0..1.0),
-                rng.random_range(-1.0..1.0),
-                rng.random_range(-1.0..1.0),
-            ))
-        };
-        let axis = random_unit();
-        let dir = random_unit();
-        Isometry3::from_parts(
-            Translation3::from(dir.into_inner() * shift_m),
-            UnitQuaternion::from_axis_angle(&axis, angle_deg.to_radians()),
-        )
-    }
-
-    /// (rotation error \[deg\], translation error \[m\]) of `estimate` against `truth`.
-    fn pose_error(estimate: &Isometry3<f64>, truth: &Isometry3<f64>) -> (f64, f64) {
-        let delta = truth.inverse() * estimate;
-        (
-            delta.rotation.angle().to_degrees(),
-            delta.translation.vector.norm(),
-        )
-    }
-
-    fn gaussian(rng: &mut Pcg64Mcg) -> f64 {
-        // Box-Muller.
-        let u1: f64 = rng.random_range(f64::EPSILON..1.0);
-        let u2: f64 = rng.random();
-        (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
-    }
-
-    #[test]
-    fn converges_exactly_forward_and_inverse() {
-        let (scene, scene_normals) = corner_and_sphere();
-        let target_from_source = ground_truth();
-        let source_from_target = target_from_source.inverse();
-        // Source = the scene seen from the source frame; at the truth every source point lies
-        // exactly on its twin target point.
-        let source: Vec<_> = scene.iter().map(|p| source_from_target * p).collect();
-        let source_normals: Vec<_> = scene_normals
-            .iter()
-            .map(|n| source_from_target.rotation * n)
-            .collect();
-        let forward_target = IcpTarget::new(&scene, &scene_normals).unwrap();
-        let inverse_target = IcpTarget::new(&source, &source_normals).unwrap();
-        let config = IcpConfig::new(0.5).max_iterations(100);
-        let mut rng = Pcg64Mcg::seed_from_u64(7);
-        for _ in 0..3 {
-            let delta = perturbation(&mut rng, 10.0, 0.2);
-            let init = target_from_source * delta;
-            let forward =
-                registration_icp_point_to_plane(&source, &forward_target, &init, &config).unwrap();
-            let (rot_deg, trans_m) = pose_error(&forward.target_from_source, &target_from_source);
-            assert!(forward.converged, "{forward:?}");
-            // Gauss-Newton on exact data converges quadratically: a handful of updates.
-            assert!(forward.iterations <= 10, "{forward:?}");
-            assert!(
-                rot_deg < 0.01 && trans_m < 1e-4,
-                "{rot_deg} deg {trans_m} m"
-            );
-            assert_eq!(forward.fitness, 1.0);
-            assert!(forward.inlier_rmse_m < 1e-4);
-
-            let inverse =
-                registration_icp_point_to_plane(&scene, &inverse_target, &init.inverse(), &config)
-                    .unwrap();
-            let (rot_deg, trans_m) = pose_error(&inverse.target_from_source, &source_from_target);
-            assert!(inverse.converged, "{inverse:?}");
-            assert!(inverse.iterations <= 10, "{inverse:?}");
-            assert!(
-                rot_deg < 0.01 && trans_m < 1e-4,
-                "{rot_deg} deg {trans_m} m"
-            );
-        }
-    }
-
-    #[test]
-    fn converges_near_truth_with_noise_and_outliers() {
-        let (scene, scene_normals) = corner_and_sphere();
-        let target_from_source = ground_truth();
-        let source_from_target = target_from_source.inverse();
-        let mut rng = Pcg64Mcg::seed_from_u64(11);
-        let noise_m = 0.003;
-        let mut source: Vec<_> = scene
-            .iter()
-            .map(|p| {
-                let noisy =
-                    p + Vector3::new(gaussian(&mut rng), gaussian(&mut rng), gaussian(&mut rng))
-                        * noise_m;
-                source_from_target * noisy
-            })
-            .collect();
-        let target = IcpTarget::new(&scene, &scene_normals).unwrap();
-        let init = target_from_source * perturbation(&mut rng, 10.0, 0.2);
-        let config = IcpConfig::new(0.5).max_iterations(100);
-        let result = registration_icp_point_to_plane(&source, &target, &init, &config).unwrap();
-        let (rot_deg, trans_m) = pose_error(&result.target_from_source, &target_from_source);
-        assert!(result.converged, "{result:?}");
-        assert!(
-            rot_deg < 0.1 && trans_m < 0.003,
-            "{rot_deg} deg {trans_m} m"
-        );
-        // Nearest-neighbour distance of a noisy point is at most its offset: RMSE ≲ √3 σ.
-        assert!(
-            result.inlier_rmse_m < 3f64.sqrt() * noise_m * 1.1,
-            "{result:?}"
-        );
-
-        // 15 % gross outliers in a 1 m shell around the scene: Tukey keeps the estimate close.
-        let outliers = source.len() * 15 / 100;
-        for _ in 0..outliers {
-            let p = Point3::new(
-                rng.random_range(-1.5..1.5),
-                rng.random_range(-1.5..1.5),
-                rng.random_range(-1.0..1.5),
-            );
-            source.push(source_from_target * p);
-        }
-        let robust = config.robust_kernel(RobustKernel::Tukey { scale_m: 0.05 });
-        let result = registration_icp_point_to_plane(&source, &target, &init, &robust).unwrap();
-        let (rot_deg, trans_m) = pose_error(&result.target_from_source, &target_from_source);
-        assert!(
-            rot_deg < 0.2 && trans_m < 0.005,
-            "{rot_deg} deg {trans_m} m"
-        );
-    }
-
-    #[test]
-    fn bit_identical_on_one_and_two_threads() {
-        let (scene, scene_normals) = corner_and_sphere();
-        let target = IcpTarget::new(&scene, &scene_normals).unwrap();
-        let mut rng = Pcg64Mcg::seed_from_u64(3);
-        let source: Vec<_> = scene
-            .iter()
-            .map(|p| ground_truth().inverse() * p + Vector3::repeat(0.002 * gaussian(&mut rng)))
-            .collect();
-        let init = ground_truth() * perturbation(&mut rng, 5.0, 0.1);
-        let config = IcpConfig::new(0.4);
-        let run = |threads: usize| {
-            rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap()
-                .install(|| registration_icp_point_to_plane(&source, &target, &init, &config))
-                .unwrap()
-        };
-        assert!(source.len() > 4 * CHUNK_POINTS);
-        assert_eq!(run(1), run(2));
-    }
-
-    #[test]
-    fn evaluation_matches_hand_computation() {
-        let target = IcpTarget::points_only(&[
-            Point3::new(0.0, 0.0, 0.0),
-            Point3::new(1.0, 0.0, 0.0),
-            Point3::new(0.0, 1.0, 0.0),
-        ])
-        .unwrap();
-        let source = [
-            Point3::new(0.1, 0.0, 0.0),  // → target 0 at 0.1
-            Point3::new(1.0, 0.2, 0.0),  // → target 1 at 0.2
-            Point3::new(0.0, 1.0, 0.05), // → target 2 at 0.05
-            Point3::new(5.0, 5.0, 5.0),  // no correspondence within 0.3
-        ];
-        let identity = Isometry3::identity();
-        let e = evaluate_registration(&source, &target, &identity, 0.3).unwrap();
-        assert_eq!(e.num_inliers, 3);
-        assert_eq!(e.fitness, 0.75);
-        let expected_rmse = ((0.01 + 0.04 + 0.0025) / 3.0f64).sqrt();
-        assert!((e.inlier_rmse_m - expected_rmse).abs() < 1e-12);
-
-        // Shifting the source by −0.1 m in x: (0,0,0)→0 at 0, (0.9,0.2,0)→1 at √0.05,
-        // (−0.1,1,0.05)→2 at √0.0125; threshold 0.2 drops the second.
-        let shift = Isometry3::translation(-0.1, 0.0, 0.0);
-        let e = evaluate_registration(&source, &target, &shift, 0.2).unwrap();
-        assert_eq!(e.num_inliers, 2);
-        assert_eq!(e.fitness, 0.5);
-        assert!((e.inlier_rmse_m - (0.0125f64 / 2.0).sqrt()).abs() < 1e-12);
-
-        // Nothing within reach: Open3D reports fitness 0 and RMSE 0.
-        let far = Isometry3::translation(100.0, 0.0, 0.0);
-        let e = evaluate_registration(&source, &target, &far, 0.3).unwrap();
-        assert_eq!((e.fitness, e.inlier_rmse_m, e.num_inliers), (0.0, 0.0, 0));
-    }
-
-    #[test]
-    fn degenerate_plane_stays_finite_and_fixes_constrained_dofs() {
-        // A single plane z = 0 constrains only z, roll and pitch: Cholesky fails, SVD solves.
-        let mut points = Vec::new();
-        for i in 0..40 {
-            for j in 0..40 {
-                points.push(Point3::new(i as f64 * 0.05, j as f64 * 0.05, 0.0));
-            }
-        }
-        let normals = vec![Vector3::z(); points.len()];
-        let target = IcpTarget::new(&points, &normals).unwrap();
-        let init = Isometry3::from_parts(
-            Translation3::new(0.0, 0.0, 0.05),
-            UnitQuaternion::from_euler_angles(2f64.to_radians(), -1f64.to_radians(), 0.0),
-        );
-        let result =
-            registration_icp_point_to_plane(&points, &target, &init, &IcpConfig::new(0.2)).unwrap();
-        let moved: Vec<_> = points
-            .iter()
-            .map(|p| result.target_from_source * p)
-            .collect();
-        assert!(moved.iter().all(|p| p.z.abs() < 1e-6), "{result:?}");
-    }
-
-    #[test]
-    fn rejects_bad_input() {
-        let p = [Point3::origin()];
-        assert!(IcpTarget::new(&p, &[]).is_err());
-        assert!(IcpTarget::points_only(&[]).is_err());
-        let target = IcpTarget::new(&p, &[Vector3::z()]).unwrap();
-        let id = Isometry3::identity();
-        assert!(registration_icp_point_to_plane(&p, &target, &id, &IcpConfig::new(0.0)).is_err());
-        assert!(registration_icp_point_to_plane(&[], &target, &id, &IcpConfig::new(1.0)).is_err());
-        let points_only = IcpTarget::points_only(&p).unwrap();
-        assert!(
-            registration_icp_point_to_plane(&p, &points_only, &id, &IcpConfig::new(1.0)).is_err()
-        );
-        let tukey = IcpConfig::new(1.0).robust_kernel(RobustKernel::Tukey { scale_m: -1.0 });
-        assert!(registration_icp_point_to_plane(&p, &target, &id, &tukey).is_err());
-    }
-
-    #[test]
-    fn kernel_weights() {
-        assert_eq!(RobustKernel::L2.weight(3.0), 1.0);
-        let huber = RobustKernel::Huber { scale_m: 0.5 };
-        assert_eq!(huber.weight(-0.25), 1.0);
-        assert_eq!(huber.weight(2.0), 0.25);
-        let tukey = RobustKernel::Tukey { scale_m: 2.0 };
-        assert_eq!(tukey.weight(1.0), 0.5625); // (1 − 1/4)²
-        assert_eq!(tukey.weight(-2.5), 0.0);
-    }
-}
-
-#[cfg(test)]
-mod nearest_tests {
-    use super::*;
-    use rand::{RngExt, SeedableRng};
-    use rand_pcg::Pcg64Mcg;
-
-    #[test]
-    fn nearest_equals_brute_force() {
-        let mut rng = Pcg64Mcg::seed_from_u64(9);
-        let mut random_point = |scale: f64| {
-            Point3::new(
-                rng.random_range(-scale..scale),
-                rng.random_range(-scale..scale),
-                rng.random_range(-scale..scale),
-            )
-        };
-        let points: Vec<_> = (0..5000).map(|_| random_point(1.0)).collect();
-        let queries: Vec<_> = (0..2000).map(|_| random_point(1.2)).collect();
-        let target = IcpTarget::points_only(&points).unwrap();
-        let max_squared = 0.1f64 * 0.1;
-        let mut wrong = 0;
-        for q in &queries {
-            let truth = points
-                .iter()
-                .map(|p| (p - q).norm_squared())
-                .fold(f64::INFINITY, f64::min);
-            let got = target.nearest(q, max_squared).map(|(_, d)| d);
-            let expected = (truth <= max_squared).then_some(truth);
-            wrong += (got != expected) as usize;
-        }
-        assert_eq!(wrong, 0);
-    }
-}
+mod tests;

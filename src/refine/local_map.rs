@@ -26,11 +26,15 @@ pub struct LocalMapConfig {
 }
 
 /// Points (with normals) of recent frames in the world frame.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct LocalMap {
     config: LocalMapConfig,
     voxels: BTreeMap<[i64; 3], Voxel>,
     points: usize,
+    /// The map as an ICP target, rebuilt in place by [`LocalMap::target`].
+    target: Option<IcpTarget>,
+    /// Whether the last [`LocalMap::target`] call built `target`.
+    built: bool,
 }
 
 #[derive(Debug, Clone, Default)]
@@ -53,6 +57,8 @@ impl LocalMap {
             config,
             voxels: BTreeMap::new(),
             points: 0,
+            target: None,
+            built: false,
         })
     }
 
@@ -116,18 +122,39 @@ impl LocalMap {
         self.points -= removed;
     }
 
-    /// The map as an ICP target (points and normals in voxel order); `None` while empty.
-    pub fn target(&self) -> Result<Option<IcpTarget>> {
+    /// The map as an ICP target (points and normals in voxel order); `None` while empty. Built
+    /// into the storage of the previous call's target (the map's tens of megabytes are
+    /// allocated and faulted in once, not every frame); [`LocalMap::built_target`] returns it
+    /// until the next call.
+    pub fn target(&mut self) -> Result<Option<&IcpTarget>> {
+        self.built = false;
         if self.is_empty() {
             return Ok(None);
         }
-        let mut points = Vec::with_capacity(self.points);
-        let mut normals = Vec::with_capacity(self.points);
-        for v in self.voxels.values() {
-            points.extend_from_slice(&v.points);
-            normals.extend_from_slice(&v.normals);
+        let fill = |points: &mut Vec<Point3<f64>>, normals: &mut Vec<Vector3<f64>>| {
+            points.reserve(self.points);
+            normals.reserve(self.points);
+            for v in self.voxels.values() {
+                points.extend_from_slice(&v.points);
+                normals.extend_from_slice(&v.normals);
+            }
+        };
+        match &mut self.target {
+            Some(target) => target.refill(fill)?,
+            None => {
+                let (mut points, mut normals) = (Vec::new(), Vec::new());
+                fill(&mut points, &mut normals);
+                self.target = Some(IcpTarget::new(&points, &normals)?);
+            }
         }
-        IcpTarget::new(&points, &normals).map(Some)
+        self.built = true;
+        Ok(self.target.as_ref())
+    }
+
+    /// The target of the last [`LocalMap::target`] call (`None` before it, or if the map was
+    /// empty then); the map may have changed since.
+    pub fn built_target(&self) -> Option<&IcpTarget> {
+        self.target.as_ref().filter(|_| self.built)
     }
 }
 

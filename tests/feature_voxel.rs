@@ -1,0 +1,110 @@
+//! The coarser cloud global registration runs on in `mireg register` (`feature_voxel_for_cloud`,
+//! `with_feature_voxel`): the smallest voxel of the geometric ladder voxel · 2^(k/4) whose
+//! downsampled cloud holds at most N points, checked against an independent count of occupied
+//! voxels (a hash set of cell keys), and the configuration it gives.
+
+use std::collections::HashSet;
+
+use mireg::pipeline::{
+    FEATURE_VOXEL_STEP, PairConfig, feature_voxel_for_cloud, voxel_for_cloud, with_feature_voxel,
+};
+use nalgebra::Point3;
+use rand::{RngExt, SeedableRng};
+
+/// Occupied cells of edge `v` (the number of points voxel downsampling keeps).
+fn occupied(points: &[Point3<f64>], v: f64) -> usize {
+    let cells: HashSet<[i64; 3]> = points
+        .iter()
+        .map(|p| {
+            [
+                (p.x / v).floor() as i64,
+                (p.y / v).floor() as i64,
+                (p.z / v).floor() as i64,
+            ]
+        })
+        .collect();
+    cells.len()
+}
+
+/// A spinning LiDAR on a street: ground ring, walls, ranges 2–80 m.
+fn lidar_scan(n: usize, seed: u64) -> Vec<Point3<f64>> {
+    let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(seed);
+    (0..n)
+        .map(|_| {
+            let a = rng.random_range(0.0..std::f64::consts::TAU);
+            let r = 2.0 + 78.0 * rng.random::<f64>().powi(2);
+            let z = if rng.random_range(0..3) == 0 {
+                rng.random_range(-1.7..3.0)
+            } else {
+                -1.7
+            };
+            Point3::new(r * a.cos(), r * a.sin(), z)
+        })
+        .collect()
+}
+
+#[test]
+fn the_feature_voxel_is_the_smallest_rung_that_fits() {
+    let scan = lidar_scan(60_000, 5);
+    let voxel = voxel_for_cloud(&scan).unwrap();
+    for max_points in [500, 2_000, 4_000, 10_000] {
+        let fv = feature_voxel_for_cloud(&scan, voxel, max_points).unwrap();
+        let k = (fv / voxel).ln() / FEATURE_VOXEL_STEP.ln();
+        assert!((k - k.round()).abs() < 1e-9, "{fv} is not on the ladder");
+        assert!(
+            occupied(&scan, fv) <= max_points,
+            "{max_points}: too many at {fv}"
+        );
+        if k.round() > 0.0 {
+            let below = fv / FEATURE_VOXEL_STEP;
+            assert!(
+                occupied(&scan, below) > max_points,
+                "{max_points}: {below} fits"
+            );
+        }
+    }
+    // More points allowed: never a coarser voxel.
+    let a = feature_voxel_for_cloud(&scan, voxel, 2_000).unwrap();
+    let b = feature_voxel_for_cloud(&scan, voxel, 4_000).unwrap();
+    assert!(b <= a && a > voxel);
+}
+
+#[test]
+fn a_cloud_that_fits_keeps_its_voxel_and_zero_disables() {
+    let scan = lidar_scan(3_000, 6);
+    let voxel = 0.2;
+    assert!(occupied(&scan, voxel) <= 4_000);
+    assert_eq!(feature_voxel_for_cloud(&scan, voxel, 4_000).unwrap(), voxel);
+    let big = lidar_scan(60_000, 7);
+    assert_eq!(feature_voxel_for_cloud(&big, voxel, 0).unwrap(), voxel);
+    assert!(feature_voxel_for_cloud(&big, f64::NAN, 10).is_err());
+}
+
+#[test]
+fn only_global_registration_moves_to_the_feature_voxel() {
+    let pair = PairConfig {
+        voxel_size_m: 0.3,
+        ..Default::default()
+    };
+    let c = with_feature_voxel(&pair, 0.6).resolved().unwrap();
+    assert_eq!(c.voxel_size_m, 0.6);
+    assert_eq!(c.normal_radius_m, Some(1.2));
+    assert_eq!(c.feature_radius_m, Some(3.0));
+    assert_eq!(c.inlier_threshold_m, Some(0.6 * 1.5));
+    // ICP keeps the voxel cloud and its distance.
+    assert_eq!(c.icp_voxel_size_m, Some(0.3));
+    assert_eq!(c.icp_max_distance_m, Some(0.3));
+    // Settings the user made stay.
+    let set = PairConfig {
+        icp_max_distance_m: Some(0.45),
+        feature_radius_m: Some(2.0),
+        ..pair.clone()
+    };
+    let c = with_feature_voxel(&set, 0.6).resolved().unwrap();
+    assert_eq!(
+        (c.icp_max_distance_m, c.feature_radius_m),
+        (Some(0.45), Some(2.0))
+    );
+    // The same voxel: nothing changes.
+    assert_eq!(with_feature_voxel(&pair, 0.3), pair);
+}
