@@ -51,7 +51,7 @@ pub struct RadiusGrid {
     /// Index in the input cloud of each entry of `xyz`.
     index: Vec<u32>,
     /// The construction's temporaries, kept for [`RadiusGrid::into_storage`].
-    scratch: Scratch,
+    scratch: Box<Scratch>,
 }
 
 #[derive(Debug, Clone, Default)]
@@ -84,7 +84,7 @@ impl RadiusGrid {
         let grid = Self::new_reusing(points, radius_m, max_columns, GridStorage::default())?;
         // A grid built once needs no temporaries afterwards.
         Ok(grid.map(|g| Self {
-            scratch: Scratch::default(),
+            scratch: Box::default(),
             ..g
         }))
     }
@@ -199,13 +199,13 @@ impl RadiusGrid {
             starts,
             xyz,
             index,
-            scratch: Scratch { cell, range, next },
+            scratch: Box::new(Scratch { cell, range, next }),
         }))
     }
 
     /// The grid's storage, for [`RadiusGrid::new_reusing`].
     pub fn into_storage(self) -> GridStorage {
-        let Scratch { cell, range, next } = self.scratch;
+        let Scratch { cell, range, next } = *self.scratch;
         GridStorage {
             columns: self.columns,
             starts: self.starts,
