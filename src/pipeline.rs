@@ -404,24 +404,12 @@ pub fn prepare_frame_with(
         };
         timings.downsample += t.elapsed().as_secs_f64();
         let t = Instant::now();
-        // The grid's neighbourhoods where the cloud's extent allows (as for the features), else
-        // the kd-tree's; the normals agree to rounding.
-        let nbhd = &mut scratch.neighbourhoods;
-        let target = if grid::self_neighbourhoods_into(&cloud, radius, c.normal_max_nn, nbhd)? {
-            let n = estimate_normals_from_neighbourhoods(
-                &cloud,
-                nbhd,
-                radius,
-                c.normal_max_nn,
-                origin,
-            )?;
-            IcpTarget::new(&cloud, &n)?
-        } else {
-            let cloud_tree = KdTree::new(&cloud)?;
-            let n =
-                estimate_normals_with_tree(&cloud, &cloud_tree, radius, c.normal_max_nn, origin)?;
-            IcpTarget::with_tree(&cloud, &n, cloud_tree)?
-        };
+        // NOTE: the kd-tree, not the grid the features use: on the KAIST03 and KITTI ICP clouds
+        // (0.37 m / 0.5 m voxels, 16k / 11k points) grid neighbourhoods took 29–35 / 21–22 ms a
+        // frame against 18 / 17–19 ms (one thread, interleaved, docs/BENCHMARKS.md).
+        let cloud_tree = KdTree::new(&cloud)?;
+        let n = estimate_normals_with_tree(&cloud, &cloud_tree, radius, c.normal_max_nn, origin)?;
+        let target = IcpTarget::with_tree(&cloud, &n, cloud_tree)?;
         timings.normals += t.elapsed().as_secs_f64();
         Some(target)
     } else {
