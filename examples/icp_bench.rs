@@ -9,6 +9,7 @@ use std::time::Instant;
 use mireg::refine::{IcpConfig, IcpTarget, evaluate_registration, registration_icp_point_to_plane};
 use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
+use rand_distr::Distribution;
 use rand_pcg::Pcg64Mcg;
 
 fn scene(spacing: f64) -> (Vec<Point3<f64>>, Vec<Vector3<f64>>) {
@@ -43,9 +44,7 @@ fn scene(spacing: f64) -> (Vec<Point3<f64>>, Vec<Vector3<f64>>) {
 }
 
 fn gaussian(rng: &mut Pcg64Mcg) -> f64 {
-    let u1: f64 = rng.random_range(f64::EPSILON..1.0);
-    let u2: f64 = rng.random();
-    (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+    rand_distr::StandardNormal.sample(rng)
 }
 
 fn main() {

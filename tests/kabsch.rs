@@ -4,17 +4,14 @@ use mireg::ransac::estimator::DEFAULT_MIN_SINGULAR_RATIO;
 use mireg::ransac::kabsch;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
+use rand_distr::Distribution;
 use rand_pcg::Pcg64Mcg;
 
 fn random_isometry(rng: &mut Pcg64Mcg) -> Isometry3<f64> {
-    // Uniform rotation: normalised 4-D Gaussian-ish vector (rejection from the unit ball).
-    let q = loop {
-        let v: [f64; 4] = std::array::from_fn(|_| rng.random_range(-1.0..1.0));
-        let n2: f64 = v.iter().map(|x| x * x).sum();
-        if n2 > 1e-6 && n2 <= 1.0 {
-            break nalgebra::Quaternion::new(v[0], v[1], v[2], v[3]);
-        }
-    };
+    // Uniform rotation: a normalised 4-D standard normal vector is uniform on the unit
+    // 3-sphere of quaternions.
+    let v: [f64; 4] = std::array::from_fn(|_| rand_distr::StandardNormal.sample(rng));
+    let q = nalgebra::Quaternion::new(v[0], v[1], v[2], v[3]);
     let t = Vector3::from_fn(|_, _| rng.random_range(-10.0..10.0));
     Isometry3::from_parts(Translation3::from(t), UnitQuaternion::from_quaternion(q))
 }

@@ -34,7 +34,8 @@ fn scene() -> Vec<Point3<f64>> {
                 rng.random_range(-1.0..1.0),
             );
             if k % 2 == 0 {
-                pts.push(Point3::from(c + d.normalize() * r));
+                let u: [f64; 3] = rand_distr::UnitSphere.sample(&mut rng);
+                pts.push(Point3::from(c + Vector3::from(u) * r));
             } else {
                 let mut e: Vector3<f64> = d * r;
                 let axis = rng.random_range(0..3usize);

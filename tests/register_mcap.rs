@@ -17,6 +17,7 @@ use mireg::pipeline::{PairConfig, pose_error};
 use mireg::register::{RegisterOptions, register_log};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
+use rand_distr::Distribution;
 
 fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/icl_livingroom1.mcap")
@@ -148,7 +149,8 @@ fn scene(seed: u64) -> Vec<Point3<f64>> {
                 rng.random_range(-1.0..1.0),
             );
             if k % 2 == 0 {
-                pts.push(Point3::from(c + d.normalize() * r)); // sphere
+                let u: [f64; 3] = rand_distr::UnitSphere.sample(&mut rng);
+                pts.push(Point3::from(c + Vector3::from(u) * r)); // sphere
             } else {
                 let mut e = d * r;
                 let axis = rng.random_range(0..3usize);

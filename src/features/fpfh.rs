@@ -580,12 +580,9 @@ mod tests {
         let mut rng = Pcg64::seed_from_u64(seed);
         let points: Vec<Point3<f64>> = (0..n)
             .map(|_| {
-                let d = Vector3::new(
-                    rng.random_range(-1.0..1.0f64),
-                    rng.random_range(-1.0..1.0),
-                    rng.random_range(-1.0..1.0),
-                )
-                .normalize();
+                let u: [f64; 3] =
+                    rand_distr::Distribution::sample(&rand_distr::UnitSphere, &mut rng);
+                let d = Vector3::from(u);
                 let r = 1.0 + 0.15 * (3.0 * d.x).sin() * (2.0 * d.y).cos() + 0.1 * d.z * d.z;
                 Point3::from(d * r)
             })

@@ -273,7 +273,8 @@ mod tests {
             })
             .collect();
         surfaces.extend((0..800).map(|_| {
-            let v = nalgebra::Vector3::from_fn(|_, _| rng.random_range(-1.0..1.0)).normalize();
+            let u: [f64; 3] = rand_distr::Distribution::sample(&rand_distr::UnitSphere, &mut rng);
+            let v = nalgebra::Vector3::from(u);
             Point3::new(1000.0, -2000.0, 50.0) + v * 2.0
         }));
         for (radius, max_nn) in [(0.1, 30), (0.25, 10), (0.6, 100), (5.0, 7)] {

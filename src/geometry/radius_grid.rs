@@ -361,7 +361,9 @@ mod tests {
         // A sphere shell far from the origin plus a plane: many empty cells.
         let mut points: Vec<Point3<f64>> = (0..1500)
             .map(|_| {
-                let v = nalgebra::Vector3::from_fn(|_, _| rng.random_range(-1.0..1.0)).normalize();
+                let u: [f64; 3] =
+                    rand_distr::Distribution::sample(&rand_distr::UnitSphere, &mut rng);
+                let v = nalgebra::Vector3::from(u);
                 Point3::new(100.0, -20.0, 5.0) + v * 0.8
             })
             .collect();

@@ -4,6 +4,7 @@
 use super::*;
 use nalgebra::Unit;
 use rand::{RngExt, SeedableRng};
+use rand_distr::Distribution;
 use rand_pcg::Pcg64Mcg;
 
 /// Box corner (floor + two walls) and a sphere, ~6k points at 4 cm spacing, with analytic
@@ -78,10 +79,7 @@ fn pose_error(estimate: &Isometry3<f64>, truth: &Isometry3<f64>) -> (f64, f64) {
 }
 
 fn gaussian(rng: &mut Pcg64Mcg) -> f64 {
-    // Box-Muller.
-    let u1: f64 = rng.random_range(f64::EPSILON..1.0);
-    let u2: f64 = rng.random();
-    (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+    rand_distr::StandardNormal.sample(rng)
 }
 
 #[test]
