@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use mireg::refine::{IcpConfig, IcpTarget, evaluate_registration, registration_icp_point_to_plane};
 use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
-use rand::{RngExt, SeedableRng};
+use rand::SeedableRng;
 use rand_distr::Distribution;
 use rand_pcg::Pcg64Mcg;
 
