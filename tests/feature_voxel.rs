@@ -1,9 +1,10 @@
 //! The coarser cloud global registration runs on in `mireg register` (`feature_voxel_for_cloud`,
-//! `with_feature_voxel`): the smallest voxel of the geometric ladder voxel · 2^(k/4) whose
-//! downsampled cloud holds at most N points, checked against an independent count of occupied
-//! voxels (a hash set of cell keys), and the configuration it gives.
+//! `with_feature_voxel`): the smallest voxel of the geometric ladder voxel · 2^(k/4) at which
+//! the voxel cloud downsamples to at most N points, checked against an independent computation
+//! (voxel centroids from a hash map of sums, occupied cells from a hash set of keys), and the
+//! configuration it gives.
 
-use std::collections::HashSet;
+use std::collections::{HashMap, HashSet};
 
 use mireg::pipeline::{
     FEATURE_VOXEL_STEP, PairConfig, feature_voxel_for_cloud, voxel_for_cloud, with_feature_voxel,
@@ -11,19 +12,34 @@ use mireg::pipeline::{
 use nalgebra::Point3;
 use rand::{RngExt, SeedableRng};
 
+/// Cell of `p` in Open3D's voxel grid of edge `v` over `points`: anchored half a cell below the
+/// cloud's lowest corner.
+fn cell(points: &[Point3<f64>], v: f64) -> impl Fn(&Point3<f64>) -> [i64; 3] {
+    let lo: [f64; 3] =
+        std::array::from_fn(|k| points.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min));
+    move |p: &Point3<f64>| std::array::from_fn(|k| ((p[k] - (lo[k] - 0.5 * v)) / v).floor() as i64)
+}
+
 /// Occupied cells of edge `v` (the number of points voxel downsampling keeps).
 fn occupied(points: &[Point3<f64>], v: f64) -> usize {
-    let cells: HashSet<[i64; 3]> = points
-        .iter()
-        .map(|p| {
-            [
-                (p.x / v).floor() as i64,
-                (p.y / v).floor() as i64,
-                (p.z / v).floor() as i64,
-            ]
-        })
-        .collect();
-    cells.len()
+    let key = cell(points, v);
+    points.iter().map(key).collect::<HashSet<_>>().len()
+}
+
+/// Centroids of the occupied cells of edge `v` (the voxel cloud), in no particular order.
+fn centroids(points: &[Point3<f64>], v: f64) -> Vec<Point3<f64>> {
+    let key = cell(points, v);
+    let mut sums: HashMap<[i64; 3], ([f64; 3], f64)> = HashMap::new();
+    for p in points {
+        let e = sums.entry(key(p)).or_insert(([0.0; 3], 0.0));
+        for k in 0..3 {
+            e.0[k] += p[k];
+        }
+        e.1 += 1.0;
+    }
+    sums.values()
+        .map(|(s, n)| Point3::new(s[0] / n, s[1] / n, s[2] / n))
+        .collect()
 }
 
 /// A spinning LiDAR on a street: ground ring, walls, ranges 2–80 m.

@@ -42,8 +42,9 @@ pub const FEATURE_VOXEL_STEP: f64 = 1.189_207_115_002_721;
 
 /// The voxel \[m\] of the cloud that descriptors, matching and RANSAC use, for frames like
 /// `points` registered at `voxel_m`: the smallest of `voxel_m · FEATURE_VOXEL_STEP^k`,
-/// k = 0, 1, …, 24 (up to 64 × `voxel_m`), at which `points` downsample to at most `max_points`
-/// points. `max_points` = 0 gives `voxel_m` (no coarser cloud).
+/// k = 0, 1, …, 24 (up to 64 × `voxel_m`), at which the `voxel_m` cloud of `points` downsamples to
+/// at most `max_points` points (as [`super::prepare_frame`] makes the feature cloud from the ICP
+/// cloud). `max_points` = 0 gives `voxel_m` (no coarser cloud).
 ///
 /// NOTE: the paper registers one cloud per pair. A LiDAR scan at the voxel that local-map ICP
 /// needs (15–25 k points for an Ouster OS1-64 or HDL-64 at 0.25–0.37 m) costs most of its frame
@@ -55,13 +56,14 @@ pub fn feature_voxel_for_cloud(
     voxel_m: f64,
     max_points: usize,
 ) -> Result<f64> {
-    let mut v = voxel_m;
-    if max_points == 0 {
-        return Ok(v);
+    let fine = voxel_downsample(points, voxel_m)?;
+    if max_points == 0 || fine.len() <= max_points {
+        return Ok(voxel_m);
     }
-    for k in 0..=24 {
+    let mut v = voxel_m;
+    for k in 1..=24 {
         v = voxel_m * FEATURE_VOXEL_STEP.powi(k);
-        if voxel_downsample(points, v)?.len() <= max_points {
+        if voxel_downsample(&fine, v)?.len() <= max_points {
             break;
         }
     }
