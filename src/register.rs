@@ -297,7 +297,13 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     let (topic, kind) = choose_topic(input, &channels, opts.topic.as_deref())?;
     let mut config = opts.config.clone();
     let mut voxel_source = "configured";
-    let first = first_usable_cloud(&input_log, &channels, &topic, kind)?;
+    // The first cloud sizes the voxel (unless configured) and the feature voxel (unless
+    // --feature-points 0); without either, it is not read twice.
+    let first = if opts.derive_voxel || config.feature_points > 0 {
+        first_usable_cloud(&input_log, &channels, &topic, kind)?
+    } else {
+        None
+    };
     if opts.derive_voxel
         && let Some(v) = first.as_deref().and_then(voxel_for_cloud)
     {

@@ -3,6 +3,16 @@
 
 use std::process::Command;
 
+/// The standard output of a `mireg` run that must succeed (its standard error on failure).
+fn stdout_of_success(out: std::process::Output) -> String {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
 fn sweep_csv(threads: &str) -> String {
     let out = Command::new(env!("CARGO_BIN_EXE_mireg"))
         .args([
@@ -18,12 +28,7 @@ fn sweep_csv(threads: &str) -> String {
         .env("RAYON_NUM_THREADS", threads)
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8(out.stdout).unwrap()
+    stdout_of_success(out)
 }
 
 /// The CSV without its timing column.
@@ -117,13 +122,7 @@ fn sweep_file(dir: &std::path::Path, gt: &std::path::Path) -> Vec<Vec<String>> {
         .args(["--quick", "--csv", "--voxel", "0.05", "--max-te-m", "0.05"])
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8(out.stdout)
-        .unwrap()
+    stdout_of_success(out)
         .lines()
         .skip(1)
         .map(|l| l.split(',').map(str::to_string).collect())

@@ -14,7 +14,6 @@ Usage:
         [--mireg target/release/mireg] [-- MIREG_ARGS]
 """
 
-import argparse
 import json
 import os
 import subprocess
@@ -22,7 +21,7 @@ import sys
 import tempfile
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from compare_kiss_icp import CLOUD, read_log, run_kiss  # noqa: E402
+from compare_kiss_icp import CLOUD, log_parser, read_log, run_kiss, split_mireg_args  # noqa: E402
 
 
 def mireg_fps(binary, log, extra):
@@ -36,15 +35,8 @@ def mireg_fps(binary, log, extra):
 
 
 def main(argv):
-    if "--" in argv:
-        k = argv.index("--")
-        argv, extra = argv[:k], argv[k + 1:]
-    else:
-        extra = []
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("log")
-    ap.add_argument("--mireg", default=os.environ.get("MIREG_BIN", "target/release/mireg"))
-    ap.add_argument("--topic")
+    argv, extra = split_mireg_args(argv)
+    ap = log_parser(__doc__)
     ap.add_argument("--rounds", type=int, default=3)
     args = ap.parse_args(argv)
     topic, clouds, _reference = read_log(args.log, args.topic, None)

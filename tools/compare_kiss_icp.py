@@ -171,16 +171,27 @@ def run_mireg(binary, log, extra):
     return poses, summary
 
 
-def main(argv):
+def split_mireg_args(argv):
+    """(own arguments, arguments after `--` passed on to `mireg register`)."""
     if "--" in argv:
         k = argv.index("--")
-        argv, extra = argv[:k], argv[k + 1:]
-    else:
-        extra = []
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+        return argv[:k], argv[k + 1:]
+    return argv, []
+
+
+def log_parser(description):
+    """The arguments the comparison scripts share: LOG, --mireg (default $MIREG_BIN, else
+    target/release/mireg) and --topic."""
+    ap = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("log")
     ap.add_argument("--mireg", default=os.environ.get("MIREG_BIN", "target/release/mireg"))
     ap.add_argument("--topic")
+    return ap
+
+
+def main(argv):
+    argv, extra = split_mireg_args(argv)
+    ap = log_parser(__doc__)
     ap.add_argument("--reference-topic", default="/ground_truth/pose")
     ap.add_argument("--frames", default="", help="cloud indices to keep, e.g. 0-3,8-10,16-20")
     args = ap.parse_args(argv)

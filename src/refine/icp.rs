@@ -349,11 +349,7 @@ impl IcpTarget {
     /// [`evaluate_registration`] at `max_distance_m` \[m\] use (kept in the target), so that a
     /// caller can overlap its construction with other work.
     pub fn prepare_for_distance(&self, max_distance_m: f64) -> Result<()> {
-        if !(max_distance_m.is_finite() && max_distance_m > 0.0) {
-            return Err(Error::InvalidInput(format!(
-                "max_correspondence_distance_m must be finite and > 0, got {max_distance_m}"
-            )));
-        }
+        IcpConfig::new(max_distance_m).validate()?;
         correspondence_grid(self, max_distance_m).map(|_| ())
     }
 

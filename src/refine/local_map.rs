@@ -31,10 +31,9 @@ pub struct LocalMap {
     config: LocalMapConfig,
     voxels: BTreeMap<[i64; 3], Voxel>,
     points: usize,
-    /// The map as an ICP target, rebuilt in place by [`LocalMap::target`].
+    /// The map as an ICP target, rebuilt in place by [`LocalMap::target`] (`None` when that
+    /// found the map empty or failed).
     target: Option<IcpTarget>,
-    /// Whether the last [`LocalMap::target`] call built `target`.
-    built: bool,
 }
 
 #[derive(Debug, Clone, Default)]
@@ -58,7 +57,6 @@ impl LocalMap {
             voxels: BTreeMap::new(),
             points: 0,
             target: None,
-            built: false,
         })
     }
 
@@ -127,8 +125,8 @@ impl LocalMap {
     /// allocated and faulted in once, not every frame); [`LocalMap::built_target`] returns it
     /// until the next call.
     pub fn target(&mut self) -> Result<Option<&IcpTarget>> {
-        self.built = false;
         if self.is_empty() {
+            self.target = None;
             return Ok(None);
         }
         let fill = |points: &mut Vec<Point3<f64>>, normals: &mut Vec<Vector3<f64>>| {
@@ -139,22 +137,22 @@ impl LocalMap {
                 normals.extend_from_slice(&v.normals);
             }
         };
-        match &mut self.target {
-            Some(target) => target.refill(fill)?,
+        let built = match self.target.take() {
+            Some(mut target) => target.refill(fill).map(|()| target),
             None => {
                 let (mut points, mut normals) = (Vec::new(), Vec::new());
                 fill(&mut points, &mut normals);
-                self.target = Some(IcpTarget::new(&points, &normals)?);
+                IcpTarget::new(&points, &normals)
             }
-        }
-        self.built = true;
+        };
+        self.target = Some(built?);
         Ok(self.target.as_ref())
     }
 
     /// The target of the last [`LocalMap::target`] call (`None` before it, or if the map was
-    /// empty then); the map may have changed since.
+    /// empty then or the call failed); the map may have changed since.
     pub fn built_target(&self) -> Option<&IcpTarget> {
-        self.target.as_ref().filter(|_| self.built)
+        self.target.as_ref()
     }
 }
 
