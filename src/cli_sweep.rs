@@ -27,6 +27,14 @@ pub struct SweepArgs {
     /// as named there).
     #[arg(long, value_name = "FILE")]
     pub gt_log: Option<PathBuf>,
+    /// Choi et al.'s information matrices for the `gt.log` pairs [default: `gt.info` beside the
+    /// `gt.log`, when there is one]. A pair with a record is correct when its information-matrix
+    /// error is within --max-info-error; pairs without one use --max-re-deg / --max-te-m.
+    #[arg(long, value_name = "FILE", requires = "gt_log")]
+    pub gt_info: Option<PathBuf>,
+    /// Largest information-matrix error of a correct registration [m²] (Choi's 0.04: 0.2 m RMSE).
+    #[arg(long, default_value_t = crate::sweep::CHOI_MAX_ERROR)]
+    pub max_info_error: f64,
     /// Point cloud topic [default: the only one].
     #[arg(long)]
     pub topic: Option<String>,
@@ -85,8 +93,13 @@ pub struct SweepArgs {
 /// The clouds of a sweep and its pairs (indices into them).
 type CloudsAndPairs = (Vec<Vec<Point3<f64>>>, Vec<SweepPair>);
 
-/// Clouds and pairs from a `gt.log` or `bun.conf` (see [`SweepArgs::gt_log`]).
-fn pairs_from_file(dir: &std::path::Path, gt: &std::path::Path) -> Result<CloudsAndPairs> {
+/// Clouds and pairs from a `gt.log` (with `gt.info`, see [`SweepArgs::gt_info`]) or a `bun.conf`
+/// (see [`SweepArgs::gt_log`]).
+fn pairs_from_file(
+    dir: &std::path::Path,
+    gt: &std::path::Path,
+    gt_info: Option<&std::path::Path>,
+) -> Result<CloudsAndPairs> {
     use crate::io::{cloud_file, pose_file};
     let mut clouds = Vec::new();
     let mut index: BTreeMap<String, usize> = BTreeMap::new();
@@ -109,6 +122,7 @@ fn pairs_from_file(dir: &std::path::Path, gt: &std::path::Path) -> Result<Clouds
                     target: load(dir.join(&sa.file))?,
                     source: load(dir.join(&sb.file))?,
                     target_from_source: sa.world_from_scan.inverse() * sb.world_from_scan,
+                    information: None,
                 });
             }
         }
@@ -120,15 +134,33 @@ fn pairs_from_file(dir: &std::path::Path, gt: &std::path::Path) -> Result<Clouds
                 .find(|p| p.is_file())
         };
         let (mut skipped, records) = (0, pose_file::parse_log(&text, gt)?);
+        let beside = gt.with_file_name("gt.info");
+        let info_path = gt_info.or_else(|| beside.is_file().then_some(beside.as_path()));
+        let information: BTreeMap<(usize, usize), nalgebra::Matrix6<f64>> = match info_path {
+            Some(path) => pose_file::read_info(path)?
+                .into_iter()
+                .map(|r| ((r.i, r.j), r.information))
+                .collect(),
+            None => BTreeMap::new(),
+        };
         for r in &records {
             match (find(r.i), find(r.j)) {
                 (Some(ti), Some(sj)) => pairs.push(SweepPair {
                     target: load(ti)?,
                     source: load(sj)?,
                     target_from_source: r.pose,
+                    information: information.get(&(r.i, r.j)).copied(),
                 }),
                 _ => skipped += 1,
             }
+        }
+        if let Some(path) = info_path {
+            let with = pairs.iter().filter(|p| p.information.is_some()).count();
+            eprintln!(
+                "{}: information matrices for {with} of {} pairs (Choi's criterion, error ≤ max-info-error); the others by RE/TE",
+                path.display(),
+                pairs.len()
+            );
         }
         if skipped > 0 {
             eprintln!(
@@ -145,7 +177,7 @@ fn pairs_from_file(dir: &std::path::Path, gt: &std::path::Path) -> Result<Clouds
 /// `mireg sweep`.
 pub fn run_sweep(args: &SweepArgs) -> Result<()> {
     let (clouds, pairs) = match &args.gt_log {
-        Some(gt) => pairs_from_file(&args.input, gt)?,
+        Some(gt) => pairs_from_file(&args.input, gt, args.gt_info.as_deref())?,
         None => log_pairs(args)?,
     };
     if pairs.is_empty() {
@@ -212,15 +244,12 @@ fn sweep_pairs(
     let thresholds = Thresholds {
         max_re_deg: args.max_re_deg,
         max_te_m: args.max_te_m.unwrap_or(voxel),
+        max_info_error: args.max_info_error,
     };
     // Pairs whose motion is within the thresholds would count the identity as correct.
     let trivial = pairs
         .iter()
-        .filter(|p| {
-            let (re, te) =
-                crate::pipeline::pose_error(&p.target_from_source, &Isometry3::identity());
-            re <= thresholds.max_re_deg && te <= thresholds.max_te_m
-        })
+        .filter(|p| thresholds.correct(p, &Isometry3::identity()))
         .count();
     if trivial > 0 {
         eprintln!(

@@ -5,14 +5,15 @@
 //! Protocol (DESIGN.md §2, after Choi et al.): a registration is **reported** when it passes the
 //! acceptance test `mireg register` uses to flag failures ([`Acceptance`]: no failure, at least
 //! `min_inliers` RANSAC inliers, ICP fitness at least `min_fitness`), and **correct** when it is
-//! reported and its error against the ground truth is within [`Thresholds`]. Over the `pairs × runs`
+//! reported and its error against the ground truth is within [`Thresholds`] (Choi's
+//! information-matrix error when the pair has a `gt.info` record, else rotation and translation). Over the `pairs × runs`
 //! attempts of a cell, recall = correct / attempts and precision = correct / reported.
 //!
 //! Pure: frames come in prepared ([`crate::pipeline::prepare_frame`], once per frame, shared by
 //! every cell), pairs as indices with their ground truth. Every registration is seeded by its run
 //! index, so the table is the same on any thread count (timings aside).
 
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Matrix6, Vector6};
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -33,7 +34,36 @@ pub struct SweepPair {
     pub target: usize,
     /// Ground-truth pose of the source in the target frame.
     pub target_from_source: Isometry3<f64>,
+    /// Choi et al.'s information matrix of the pair (a `gt.info` record), if known: correctness
+    /// is then judged by [`choi_error`] instead of the RE/TE thresholds.
+    pub information: Option<Matrix6<f64>>,
 }
+
+/// Choi et al.'s registration error (Robust Reconstruction of Indoor Scenes, CVPR 2015; their
+/// `mrEvaluateRegistration.m`, reused by 3DMatch): with `Δ = gt⁻¹ · est`, `e = [t_Δ; q_Δ]`
+/// (translation \[m\], then the vector part of Δ's unit quaternion) and `Λ` the pair's information
+/// matrix, `p = eᵀ Λ e / Λ₁₁` \[m²\]. Λ is `Σ JᵢᵀJᵢ` over Λ₁₁ point correspondences with
+/// `Jᵢ = [I | −2[pᵢ]×]`, so p is, to first order, the mean squared displacement of those points
+/// under Δ. A registration counts as correct at `p ≤ 0.04` ([`CHOI_MAX_ERROR`], 0.2 m RMSE).
+///
+/// NOTE: the MATLAB code writes `e = [t; −q_xyz]` with `dcm2quat`, whose quaternion is the
+/// conjugate (passive convention) of nalgebra's active one, so the two vectors are equal. The
+/// sign matters through Λ's translation–rotation block; `tests/sweep.rs` checks p against the
+/// displacement computed directly.
+pub fn choi_error(gt: &Isometry3<f64>, est: &Isometry3<f64>, information: &Matrix6<f64>) -> f64 {
+    let delta = gt.inverse() * est;
+    let mut q = delta.rotation.into_inner().coords;
+    // q and −q are the same rotation; take the one with w ≥ 0, the small-angle branch.
+    if q.w < 0.0 {
+        q = -q;
+    }
+    let t = delta.translation.vector;
+    let e = Vector6::new(t.x, t.y, t.z, q.x, q.y, q.z);
+    (e.transpose() * information * e)[(0, 0)] / information[(0, 0)]
+}
+
+/// Choi et al.'s threshold on [`choi_error`] \[m²\]: 0.04, i.e. 0.2 m RMSE.
+pub const CHOI_MAX_ERROR: f64 = 0.04;
 
 /// The pairs `(i, i + k)` of a trajectory for each gap `k` in `gaps`: source `i + k` onto target
 /// `i`, ground truth `world_from_i⁻¹ · world_from_{i+k}`.
@@ -51,6 +81,7 @@ pub fn pairs_from_trajectory(
                 source: i + k,
                 target: i,
                 target_from_source: world_from_frame[i].inverse() * world_from_frame[i + k],
+                information: None,
             });
         }
     }
@@ -83,13 +114,29 @@ impl Acceptance {
     }
 }
 
-/// When a reported registration counts as correct.
+/// When a reported registration counts as correct: within [`choi_error`] `max_info_error` for a
+/// pair with an information matrix, else within both `max_re_deg` and `max_te_m`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Thresholds {
     /// Largest rotation error \[deg\].
     pub max_re_deg: f64,
     /// Largest translation error \[m\].
     pub max_te_m: f64,
+    /// Largest [`choi_error`] \[m²\]; Choi's is [`CHOI_MAX_ERROR`].
+    pub max_info_error: f64,
+}
+
+impl Thresholds {
+    /// Whether `est` is a correct registration of `pair`.
+    pub fn correct(&self, pair: &SweepPair, est: &Isometry3<f64>) -> bool {
+        match &pair.information {
+            Some(info) => choi_error(&pair.target_from_source, est, info) <= self.max_info_error,
+            None => {
+                let (re, te) = pose_error(&pair.target_from_source, est);
+                re <= self.max_re_deg && te <= self.max_te_m
+            }
+        }
+    }
 }
 
 /// One sampler of the sweep, named as the CSV names it.
@@ -307,9 +354,7 @@ pub fn sweep(
             let res = register_prepared(&frames[pair.source], &frames[pair.target], &pc)?;
             let time_s = t.elapsed().as_secs_f64();
             let reported = config.acceptance.accepts(&res);
-            let (re, te) = pose_error(&pair.target_from_source, &res.target_from_source);
-            let correct =
-                reported && re <= config.thresholds.max_re_deg && te <= config.thresholds.max_te_m;
+            let correct = reported && config.thresholds.correct(pair, &res.target_from_source);
             Ok(Outcome {
                 reported,
                 correct,

@@ -111,7 +111,7 @@ fn write_bin(path: &std::path::Path, pts: &[[f32; 3]]) {
     std::fs::write(path, bytes).unwrap();
 }
 
-fn sweep_file(dir: &std::path::Path, gt: &std::path::Path) -> Vec<Vec<String>> {
+fn sweep_file(dir: &std::path::Path, gt: &std::path::Path, extra: &[&str]) -> Vec<Vec<String>> {
     let out = Command::new(env!("CARGO_BIN_EXE_mireg"))
         .args([
             "sweep",
@@ -120,6 +120,7 @@ fn sweep_file(dir: &std::path::Path, gt: &std::path::Path) -> Vec<Vec<String>> {
             gt.to_str().unwrap(),
         ])
         .args(["--quick", "--csv", "--voxel", "0.05", "--max-te-m", "0.05"])
+        .args(extra)
         .output()
         .unwrap();
     stdout_of_success(out)
@@ -156,7 +157,7 @@ fn gt_log_and_bun_conf_pairs_register_to_their_ground_truth() {
         .collect();
     // A second record names a fragment that is absent: skipped.
     std::fs::write(d.join("gt.log"), format!("0 1 2\n{rows}0 7 8\n{rows}")).unwrap();
-    for row in sweep_file(d, &d.join("gt.log")) {
+    for row in sweep_file(d, &d.join("gt.log"), &[]) {
         assert_eq!(
             row[5], "1",
             "one pair: the record with absent clouds is skipped"
@@ -164,6 +165,32 @@ fn gt_log_and_bun_conf_pairs_register_to_their_ground_truth() {
         if row[1] == "ratio" && row[2] != "prosac" {
             assert_eq!(row[6], "1.0000", "{row:?}");
         }
+    }
+    // With a gt.info beside the gt.log, Choi's criterion judges the pair: Λ of the scene's
+    // points (as Choi builds it) accepts these registrations at 0.04 m², and no registration is
+    // within 1e-12 m² (millimetres off is 1e-6), which the RE/TE thresholds would have passed.
+    let points: Vec<nalgebra::Vector3<f64>> = source
+        .iter()
+        .step_by(10)
+        .map(|p| nalgebra::Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2])))
+        .collect();
+    let info = choi_information(&points);
+    let info_rows: String = (0..6)
+        .map(|r| {
+            let row: Vec<String> = (0..6).map(|c| format!("{:e}", info[(r, c)])).collect();
+            row.join(" ") + "\n"
+        })
+        .collect();
+    std::fs::write(d.join("gt.info"), format!("0 1 2\n{info_rows}")).unwrap();
+    for (limit, recall) in [("0.04", "1.0000"), ("1e-12", "0.0000")] {
+        let rows = sweep_file(d, &d.join("gt.log"), &["--max-info-error", limit]);
+        let levy = rows
+            .iter()
+            .find(|r| r[1] == "ratio" && r[2] == "levy")
+            .unwrap();
+        assert_eq!(levy[6], recall, "--max-info-error {limit}: {levy:?}");
+        // precision 0 at 1e-12: reported, but none correct.
+        assert_eq!(levy[7], recall, "{levy:?}");
     }
     // The same pair as a bun.conf: translation only, so world = x + t in either convention.
     let t = [0.2f32, 0.0, -0.1];
@@ -180,10 +207,78 @@ fn gt_log_and_bun_conf_pairs_register_to_their_ground_truth() {
         ),
     )
     .unwrap();
-    let rows = sweep_file(d, &d.join("bun.conf"));
+    let rows = sweep_file(d, &d.join("bun.conf"), &[]);
     let uniform = rows
         .iter()
         .find(|r| r[1] == "ratio" && r[2] == "uniform")
         .unwrap();
     assert_eq!((uniform[5].as_str(), uniform[6].as_str()), ("1", "1.0000"));
+}
+
+/// Choi et al.'s information matrix of a set of corresponding points: `Σ JᵢᵀJᵢ` with
+/// `Jᵢ = [I | −2[pᵢ]×]` (their parameterisation by the quaternion's vector part).
+fn choi_information(points: &[nalgebra::Vector3<f64>]) -> nalgebra::Matrix6<f64> {
+    let mut info = nalgebra::Matrix6::zeros();
+    for p in points {
+        let mut j = nalgebra::Matrix3x6::zeros();
+        j.fixed_view_mut::<3, 3>(0, 0)
+            .copy_from(&nalgebra::Matrix3::identity());
+        j.fixed_view_mut::<3, 3>(0, 3)
+            .copy_from(&(-2.0 * p.cross_matrix()));
+        info += j.transpose() * j;
+    }
+    info
+}
+
+#[test]
+fn choi_error_is_the_mean_squared_displacement_of_the_points() {
+    use mireg::sweep::choi_error;
+    use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal, UnitSphere};
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
+    let normal = Normal::new(0.0, 1.0).unwrap();
+    // Points about 2 m from the origin, off-centre, so the translation–rotation block matters.
+    let points: Vec<Vector3<f64>> = (0..400)
+        .map(|_| {
+            Vector3::new(1.5, -0.8, 2.0) + Vector3::from_fn(|_, _| 0.5 * normal.sample(&mut rng))
+        })
+        .collect();
+    let info = choi_information(&points);
+    let gt = Isometry3::from_parts(
+        Translation3::new(0.4, -1.0, 0.3),
+        UnitQuaternion::from_euler_angles(0.3, -0.2, 1.1),
+    );
+    let mut worst: f64 = 0.0;
+    for _ in 0..20 {
+        let axis: [f64; 3] = UnitSphere.sample(&mut rng);
+        let dir: [f64; 3] = UnitSphere.sample(&mut rng);
+        // Small errors: 5 mrad and 1 cm.
+        let delta = Isometry3::from_parts(
+            Translation3::from(0.01 * Vector3::from(dir)),
+            UnitQuaternion::from_scaled_axis(0.005 * Vector3::from(axis)),
+        );
+        let est = gt * delta;
+        // Direct: the mean squared displacement of the points under gt⁻¹·est = delta.
+        let direct = points
+            .iter()
+            .map(|p| {
+                let p = Point3::from(*p);
+                (delta * p - p).norm_squared()
+            })
+            .sum::<f64>()
+            / points.len() as f64;
+        let p = choi_error(&gt, &est, &info);
+        worst = worst.max((p - direct).abs() / direct);
+        // The same rotation written as −q gives the same error.
+        let flipped = Isometry3::from_parts(
+            est.translation,
+            UnitQuaternion::new_unchecked(-est.rotation.into_inner()),
+        );
+        assert!((choi_error(&gt, &flipped, &info) - p).abs() <= 1e-12 * p);
+    }
+    // First order: the neglected terms are O(θ) relative, θ = 0.005.
+    assert!(worst < 0.02, "worst relative difference {worst}");
+    // The exact estimate scores 0.
+    assert!(choi_error(&gt, &gt, &info).abs() < 1e-20);
 }

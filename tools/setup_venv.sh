@@ -9,4 +9,4 @@ if ! ldconfig -p | grep -q "libusb-1.0.so.0"; then
 fi
 python3 -m venv "$here/.venv"
 "$here/.venv/bin/python" -m pip install --quiet -r "$here/requirements.txt"
-"$here/.venv/bin/python" -c 'import open3d, numpy; print("open3d", open3d.__version__, "numpy", numpy.__version__)'
+"$here/.venv/bin/python" -c 'import open3d, numpy; import matplotlib; print("open3d", open3d.__version__, "numpy", numpy.__version__, "matplotlib", matplotlib.__version__)'

@@ -9,7 +9,8 @@
 use std::path::Path;
 
 use nalgebra::{
-    Isometry3, Matrix3, Matrix4, Quaternion, Rotation3, Translation3, UnitQuaternion, Vector3,
+    Isometry3, Matrix3, Matrix4, Matrix6, Quaternion, Rotation3, Translation3, UnitQuaternion,
+    Vector3,
 };
 
 use super::{format_err, read_text};
@@ -127,14 +128,13 @@ pub struct LogRecord {
     pub pose: Isometry3<f64>,
 }
 
-/// Parses a Redwood/3DMatch `.log` file: records of a header line of three integers followed
-/// by four lines of four numbers. Blank lines are ignored; `path` is used only in errors.
-///
-/// # Errors
-/// [`crate::Error::Format`] naming the line for a malformed header or matrix row, a file that ends
-/// inside a record, or an invalid transform (rotation checked within
-/// [`ROTATION_TOLERANCE`]).
-pub fn parse_log(text: &str, path: &Path) -> Result<Vec<LogRecord>> {
+/// A record as read: header ids `i j n`, the header's line number, the matrix row-major.
+type RawRecord = ([usize; 3], usize, Vec<f64>);
+
+/// Records of a Redwood/3DMatch `.log`-style file: a header line of three integers followed by
+/// `rows` lines of `rows` numbers each (a 4×4 transform in `gt.log`, a 6×6 information matrix in
+/// `gt.info`). Blank lines are ignored; `what` names the matrix and `path` the file in errors.
+fn parse_records(text: &str, path: &Path, rows: usize, what: &str) -> Result<Vec<RawRecord>> {
     let mut lines = text
         .lines()
         .enumerate()
@@ -151,43 +151,115 @@ pub fn parse_log(text: &str, path: &Path) -> Result<Vec<LogRecord>> {
                 ),
             ));
         };
-        let mut m = Matrix4::zeros();
-        for row in 0..4 {
+        let mut m = Vec::with_capacity(rows * rows);
+        for row in 0..rows {
             let (no, line) = lines.next().ok_or_else(|| {
                 format_err(
                     path,
-                    format!("log record '{i} {j} {n}' (line {header_no}): file ends after {row} of 4 matrix rows"),
+                    format!("log record '{i} {j} {n}' (line {header_no}): file ends after {row} of {rows} {what} rows"),
                 )
             })?;
             let v =
                 parse_numbers(line).map_err(|d| format_err(path, format!("log line {no}: {d}")))?;
-            if v.len() != 4 {
+            if v.len() != rows {
                 return Err(format_err(
                     path,
                     format!(
-                        "log line {no}: expected 4 numbers in matrix row, found {}",
+                        "log line {no}: expected {rows} numbers in {what} row, found {}",
                         v.len()
                     ),
                 ));
             }
-            for (col, x) in v.into_iter().enumerate() {
-                m[(row, col)] = x;
-            }
+            m.extend(v);
         }
-        let pose = isometry_from_matrix(&m, ROTATION_TOLERANCE).map_err(|d| {
-            format_err(
-                path,
-                format!("log record '{i} {j} {n}' (line {header_no}): {d}"),
-            )
-        })?;
-        records.push(LogRecord {
-            i: *i,
-            j: *j,
-            n: *n,
-            pose,
-        });
+        records.push(([*i, *j, *n], header_no, m));
     }
     Ok(records)
+}
+
+/// Parses a Redwood/3DMatch `.log` file: records of a header line of three integers followed
+/// by four lines of four numbers. Blank lines are ignored; `path` is used only in errors.
+///
+/// # Errors
+/// [`crate::Error::Format`] naming the line for a malformed header or matrix row, a file that ends
+/// inside a record, or an invalid transform (rotation checked within
+/// [`ROTATION_TOLERANCE`]).
+pub fn parse_log(text: &str, path: &Path) -> Result<Vec<LogRecord>> {
+    parse_records(text, path, 4, "matrix")?
+        .into_iter()
+        .map(|([i, j, n], header_no, m)| {
+            let pose = isometry_from_matrix(&Matrix4::from_row_slice(&m), ROTATION_TOLERANCE)
+                .map_err(|d| {
+                    format_err(
+                        path,
+                        format!("log record '{i} {j} {n}' (line {header_no}): {d}"),
+                    )
+                })?;
+            Ok(LogRecord { i, j, n, pose })
+        })
+        .collect()
+}
+
+/// One record of a Redwood/3DMatch `gt.info` file: the information matrix of pair `(i, j)`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct InfoRecord {
+    /// Target fragment id (as in `gt.log`).
+    pub i: usize,
+    /// Source fragment id.
+    pub j: usize,
+    /// Number of fragments.
+    pub n: usize,
+    /// Choi et al.'s 6×6 information matrix Λ, ordered (translation, rotation as the quaternion's
+    /// vector part); Λ₁₁ is the number of point correspondences it was built from.
+    pub information: Matrix6<f64>,
+}
+
+/// Parses a Redwood/3DMatch `gt.info` file: records of a header line `i j n` followed by six
+/// lines of six numbers. Blank lines are ignored; `path` is used only in errors.
+///
+/// # Errors
+/// [`crate::Error::Format`] naming the line for a malformed header or row, a file that ends
+/// inside a record, a non-finite entry, an asymmetric matrix or Λ₁₁ ≤ 0 (it divides the error).
+pub fn parse_info(text: &str, path: &Path) -> Result<Vec<InfoRecord>> {
+    parse_records(text, path, 6, "information matrix")?
+        .into_iter()
+        .map(|([i, j, n], header_no, m)| {
+            let information = Matrix6::from_row_slice(&m);
+            let bad = |d: &str| {
+                format_err(
+                    path,
+                    format!("info record '{i} {j} {n}' (line {header_no}): {d}"),
+                )
+            };
+            if !m.iter().all(|v| v.is_finite()) {
+                return Err(bad("matrix has a non-finite entry"));
+            }
+            let scale = information.abs().max();
+            if (information - information.transpose()).abs().max() > 1e-6 * scale {
+                return Err(bad("matrix is not symmetric"));
+            }
+            if information[(0, 0)] <= 0.0 {
+                return Err(bad(&format!(
+                    "Λ₁₁ = {} is not positive (it is the number of correspondences)",
+                    information[(0, 0)]
+                )));
+            }
+            Ok(InfoRecord {
+                i,
+                j,
+                n,
+                information,
+            })
+        })
+        .collect()
+}
+
+/// Reads a Redwood/3DMatch `gt.info` file (see [`parse_info`]).
+///
+/// # Errors
+/// [`crate::Error::Io`] if the file cannot be read, else as [`parse_info`].
+pub fn read_info(path: &Path) -> Result<Vec<InfoRecord>> {
+    parse_info(&read_text(path)?, path)
 }
 
 /// Reads a Redwood/3DMatch `.log` file (see [`parse_log`]).
@@ -390,6 +462,54 @@ mod tests {
             parse_log("0 1 2\n1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 2\n", g),
             "bottom row",
         );
+    }
+
+    /// The first record of 3DMatch 7-scenes-redkitchen `gt.info`, as the file writes it.
+    const INFO_0_1: &str = "0\t 1\t 60\t
+ 5.00000000e+03\t  0.00000000e+00\t  0.00000000e+00\t  0.00000000e+00\t  1.08436729e+04\t  1.26195044e+03\t
+ 0.00000000e+00\t  5.00000000e+03\t  0.00000000e+00\t -1.08436729e+04\t  0.00000000e+00\t -1.24858826e+03\t
+ 0.00000000e+00\t  0.00000000e+00\t  5.00000000e+03\t -1.26195044e+03\t  1.24858826e+03\t  0.00000000e+00\t
+ 0.00000000e+00\t -1.08436729e+04\t -1.26195044e+03\t  2.66481113e+04\t -3.41289291e+01\t  2.59759790e+03\t
+ 1.08436729e+04\t  0.00000000e+00\t  1.24858826e+03\t -3.41289291e+01\t  2.71010840e+04\t  3.71150854e+03\t
+ 1.26195044e+03\t -1.24858826e+03\t  0.00000000e+00\t  2.59759790e+03\t  3.71150854e+03\t  3.56940430e+03\t
+";
+
+    #[test]
+    fn info_records_read_row_major() {
+        let text = format!("{INFO_0_1}\n{}", INFO_0_1.replacen("0\t 1\t", "2\t 7\t", 1));
+        let recs = parse_info(&text, Path::new("gt.info")).unwrap();
+        assert_eq!(recs.len(), 2);
+        assert_eq!((recs[0].i, recs[0].j, recs[0].n), (0, 1, 60));
+        assert_eq!((recs[1].i, recs[1].j), (2, 7));
+        let m = &recs[0].information;
+        assert_eq!(m[(0, 0)], 5000.0);
+        assert_eq!(m[(0, 4)], 1.08436729e+04);
+        assert_eq!(m[(1, 3)], -1.08436729e+04);
+        assert_eq!(m[(5, 5)], 3.56940430e+03);
+    }
+
+    #[test]
+    fn info_rejections_name_the_record() {
+        let g = Path::new("gt.info");
+        let rows: Vec<&str> = INFO_0_1.lines().collect();
+        expect_format_err(
+            parse_info(&rows[..4].join("\n"), g),
+            "ends after 3 of 6 information matrix rows",
+        );
+        let short = INFO_0_1.replacen("5.00000000e+03\t  0.00000000e+00\t", "5.0e+03\t", 1);
+        expect_format_err(
+            parse_info(&short, g),
+            "log line 2: expected 6 numbers in information matrix row, found 5",
+        );
+        let asymmetric = INFO_0_1.replacen("1.08436729e+04", "1.0e+04", 1);
+        expect_format_err(
+            parse_info(&asymmetric, g),
+            "info record '0 1 60' (line 1): matrix is not symmetric",
+        );
+        let zero = INFO_0_1.replacen(" 5.00000000e+03", " 0.00000000e+00", 1);
+        expect_format_err(parse_info(&zero, g), "is not positive");
+        let nan = INFO_0_1.replacen("3.56940430e+03", "nan", 1);
+        expect_format_err(parse_info(&nan, g), "non-finite");
     }
 
     #[test]
