@@ -1,5 +1,5 @@
 //! Hypotheses to the first all-inlier sample on real FPFH correspondences, per ranking and sampler
-//! (docs/BENCHMARKS.md, "Ranking and sampler on real correspondences").
+//! (docs/PAIRWISE.md, "Ranking and sampler on real correspondences").
 //!
 //! `cargo run --release --example first_clean_sample -- SRC TGT GT_4x4.txt VOXEL [SEEDS]`
 //!

@@ -55,7 +55,7 @@ const ONE_SHOT_TOP_PAD_BYTES: i32 = 64 * 1024 * 1024;
 /// trimmed). A registration allocates and frees the same multi-megabyte buffers stage after
 /// stage; with glibc's defaults each of them is a fresh `mmap`, faulted in page by page, and an
 /// `munmap` that interrupts the other core to flush its TLB. Measured on the KITTI pair at 0.5 m
-/// (posed source, `/usr/bin/time`, 3–4 runs each, docs/BENCHMARKS.md): 13.0k → 9.5–10.1k minor
+/// (posed source, `/usr/bin/time`, 3–4 runs each, docs/PAIRWISE.md): 13.0k → 9.5–10.1k minor
 /// faults, 0.05–0.07 → 0.01–0.03 s system time, 39–40 → 43–45 MB peak RSS. Not for `register`, whose
 /// memory must stay flat over long logs ([`release_large_blocks_promptly`]).
 pub fn keep_freed_memory() {

@@ -175,7 +175,10 @@ pub struct Odometry {
 
 impl Odometry {
     /// A new trajectory; fails if the pairwise configuration is invalid.
-    pub fn new(config: OdometryConfig) -> Result<Self> {
+    pub fn new(mut config: OdometryConfig) -> Result<Self> {
+        // Frames are refined against the local map (or, where it does not fit, frame to frame
+        // as before): the pairwise fine stage is not part of odometry.
+        config.pair.icp_fine = false;
         if !(0.0..=1.0).contains(&config.min_fitness) {
             return Err(crate::Error::InvalidInput(format!(
                 "min_fitness must be a fraction in [0, 1], got {}",

@@ -24,12 +24,12 @@ use crate::ransac::{
     DenseRigidEstimator, Estimator, Levy, OverlapTarget, Prosac, RigidEstimator, TruncatedLevy,
     Uniform, run_consensus,
 };
-use crate::refine::icp::{
-    IcpConfig, IcpTarget, evaluate_registration, registration_icp_point_to_plane,
-};
+use crate::refine::icp::IcpTarget;
 use crate::{Error, Result};
 
+pub mod refine;
 mod resolution;
+use refine::{feature_tree, fine_sample, refine};
 pub use resolution::{
     DEFAULT_FEATURE_POINTS, FEATURE_VOXEL_STEP, VOXEL_PER_MEDIAN_RANGE, feature_voxel_for_cloud,
     voxel_for_cloud, with_feature_voxel,
@@ -157,8 +157,15 @@ pub struct PairConfig {
     pub icp_voxel_size_m: Option<f64>,
     /// ICP max correspondence distance \[m\]. Default 1 · voxel.
     pub icp_max_distance_m: Option<f64>,
-    /// ICP iterations. Default 30.
+    /// ICP iterations (of each stage). Default 30.
     pub icp_max_iterations: usize,
+    /// After ICP of the ICP clouds, a fine stage: the source's finite input points (a seeded
+    /// draw of [`refine::FINE_POINTS_PER_ICP_POINT`] per ICP-cloud point) against the target's
+    /// ICP cloud, at [`Self::icp_fine_distance_m`]. Default true. `mireg register` refines
+    /// against its local map instead and ignores it.
+    pub icp_fine: bool,
+    /// The fine stage's max correspondence distance \[m\]. Default 0.5 · `icp_max_distance_m`.
+    pub icp_fine_distance_m: Option<f64>,
     /// Orient normals towards this point (the sensor origin in the cloud's frame) when known.
     /// Default: none.
     pub sensor_origin: Option<[f64; 3]>,
@@ -170,7 +177,7 @@ pub struct PairConfig {
     /// opposite normals in two clouds that differ by a rotation, and the FPFH pair features of
     /// its points change. The centroid moves with the cloud, so the orientation does not depend
     /// on the pose. Measured with `tools/compare_open3d.py` (10 random poses per pair; see
-    /// docs/BENCHMARKS.md): correct correspondences on KITTI 362 → 2,424 of 11,832, bunny
+    /// docs/PAIRWISE.md): correct correspondences on KITTI 362 → 2,424 of 11,832, bunny
     /// 000↔090 recall 7/10 → 10/10; 3DMatch, whose fragments are seen from inside a room, keeps
     /// 10/10 with fewer inliers (81 → 55).
     pub orient_to_centroid: bool,
@@ -185,7 +192,7 @@ pub struct PairConfig {
 /// pairs after tens to hundreds of hypotheses (bunny, ICL-NUIM, KITTI), so the cap only costs time
 /// where the inliers are too few for the confidence to be reached: on the 3DMatch pair, 30 posed
 /// sources × 10 seeds succeeded 291/300 times at 100 000 and 299/300 at 200 000, for a RANSAC stage
-/// about twice as long (docs/BENCHMARKS.md).
+/// about twice as long (docs/PAIRWISE.md).
 pub const DEFAULT_PAIR_MAX_HYPOTHESES: u64 = 200_000;
 
 impl Default for PairConfig {
@@ -211,6 +218,8 @@ impl Default for PairConfig {
             icp_voxel_size_m: None,
             icp_max_distance_m: None,
             icp_max_iterations: crate::refine::icp::DEFAULT_MAX_ITERATIONS,
+            icp_fine: true,
+            icp_fine_distance_m: None,
             sensor_origin: None,
             orient_to_centroid: true,
             seed: 0,
@@ -247,12 +256,14 @@ impl PairConfig {
         // feature cloud gives ATE 1.66 cm vs 2.60 cm at voxel / 2 and 78 vs 52 frames/s (KITTI-size:
         // 7.4 vs 5.7 frames/s); on the ICL pair 4.8 vs 4.0 mm (docs/BENCHMARKS.md).
         r.icp_voxel_size_m.get_or_insert(v);
-        r.icp_max_distance_m.get_or_insert(v);
+        let icp_distance = *r.icp_max_distance_m.get_or_insert(v);
+        r.icp_fine_distance_m.get_or_insert(0.5 * icp_distance);
         for (name, x) in [
             ("normal_radius_m", r.normal_radius_m),
             ("feature_radius_m", r.feature_radius_m),
             ("inlier_threshold_m", r.inlier_threshold_m),
             ("icp_max_distance_m", r.icp_max_distance_m),
+            ("icp_fine_distance_m", r.icp_fine_distance_m),
         ] {
             let x = x.unwrap_or(f64::NAN);
             if !(x.is_finite() && x > 0.0) {
@@ -287,6 +298,8 @@ pub struct PreparedFrame {
     pub features: Vec<Fpfh>,
     /// The ICP cloud with normals and its kd-tree (as target); its points serve as ICP source.
     pub icp: Option<IcpTarget>,
+    /// Input points for the fine ICP stage as source ([`PairConfig::icp_fine`]); empty without.
+    pub fine: Vec<Point3<f64>>,
     /// Time spent.
     pub timings: FrameTimings,
 }
@@ -344,6 +357,7 @@ pub fn prepare_frame_with(
             points: down,
             features: Vec::new(),
             icp: None,
+            fine: Vec::new(),
             timings,
         });
     }
@@ -415,11 +429,16 @@ pub fn prepare_frame_with(
     } else {
         Some(IcpTarget::with_tree(&down, &normals, tree)?)
     };
+    let fine = match &icp {
+        Some(t) if c.icp_fine && icp_voxel > 0.0 => fine_sample(points, t.points().len(), c.seed),
+        _ => Vec::new(),
+    };
     Ok(PreparedFrame {
         num_points: points.len(),
         points: down,
         features,
         icp,
+        fine,
         timings,
     })
 }
@@ -596,52 +615,6 @@ pub fn refine_prepared(
     let icp_s = t.elapsed().as_secs_f64();
     out.timings_s.icp = icp_s;
     out.timings_s.total += icp_s;
-    Ok(())
-}
-
-/// The target feature cloud as a search target: its ICP cloud when that is the same cloud, else
-/// built into `built` on first use.
-fn feature_tree<'a>(
-    target: &'a PreparedFrame,
-    built: &'a std::cell::OnceCell<IcpTarget>,
-) -> Result<&'a IcpTarget> {
-    if let Some(icp) = target.icp.as_ref().filter(|t| t.points() == target.points) {
-        return Ok(icp);
-    }
-    if built.get().is_none() {
-        let _ = built.set(IcpTarget::points_only(&target.points)?);
-    }
-    Ok(built.get().expect("just set"))
-}
-
-/// ICP of `source` to `target` from `out.ransac_target_from_source` (or, without ICP clouds, the
-/// fitness of that model on the feature clouds, against `target_tree()`, only then consulted).
-fn refine<'a>(
-    out: &mut PairResult,
-    source: &PreparedFrame,
-    target: &PreparedFrame,
-    c: &PairConfig,
-    target_tree: impl FnOnce() -> Result<&'a IcpTarget>,
-) -> Result<()> {
-    let model = out.ransac_target_from_source;
-    if let (Some(src_icp), Some(tgt_icp)) = (&source.icp, &target.icp) {
-        let icp_config =
-            IcpConfig::new(c.icp_max_distance_m.unwrap()).max_iterations(c.icp_max_iterations);
-        let r = registration_icp_point_to_plane(src_icp.points(), tgt_icp, &model, &icp_config)?;
-        out.target_from_source = r.target_from_source;
-        out.fitness = r.fitness;
-        out.inlier_rmse_m = r.inlier_rmse_m;
-        out.icp_iterations = r.iterations;
-    } else {
-        let e = evaluate_registration(
-            &source.points,
-            target_tree()?,
-            &model,
-            c.inlier_threshold_m.unwrap(),
-        )?;
-        out.fitness = e.fitness;
-        out.inlier_rmse_m = e.inlier_rmse_m;
-    }
     Ok(())
 }
 

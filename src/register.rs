@@ -316,6 +316,8 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         config.pair = with_feature_voxel(&config.pair, fv);
     }
     drop(first);
+    // The local map refines every frame; the pairwise fine stage would only cost time.
+    config.pair.icp_fine = false;
     let mut odometry = Odometry::new(config.clone())?;
     // A log registered before keeps its mireg topics; this run's go to the next namespace
     // (`/mireg_2/…`), so that no topic mixes two runs.

@@ -23,6 +23,8 @@ fn documented_example_parses_and_matches_the_defaults() {
     assert!(close(doc.inlier_threshold_m, defaults.inlier_threshold_m));
     assert!(close(doc.icp_voxel_size_m, defaults.icp_voxel_size_m));
     assert!(close(doc.icp_max_distance_m, defaults.icp_max_distance_m));
+    assert!(close(doc.icp_fine_distance_m, defaults.icp_fine_distance_m));
+    assert_eq!(doc.icp_fine, defaults.icp_fine);
     assert_eq!(doc.sampler, defaults.sampler);
     // Unknown keys are rejected, not ignored.
     assert!(toml::from_str::<PairConfig>("voxel_sise_m = 0.1").is_err());

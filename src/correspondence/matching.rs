@@ -10,7 +10,7 @@
 //! - [`MatchMethod::BruteForce`] (default, faster by measurement — see `examples/match_bench.rs`):
 //!   an exact scan that skips only pairs a rigorous lower bound (principal-axis projection) proves
 //!   irrelevant, in parallel over queries; AVX2 + FMA are used when the CPU has them. Ties are
-//!   broken by the **lowest target index**. See docs/BENCHMARKS.md for how much it skips.
+//!   broken by the **lowest target index**. See docs/PAIRWISE.md for how much it skips.
 //! - [`MatchMethod::KdTree`]: kiddo `ImmutableKdTree<f32, 33>`; in 33-D the tree prunes little.
 //!
 //! Each squared distance is accumulated over dimensions 0..33 in order with fused multiply-adds

@@ -7,7 +7,7 @@
 //! explicit: when equal distances straddle the `max_nn` cut, the lowest indices are kept. Only the
 //! order differs: the nearest comes first, the others follow in an unspecified (but
 //! deterministic) order, where the tree sorts them all. On the voxel-downsampled clouds this serves, a cell lookup per query replaces a tree
-//! descent with a bounded result heap (figures in docs/BENCHMARKS.md).
+//! descent with a bounded result heap (figures in docs/PAIRWISE.md).
 
 use nalgebra::Point3;
 
@@ -132,7 +132,7 @@ impl CellSearch {
         }
         // Only the nearest has a fixed place (first): FPFH skips it, as Open3D skips its first
         // neighbour, and no consumer needs the rest ordered. Sorting them was about a fifth of
-        // preparing a KITTI cloud (docs/BENCHMARKS.md).
+        // preparing a KITTI cloud (docs/PAIRWISE.md).
         if let Some(nearest) = (0..found.len()).min_by_key(|&k| found[k]) {
             found.swap(0, nearest);
         }

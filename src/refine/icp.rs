@@ -551,9 +551,10 @@ fn update_from_vector(x: &Vector6<f64>) -> Isometry3<f64> {
 
 /// A grid over the target at the correspondence distance, where its extent allows: every
 /// correspondence search then scans a few cells instead of descending the kd-tree. Measured on
-/// the KITTI pair at 0.5 m (docs/BENCHMARKS.md). Same pairs as the tree except between exactly
+/// the KITTI pair at 0.5 m (docs/PAIRWISE.md). Same pairs as the tree except between exactly
 /// equidistant target points. Built once per target for the first distance asked for (kept in
-/// the target); another distance builds a grid for that call.
+/// the target); a distance down to a quarter of that one reuses it, another builds a grid for
+/// that call.
 fn correspondence_grid(
     target: &IcpTarget,
     max_distance_m: f64,
@@ -571,7 +572,10 @@ fn correspondence_grid(
             target.grid.get().expect("just set")
         }
     };
-    Ok(if *d == max_distance_m {
+    // A kept grid of a larger radius answers a smaller one exactly: its nearest point within
+    // `d` is the nearest within `max_distance_m` whenever one is (the caller checks the
+    // distance). Up to 4× the radius; beyond, a grid of its own is cheaper to query.
+    Ok(if *d >= max_distance_m && *d <= 4.0 * max_distance_m {
         std::borrow::Cow::Borrowed(grid)
     } else {
         std::borrow::Cow::Owned(build()?)
