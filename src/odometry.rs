@@ -13,14 +13,16 @@
 //! (docs/ODOMETRY.md). The global estimate stays prior-free, so a dropped frame, a jump or a kidnap
 //! still recovers: its start wins where the prediction is wrong.
 
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Point3};
 use serde::{Deserialize, Serialize};
 
 use crate::Result;
 use crate::pipeline::{
     FailureReason, PairConfig, PairResult, PreparedFrame, refine_prepared, register_prepared_coarse,
 };
-use crate::refine::icp::{IcpConfig, IcpTarget, registration_icp_point_to_plane};
+use crate::refine::icp::{
+    IcpConfig, IcpTarget, evaluate_registration, registration_icp_point_to_plane,
+};
 use crate::refine::local_map::{LocalMap, LocalMapConfig};
 
 /// Acceptance thresholds on top of the pairwise configuration.
@@ -44,7 +46,22 @@ pub struct OdometryConfig {
     /// cloud. 0 keeps everything on the voxel cloud. Default
     /// [`crate::pipeline::DEFAULT_FEATURE_POINTS`] (4 000).
     pub feature_points: usize,
+    /// After ICP against the map, a last stage whose source is the frame's own input points
+    /// ([`MAP_FINE_POINTS_PER_ICP_POINT`] per ICP-cloud point, a seeded uniform draw) at half the
+    /// map distance, at most [`MAP_FINE_MAX_ITERATIONS`] updates. Default `true`.
+    pub map_fine: bool,
 }
+
+/// Input points per ICP-cloud point in the map ICP's fine stage ([`OdometryConfig::map_fine`]).
+///
+/// NOTE: as the pairwise fine stage ([`crate::pipeline::refine`]), for the same reason: the ICP
+/// cloud's voxel centroids are biased samples of the surface. Measured on micro211 and KAIST03
+/// (docs/ODOMETRY.md): 8 per point cost 50–64 % of the frame rate; 2 per point with two updates
+/// kept the accuracy for 8–20 %.
+pub const MAP_FINE_POINTS_PER_ICP_POINT: usize = 2;
+
+/// Most updates of the map ICP's fine stage: it starts from the converged map ICP.
+pub const MAP_FINE_MAX_ITERATIONS: usize = 2;
 
 impl Default for OdometryConfig {
     fn default() -> Self {
@@ -55,6 +72,7 @@ impl Default for OdometryConfig {
             local_map: true,
             map_max_points_per_voxel: 5,
             feature_points: crate::pipeline::DEFAULT_FEATURE_POINTS,
+            map_fine: true,
         }
     }
 }
@@ -123,6 +141,9 @@ pub struct MapFit {
     /// ICP iterations before those, with the coarser global-registration cloud as source (0 when
     /// global registration runs on the ICP cloud).
     pub coarse_iterations: usize,
+    /// Updates of the fine stage after them, with the frame's input points as source
+    /// ([`OdometryConfig::map_fine`]; 0 without).
+    pub fine_iterations: usize,
     /// Points in the map it was registered to.
     pub map_points: usize,
     /// Whether the refined pose was used (its fitness reached `min_fitness`).
@@ -402,6 +423,19 @@ impl Odometry {
         // (`OdometryConfig::feature_points`), ICP against the map first converges with that
         // cloud as source, a fifth of the points, and then finishes with the ICP cloud.
         let coarse = (frame.points.as_slice() != icp_cloud.points()).then_some(&frame.points);
+        let fine_distance = 0.5 * distance;
+        let fine_icp = IcpConfig::new(fine_distance)
+            .max_iterations(MAP_FINE_MAX_ITERATIONS)
+            .min_update(
+                crate::pipeline::refine::FINE_MIN_UPDATE.0 * fine_distance,
+                crate::pipeline::refine::FINE_MIN_UPDATE.1,
+            );
+        // The frame carries 8 fine points per ICP point (a uniform draw in input order, for the
+        // pairwise stage); every k-th of them is a uniform draw of the size wanted here.
+        let step =
+            crate::pipeline::refine::FINE_POINTS_PER_ICP_POINT / MAP_FINE_POINTS_PER_ICP_POINT;
+        let fine: Option<Vec<Point3<f64>>> = (self.config.map_fine && !frame.fine.is_empty())
+            .then(|| frame.fine.iter().step_by(step.max(1)).copied().collect());
         let fit = |guess, start: &Isometry3<f64>| -> Result<(Isometry3<f64>, MapFit)> {
             let (start, coarse_iterations) = match coarse {
                 Some(points) => {
@@ -410,13 +444,36 @@ impl Odometry {
                 }
                 None => (*start, 0),
             };
-            let r =
+            let mut r =
                 registration_icp_point_to_plane(icp_cloud.points(), target, &start, &dense_icp)?;
+            let mut fine_iterations = 0;
+            if let Some(points) = fine.as_deref().filter(|_| r.fitness > 0.0) {
+                let f = registration_icp_point_to_plane(
+                    points,
+                    target,
+                    &r.target_from_source,
+                    &fine_icp,
+                )?;
+                if f.fitness > 0.0 {
+                    // Fitness and RMSE as the dense stage measures them, for `min_fitness`.
+                    let e = evaluate_registration(
+                        icp_cloud.points(),
+                        target,
+                        &f.target_from_source,
+                        distance,
+                    )?;
+                    r.target_from_source = f.target_from_source;
+                    r.fitness = e.fitness;
+                    r.inlier_rmse_m = e.inlier_rmse_m;
+                    fine_iterations = f.iterations;
+                }
+            }
             let fit = MapFit {
                 guess,
                 fitness: r.fitness,
                 inlier_rmse_m: r.inlier_rmse_m,
                 iterations: r.iterations,
+                fine_iterations,
                 coarse_iterations,
                 map_points: map.len(),
                 used: r.fitness >= self.config.min_fitness,

@@ -316,8 +316,9 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         config.pair = with_feature_voxel(&config.pair, fv);
     }
     drop(first);
-    // The local map refines every frame; the pairwise fine stage would only cost time.
-    config.pair.icp_fine = false;
+    // Frames carry input points for the map ICP's fine stage, not for the pairwise one, which
+    // the local map replaces (`Odometry::new` turns that off).
+    config.pair.icp_fine = config.map_fine;
     let mut odometry = Odometry::new(config.clone())?;
     // A log registered before keeps its mireg topics; this run's go to the next namespace
     // (`/mireg_2/…`), so that no topic mixes two runs.

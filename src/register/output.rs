@@ -84,6 +84,7 @@ fn frame_stats(out: &FrameOut) -> serde_json::Value {
         "map_inlier_rmse_m": e.map.map(|m| m.inlier_rmse_m),
         "map_icp_iterations": e.map.map(|m| m.iterations),
         "map_coarse_icp_iterations": e.map.map(|m| m.coarse_iterations),
+        "map_fine_icp_iterations": e.map.map(|m| m.fine_iterations),
         "map_points": e.map.map(|m| m.map_points),
         "timings_s": {
             "decode": out.decode_s,
