@@ -47,18 +47,30 @@ pub struct OdometryConfig {
     /// [`crate::pipeline::DEFAULT_FEATURE_POINTS`] (4 000).
     pub feature_points: usize,
     /// After ICP against the map, a last stage whose source is the frame's own input points
-    /// ([`MAP_FINE_POINTS_PER_ICP_POINT`] per ICP-cloud point, a seeded uniform draw) at half the
-    /// map distance, at most [`MAP_FINE_MAX_ITERATIONS`] updates. Default `true`.
+    /// ([`MAP_FINE_POINTS_PER_ICP_POINT`] per ICP-cloud point, at most [`MAP_FINE_MAX_POINTS`],
+    /// a seeded uniform draw) at half the map distance, at most [`MAP_FINE_MAX_ITERATIONS`]
+    /// updates. Default `false` (`--map-fine`).
+    ///
+    /// NOTE: off by default, by measurement (docs/ODOMETRY.md): micro211 ATE 1.22 → 1.19 cm and
+    /// KAIST03 2.48 → 2.38 cm, but the fixture 1.19 → 1.21 cm, the KITTI replay log 11 % slower,
+    /// and a static LiDAR at a 0.5 m voxel drifts 5.7 → 10.0 mm: where consecutive frames sample
+    /// the surface alike, the centroids' biases cancel between frame and map, and the input
+    /// points' do not.
     pub map_fine: bool,
 }
 
 /// Input points per ICP-cloud point in the map ICP's fine stage ([`OdometryConfig::map_fine`]).
 ///
-/// NOTE: as the pairwise fine stage ([`crate::pipeline::refine`]), for the same reason: the ICP
-/// cloud's voxel centroids are biased samples of the surface. Measured on micro211 and KAIST03
-/// (docs/ODOMETRY.md): 8 per point cost 50–64 % of the frame rate; 2 per point with two updates
-/// kept the accuracy for 8–20 %.
+/// As the pairwise fine stage ([`crate::pipeline::refine`]), for the same reason: the ICP cloud's
+/// voxel centroids are biased samples of the surface. Measured on micro211 and KAIST03
+/// (docs/ODOMETRY.md): 8 per point with up to 30 updates took 50–64 % longer per log; 2 per point
+/// with two updates gave the same ATE for 8–20 %.
 pub const MAP_FINE_POINTS_PER_ICP_POINT: usize = 2;
+
+/// At most this many input points in the map ICP's fine stage. What it averages out, the voxel
+/// centroids' bias, needs a number of samples, not a fraction of a dense LiDAR frame: on the
+/// KITTI replay log 2 per ICP point (22 k) cost a fifth of the frame rate (docs/ODOMETRY.md).
+pub const MAP_FINE_MAX_POINTS: usize = 8_000;
 
 /// Most updates of the map ICP's fine stage: it starts from the converged map ICP.
 pub const MAP_FINE_MAX_ITERATIONS: usize = 2;
@@ -72,7 +84,7 @@ impl Default for OdometryConfig {
             local_map: true,
             map_max_points_per_voxel: 5,
             feature_points: crate::pipeline::DEFAULT_FEATURE_POINTS,
-            map_fine: true,
+            map_fine: false,
         }
     }
 }
@@ -431,11 +443,12 @@ impl Odometry {
                 crate::pipeline::refine::FINE_MIN_UPDATE.1,
             );
         // The frame carries 8 fine points per ICP point (a uniform draw in input order, for the
-        // pairwise stage); every k-th of them is a uniform draw of the size wanted here.
-        let step =
-            crate::pipeline::refine::FINE_POINTS_PER_ICP_POINT / MAP_FINE_POINTS_PER_ICP_POINT;
+        // pairwise stage); every k-th of them is a uniform draw of about the size wanted here.
+        let wanted = (MAP_FINE_POINTS_PER_ICP_POINT * icp_cloud.points().len())
+            .clamp(1, MAP_FINE_MAX_POINTS);
+        let step = frame.fine.len().div_ceil(wanted).max(1);
         let fine: Option<Vec<Point3<f64>>> = (self.config.map_fine && !frame.fine.is_empty())
-            .then(|| frame.fine.iter().step_by(step.max(1)).copied().collect());
+            .then(|| frame.fine.iter().step_by(step).copied().collect());
         let fit = |guess, start: &Isometry3<f64>| -> Result<(Isometry3<f64>, MapFit)> {
             let (start, coarse_iterations) = match coarse {
                 Some(points) => {

@@ -202,3 +202,44 @@ fn global_registration_on_a_coarser_cloud_tracks_known_motion() {
     // The jump (frame 13) is recovered from the global estimate.
     assert_eq!(est[13].map.unwrap().guess, InitialGuess::Global);
 }
+
+/// `map_fine`: the map ICP's last stage with the frames' own input points (prepared with
+/// `icp_fine`, as `mireg register --map-fine` prepares them) runs on every frame and keeps the
+/// known motion, a dropped frame and a 90° jump as well as without it.
+#[test]
+fn the_map_fine_stage_tracks_known_motion() {
+    let config = OdometryConfig {
+        pair: PairConfig {
+            voxel_size_m: 0.1,
+            seed: 4,
+            icp_fine: true,
+            ..Default::default()
+        },
+        map_fine: true,
+        ..Default::default()
+    };
+    let mut poses: Vec<_> = (0..14)
+        .filter(|&k| k != 5)
+        .map(|k| pose(0.05 * k as f64, 0.02 * k as f64, 1.0 * k as f64))
+        .collect();
+    let turn = pose(0.7, 0.3, 90.0);
+    poses.extend((0..4).map(|k| turn * pose(0.03 * k as f64, 0.0, 0.0)));
+    let (est, t, r) = run_with(&poses, &config);
+    assert!(t < 0.01 && r < 0.2, "worst error {t} m, {r} deg");
+    assert!(est.iter().all(|e| e.success));
+    for e in &est[1..] {
+        let map = e.map.unwrap();
+        assert!(
+            map.used && map.fine_iterations > 0,
+            "frame {}: {map:?}",
+            e.index
+        );
+    }
+    // Without it, no fine iterations.
+    let off = OdometryConfig {
+        map_fine: false,
+        ..config
+    };
+    let (est, _, _) = run_with(&poses, &off);
+    assert!(est[1..].iter().all(|e| e.map.unwrap().fine_iterations == 0));
+}
