@@ -17,12 +17,11 @@ use nalgebra::{Isometry3, Point3};
 use serde::{Deserialize, Serialize};
 
 use crate::Result;
+use crate::pipeline::refine::fine_stage;
 use crate::pipeline::{
     FailureReason, PairConfig, PairResult, PreparedFrame, refine_prepared, register_prepared_coarse,
 };
-use crate::refine::icp::{
-    IcpConfig, IcpTarget, evaluate_registration, registration_icp_point_to_plane,
-};
+use crate::refine::icp::{IcpConfig, IcpTarget, registration_icp_point_to_plane};
 use crate::refine::local_map::{LocalMap, LocalMapConfig};
 
 /// Acceptance thresholds on top of the pairwise configuration.
@@ -436,12 +435,6 @@ impl Odometry {
         // cloud as source, a fifth of the points, and then finishes with the ICP cloud.
         let coarse = (frame.points.as_slice() != icp_cloud.points()).then_some(&frame.points);
         let fine_distance = 0.5 * distance;
-        let fine_icp = IcpConfig::new(fine_distance)
-            .max_iterations(MAP_FINE_MAX_ITERATIONS)
-            .min_update(
-                crate::pipeline::refine::FINE_MIN_UPDATE.0 * fine_distance,
-                crate::pipeline::refine::FINE_MIN_UPDATE.1,
-            );
         // The frame carries 8 fine points per ICP point (a uniform draw in input order, for the
         // pairwise stage); every k-th of them is a uniform draw of about the size wanted here.
         let wanted = (MAP_FINE_POINTS_PER_ICP_POINT * icp_cloud.points().len())
@@ -460,24 +453,20 @@ impl Odometry {
             let mut r =
                 registration_icp_point_to_plane(icp_cloud.points(), target, &start, &dense_icp)?;
             let mut fine_iterations = 0;
-            if let Some(points) = fine.as_deref().filter(|_| r.fitness > 0.0) {
-                let f = registration_icp_point_to_plane(
+            if let Some(points) = fine.as_deref() {
+                let f = fine_stage(
                     points,
+                    icp_cloud.points(),
                     target,
-                    &r.target_from_source,
-                    &fine_icp,
+                    &r,
+                    distance,
+                    fine_distance,
+                    MAP_FINE_MAX_ITERATIONS,
                 )?;
-                if f.fitness > 0.0 {
-                    // Fitness and RMSE as the dense stage measures them, for `min_fitness`.
-                    let e = evaluate_registration(
-                        icp_cloud.points(),
-                        target,
-                        &f.target_from_source,
-                        distance,
-                    )?;
+                if let Some(f) = f {
                     r.target_from_source = f.target_from_source;
-                    r.fitness = e.fitness;
-                    r.inlier_rmse_m = e.inlier_rmse_m;
+                    r.fitness = f.fitness;
+                    r.inlier_rmse_m = f.inlier_rmse_m;
                     fine_iterations = f.iterations;
                 }
             }

@@ -342,12 +342,12 @@ pub fn prepare_frame_with(
     // frame), the feature cloud is downsampled from the ICP cloud, not from the input: a tenth
     // of the points to bucket (the KITTI scans: 124k input, 11k ICP points); its centroids are
     // means of centroids, which global registration does not notice.
-    let fine = if c.icp && icp_voxel > 0.0 && icp_voxel < c.voxel_size_m {
+    let finer_icp_cloud = if c.icp && icp_voxel > 0.0 && icp_voxel < c.voxel_size_m {
         Some(voxel_downsample(points, icp_voxel)?)
     } else {
         None
     };
-    let down = voxel_downsample(fine.as_deref().unwrap_or(points), c.voxel_size_m)?;
+    let down = voxel_downsample(finer_icp_cloud.as_deref().unwrap_or(points), c.voxel_size_m)?;
     timings.downsample = t.elapsed().as_secs_f64();
     let origin =
         origin.or_else(|| (c.orient_to_centroid && !down.is_empty()).then(|| centroid(&down)));
@@ -410,7 +410,7 @@ pub fn prepare_frame_with(
                 .filter(|p| p.coords.iter().all(|x| x.is_finite()));
             (finite.collect::<Vec<_>>(), normal_radius)
         } else {
-            let cloud = match fine {
+            let cloud = match finer_icp_cloud {
                 Some(cloud) => cloud,
                 None => voxel_downsample(points, icp_voxel)?,
             };

@@ -105,6 +105,18 @@ fn run_with(
     (out, worst_t, worst_r)
 }
 
+/// Constant motion over 14 frames with frame 5 dropped, then a yaw jump of `jump_deg` and 4
+/// more frames: frame 13 of the result is the jump.
+fn motion_with_a_drop_and_a_jump(jump_deg: f64) -> Vec<Isometry3<f64>> {
+    let mut poses: Vec<_> = (0..14)
+        .filter(|&k| k != 5)
+        .map(|k| pose(0.05 * k as f64, 0.02 * k as f64, 1.0 * k as f64))
+        .collect();
+    let turn = pose(0.7, 0.3, jump_deg);
+    poses.extend((0..4).map(|k| turn * pose(0.03 * k as f64, 0.0, 0.0)));
+    poses
+}
+
 #[test]
 fn constant_velocity_is_tracked() {
     let poses: Vec<_> = (0..25)
@@ -181,12 +193,7 @@ fn global_registration_on_a_coarser_cloud_tracks_known_motion() {
         pair: mireg::pipeline::with_feature_voxel(&fine, 0.12),
         ..Default::default()
     };
-    let mut poses: Vec<_> = (0..14)
-        .filter(|&k| k != 5)
-        .map(|k| pose(0.05 * k as f64, 0.02 * k as f64, 1.0 * k as f64))
-        .collect();
-    let turn = pose(0.7, 0.3, 100.0);
-    poses.extend((0..4).map(|k| turn * pose(0.03 * k as f64, 0.0, 0.0)));
+    let poses = motion_with_a_drop_and_a_jump(100.0);
     let (est, t, r) = run_with(&poses, &config);
     assert!(t < 0.01 && r < 0.2, "worst error {t} m, {r} deg");
     assert!(est.iter().all(|e| e.success));
@@ -218,12 +225,7 @@ fn the_map_fine_stage_tracks_known_motion() {
         map_fine: true,
         ..Default::default()
     };
-    let mut poses: Vec<_> = (0..14)
-        .filter(|&k| k != 5)
-        .map(|k| pose(0.05 * k as f64, 0.02 * k as f64, 1.0 * k as f64))
-        .collect();
-    let turn = pose(0.7, 0.3, 90.0);
-    poses.extend((0..4).map(|k| turn * pose(0.03 * k as f64, 0.0, 0.0)));
+    let poses = motion_with_a_drop_and_a_jump(90.0);
     let (est, t, r) = run_with(&poses, &config);
     assert!(t < 0.01 && r < 0.2, "worst error {t} m, {r} deg");
     assert!(est.iter().all(|e| e.success));

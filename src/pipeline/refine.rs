@@ -7,7 +7,7 @@ use rand::{RngExt, SeedableRng};
 use super::{PairConfig, PairResult, PreparedFrame};
 use crate::Result;
 use crate::refine::icp::{
-    IcpConfig, IcpTarget, evaluate_registration, registration_icp_point_to_plane,
+    IcpConfig, IcpResult, IcpTarget, evaluate_registration, registration_icp_point_to_plane,
 };
 
 /// Input points per ICP-cloud point in the fine stage's source: at most this many, drawn without
@@ -73,6 +73,41 @@ pub(super) fn feature_tree<'a>(
     Ok(built.get().expect("just set"))
 }
 
+/// The fine stage after a converged ICP `coarse` of `icp_points` (at `distance`) against
+/// `target`: point-to-plane ICP of `fine_points` from its pose at `fine_distance`, at most
+/// `max_iterations` updates, stopping also on [`FINE_MIN_UPDATE`]. The result's fitness and RMSE
+/// are measured as the coarse stage measures them (`icp_points` at `distance`), so acceptance
+/// thresholds keep their meaning; its iterations are the fine stage's. `None` when `coarse` or
+/// the fine stage found no correspondence (the coarse pose stands). Serves the pairwise
+/// refinement and the odometry's map ICP.
+pub(crate) fn fine_stage(
+    fine_points: &[Point3<f64>],
+    icp_points: &[Point3<f64>],
+    target: &IcpTarget,
+    coarse: &IcpResult,
+    distance: f64,
+    fine_distance: f64,
+    max_iterations: usize,
+) -> Result<Option<IcpResult>> {
+    if coarse.fitness == 0.0 {
+        return Ok(None);
+    }
+    let config = IcpConfig::new(fine_distance)
+        .max_iterations(max_iterations)
+        .min_update(FINE_MIN_UPDATE.0 * fine_distance, FINE_MIN_UPDATE.1);
+    let f =
+        registration_icp_point_to_plane(fine_points, target, &coarse.target_from_source, &config)?;
+    if f.fitness == 0.0 {
+        return Ok(None);
+    }
+    let e = evaluate_registration(icp_points, target, &f.target_from_source, distance)?;
+    Ok(Some(IcpResult {
+        fitness: e.fitness,
+        inlier_rmse_m: e.inlier_rmse_m,
+        ..f
+    }))
+}
+
 /// ICP of `source` to `target` from `out.ransac_target_from_source`, then the fine stage when
 /// the source has fine points (or, without ICP clouds, the fitness of that model on the feature
 /// clouds, against `target_tree()`, only then consulted). `c` is resolved.
@@ -105,7 +140,7 @@ pub(super) fn refine<'a>(
     out.fitness = r.fitness;
     out.inlier_rmse_m = r.inlier_rmse_m;
     out.icp_iterations = r.iterations;
-    if !c.icp_fine || source.fine.is_empty() || r.fitness == 0.0 {
+    if !c.icp_fine || source.fine.is_empty() {
         return Ok(());
     }
     // NOTE: beyond Open3D's and the paper's single ICP. ICP on voxel centroids converges to an
@@ -114,23 +149,21 @@ pub(super) fn refine<'a>(
     // full input clouds it is 0.077° for every pose). The input points are samples of the
     // surface itself, and more of them average out the target's sampling; a closer distance
     // keeps only correspondences on the same surface. Measured in docs/PAIRWISE.md.
-    let fine_distance = c.icp_fine_distance_m.unwrap();
-    let fine_config = IcpConfig::new(fine_distance)
-        .max_iterations(c.icp_max_iterations)
-        .min_update(FINE_MIN_UPDATE.0 * fine_distance, FINE_MIN_UPDATE.1);
-    let f = registration_icp_point_to_plane(
+    let fine = fine_stage(
         &source.fine,
+        src_icp.points(),
         tgt_icp,
-        &r.target_from_source,
-        &fine_config,
+        &r,
+        distance,
+        c.icp_fine_distance_m.unwrap(),
+        c.icp_max_iterations,
     )?;
-    if f.fitness == 0.0 {
+    let Some(f) = fine else {
         return Ok(());
-    }
-    let e = evaluate_registration(src_icp.points(), tgt_icp, &f.target_from_source, distance)?;
+    };
     out.target_from_source = f.target_from_source;
-    out.fitness = e.fitness;
-    out.inlier_rmse_m = e.inlier_rmse_m;
+    out.fitness = f.fitness;
+    out.inlier_rmse_m = f.inlier_rmse_m;
     out.icp_iterations += f.iterations;
     Ok(())
 }
