@@ -43,7 +43,7 @@ pub struct OdometryConfig {
     /// this many points when the voxel cloud of the first frame has more
     /// ([`crate::pipeline::feature_voxel_for_cloud`]); ICP and the local map keep the voxel
     /// cloud. 0 keeps everything on the voxel cloud. Default
-    /// [`crate::pipeline::DEFAULT_FEATURE_POINTS`] (4 000).
+    /// [`crate::pipeline::DEFAULT_FEATURE_POINTS`] (2 000).
     pub feature_points: usize,
     /// After ICP against the map, a last stage whose source is the frame's own input points
     /// ([`MAP_FINE_POINTS_PER_ICP_POINT`] per ICP-cloud point, at most [`MAP_FINE_MAX_POINTS`],
