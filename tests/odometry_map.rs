@@ -201,7 +201,9 @@ fn global_registration_on_a_coarser_cloud_tracks_known_motion() {
         let map = e.map.unwrap();
         // Coarse iterations happen only where the feature cloud is not the ICP cloud.
         assert!(
-            map.used && map.coarse_iterations > 0,
+            map.used
+                && map.coarse_iterations > 0
+                && map.iterations <= mireg::odometry::MAP_ICP_MAX_ITERATIONS_AFTER_COARSE,
             "frame {}: {map:?}",
             e.index
         );
