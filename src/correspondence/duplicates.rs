@@ -8,9 +8,9 @@
 //! representative is the group's lowest index, which is what the scan's tie-break picks anyway.
 
 use std::collections::HashMap;
-use std::hash::{BuildHasherDefault, Hasher};
 
 use super::matching::{FPFH_DIM, Fpfh};
+use crate::hash::FastHash;
 
 /// Fewest duplicates for which [`Unique::of`] groups the descriptors; below, grouping costs more
 /// than it saves.
@@ -35,7 +35,7 @@ impl Unique {
         if descriptors.len() <= MIN_DUPLICATES {
             return None;
         }
-        let mut slot: HashMap<[u32; FPFH_DIM], u32, BuildHasherDefault<WordHasher>> =
+        let mut slot: HashMap<[u32; FPFH_DIM], u32, FastHash> =
             HashMap::with_capacity_and_hasher(descriptors.len(), Default::default());
         let mut u = Self {
             first: Vec::new(),
@@ -59,29 +59,6 @@ impl Unique {
     /// The distinct descriptors, in group order.
     pub fn descriptors(&self, all: &[Fpfh]) -> Vec<Fpfh> {
         self.first.iter().map(|&i| all[i as usize]).collect()
-    }
-}
-
-/// A fast hasher for descriptor bits (multiply-rotate per 32-bit word; not DoS-resistant, which
-/// only costs time, never correctness).
-#[derive(Default)]
-struct WordHasher(u64);
-
-impl Hasher for WordHasher {
-    fn finish(&self) -> u64 {
-        self.0
-    }
-
-    fn write(&mut self, bytes: &[u8]) {
-        for w in bytes.chunks(4) {
-            let mut b = [0u8; 4];
-            b[..w.len()].copy_from_slice(w);
-            self.write_u32(u32::from_le_bytes(b));
-        }
-    }
-
-    fn write_u32(&mut self, x: u32) {
-        self.0 = (self.0.rotate_left(23) ^ u64::from(x)).wrapping_mul(0x9E37_79B9_7F4A_7C15);
     }
 }
 

@@ -2,11 +2,11 @@
 //! `PointCloud::voxel_down_sample`.
 
 use std::collections::HashMap;
-use std::hash::{BuildHasherDefault, Hasher};
 
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
+use crate::hash::FastHash;
 use crate::{Error, Result};
 
 /// Replaces the points of each occupied voxel by their centroid (arithmetic mean).
@@ -94,7 +94,7 @@ fn centroids_hashed<F>(points: &[Point3<f64>], key: F) -> Vec<Point3<f64>>
 where
     F: Fn(&Point3<f64>) -> u64,
 {
-    let mut slot_of: HashMap<u64, u32, BuildHasherDefault<KeyHasher>> = HashMap::default();
+    let mut slot_of: HashMap<u64, u32, FastHash> = HashMap::default();
     let mut voxels: Vec<(u64, Vector3<f64>, u32)> = Vec::new();
     for p in points
         .iter()
@@ -114,29 +114,6 @@ where
         .into_iter()
         .map(|(_, sum, n)| Point3::from(sum / f64::from(n)))
         .collect()
-}
-
-/// Multiplicative (Fibonacci) hashing of one u64 voxel key: keys are dense small integers, so a
-/// cryptographic hasher would only cost time.
-#[derive(Default)]
-struct KeyHasher(u64);
-
-impl Hasher for KeyHasher {
-    fn finish(&self) -> u64 {
-        self.0
-    }
-
-    fn write(&mut self, bytes: &[u8]) {
-        for b in bytes {
-            self.write_u64(u64::from(*b));
-        }
-    }
-
-    fn write_u64(&mut self, k: u64) {
-        self.0 = (self.0 ^ k)
-            .wrapping_mul(0x9E37_79B9_7F4A_7C15)
-            .rotate_left(29);
-    }
 }
 
 /// Sorts finite points by (voxel key, input index) and averages each run of equal keys. The index

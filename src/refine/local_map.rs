@@ -17,11 +17,11 @@
 //! flattening the map into the ICP target (docs/ODOMETRY.md).
 
 use std::collections::HashMap;
-use std::hash::{BuildHasherDefault, Hasher};
 
 use nalgebra::{Isometry3, Point3, Vector3};
 
 use super::icp::IcpTarget;
+use crate::hash::FastHash;
 use crate::{Error, Result};
 
 /// Settings of a [`LocalMap`].
@@ -38,7 +38,7 @@ pub struct LocalMapConfig {
 pub struct LocalMap {
     config: LocalMapConfig,
     /// Slot of each occupied voxel.
-    index: HashMap<[i64; 3], u32, BuildHasherDefault<KeyHasher>>,
+    index: HashMap<[i64; 3], u32, FastHash>,
     /// Per slot: its voxel's key and how many points it holds (0: free).
     slots: Vec<([i64; 3], usize)>,
     /// `max_points_per_voxel` entries per slot.
@@ -50,33 +50,6 @@ pub struct LocalMap {
     /// The map as an ICP target, rebuilt in place by [`LocalMap::target`] (`None` when that
     /// found the map empty or failed).
     target: Option<IcpTarget>,
-}
-
-/// A multiplicative hash of a voxel key (the index is never iterated, so its quality only
-/// matters for speed).
-#[derive(Debug, Default, Clone, Copy)]
-struct KeyHasher(u64);
-
-impl Hasher for KeyHasher {
-    fn finish(&self) -> u64 {
-        self.0
-    }
-
-    fn write(&mut self, bytes: &[u8]) {
-        for chunk in bytes.chunks(8) {
-            let mut word = [0u8; 8];
-            word[..chunk.len()].copy_from_slice(chunk);
-            self.write_u64(u64::from_le_bytes(word));
-        }
-    }
-
-    fn write_i64(&mut self, x: i64) {
-        self.write_u64(x as u64);
-    }
-
-    fn write_u64(&mut self, x: u64) {
-        self.0 = (self.0.rotate_left(5) ^ x).wrapping_mul(0x517c_c1b7_2722_0a95);
-    }
 }
 
 impl LocalMap {
