@@ -2,7 +2,7 @@
 //! velocity, stop-and-go, a dropped frame, a 90° yaw jump between two frames, a static sensor.
 //! Oracle: the generating poses (`world_from_camera(k)` relative to frame 0).
 
-use mireg::odometry::{InitialGuess, Odometry, OdometryConfig};
+use mireg::odometry::{InitialGuess, MapFit, Odometry, OdometryConfig};
 use mireg::pipeline::{PairConfig, prepare_frame};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
@@ -117,6 +117,24 @@ fn motion_with_a_drop_and_a_jump(jump_deg: f64) -> Vec<Isometry3<f64>> {
     poses
 }
 
+/// [`run_with`] over [`motion_with_a_drop_and_a_jump`], checking that the known motion is
+/// tracked (worst error under 1 cm and 0.2°), that every frame registered, and that `map_fit`
+/// holds of every map fit after the first frame. Returns the estimates.
+fn tracks_a_drop_and_a_jump(
+    jump_deg: f64,
+    config: &OdometryConfig,
+    map_fit: impl Fn(&MapFit) -> bool,
+) -> Vec<mireg::odometry::FrameEstimate> {
+    let (est, t, r) = run_with(&motion_with_a_drop_and_a_jump(jump_deg), config);
+    assert!(t < 0.01 && r < 0.2, "worst error {t} m, {r} deg");
+    assert!(est.iter().all(|e| e.success));
+    for e in &est[1..] {
+        let map = e.map.unwrap();
+        assert!(map_fit(&map), "frame {}: {map:?}", e.index);
+    }
+    est
+}
+
 #[test]
 fn constant_velocity_is_tracked() {
     let poses: Vec<_> = (0..25)
@@ -193,21 +211,12 @@ fn global_registration_on_a_coarser_cloud_tracks_known_motion() {
         pair: mireg::pipeline::with_feature_voxel(&fine, 0.12),
         ..Default::default()
     };
-    let poses = motion_with_a_drop_and_a_jump(100.0);
-    let (est, t, r) = run_with(&poses, &config);
-    assert!(t < 0.01 && r < 0.2, "worst error {t} m, {r} deg");
-    assert!(est.iter().all(|e| e.success));
-    for e in &est[1..] {
-        let map = e.map.unwrap();
-        // Coarse iterations happen only where the feature cloud is not the ICP cloud.
-        assert!(
-            map.used
-                && map.coarse_iterations > 0
-                && map.iterations <= mireg::odometry::MAP_ICP_MAX_ITERATIONS_AFTER_COARSE,
-            "frame {}: {map:?}",
-            e.index
-        );
-    }
+    // Coarse iterations happen only where the feature cloud is not the ICP cloud.
+    let est = tracks_a_drop_and_a_jump(100.0, &config, |map| {
+        map.used
+            && map.coarse_iterations > 0
+            && map.iterations <= mireg::odometry::MAP_ICP_MAX_ITERATIONS_AFTER_COARSE
+    });
     // The jump (frame 13) is recovered from the global estimate.
     assert_eq!(est[13].map.unwrap().guess, InitialGuess::Global);
 }
@@ -227,23 +236,12 @@ fn the_map_fine_stage_tracks_known_motion() {
         map_fine: true,
         ..Default::default()
     };
-    let poses = motion_with_a_drop_and_a_jump(90.0);
-    let (est, t, r) = run_with(&poses, &config);
-    assert!(t < 0.01 && r < 0.2, "worst error {t} m, {r} deg");
-    assert!(est.iter().all(|e| e.success));
-    for e in &est[1..] {
-        let map = e.map.unwrap();
-        assert!(
-            map.used && map.fine_iterations > 0,
-            "frame {}: {map:?}",
-            e.index
-        );
-    }
+    tracks_a_drop_and_a_jump(90.0, &config, |map| map.used && map.fine_iterations > 0);
     // Without it, no fine iterations.
     let off = OdometryConfig {
         map_fine: false,
         ..config
     };
-    let (est, _, _) = run_with(&poses, &off);
+    let (est, _, _) = run_with(&motion_with_a_drop_and_a_jump(90.0), &off);
     assert!(est[1..].iter().all(|e| e.map.unwrap().fine_iterations == 0));
 }
