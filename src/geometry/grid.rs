@@ -165,7 +165,8 @@ impl Grid {
             return None;
         }
         let cell = |p: &Point3<f64>| -> [i64; 3] {
-            std::array::from_fn(|a| ((p[a] - min[a]) / edge).floor() as i64)
+            // p − min ≥ 0, where truncation is floor (and needs no libm call).
+            std::array::from_fn(|a| ((p[a] - min[a]) / edge) as i64)
         };
         let mut keyed: Vec<([i64; 3], u32)> = points
             .iter()

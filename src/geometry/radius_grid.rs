@@ -130,8 +130,8 @@ impl RadiusGrid {
         let dims = [n0 as usize, n1 as usize];
         let n2 = cells(2) as usize;
         let cell_of = |p: &Point3<f64>| -> (usize, u32) {
-            let c =
-                |k: usize, n: usize| (((p[axes[k]] - min[k]) / edge).floor() as usize).min(n - 1);
+            // p − min ≥ 0, where truncation is floor (and needs no libm call).
+            let c = |k: usize, n: usize| (((p[axes[k]] - min[k]) / edge) as usize).min(n - 1);
             (c(0, dims[0]) * dims[1] + c(1, dims[1]), c(2, n2) as u32)
         };
         cell.clear();
@@ -287,17 +287,19 @@ impl RadiusGrid {
     fn query_cell(&self, q: &Point3<f64>) -> Option<[i64; 3]> {
         let mut c = [0i64; 3];
         for k in 0..3 {
-            let f = ((q[self.axes[k]] - self.min[k]) / self.edge).floor();
+            let v = (q[self.axes[k]] - self.min[k]) / self.edge;
             // Along the columns, the column's own range decides.
             let n = if k < 2 {
                 self.dims[k] as f64
             } else {
                 u32::MAX as f64
             };
-            if !(f >= -1.0 && f <= n) {
+            // floor(v) ∈ [−1, n], i.e. v ∈ [−1, n + 1) (false for NaN); floor without libm:
+            // truncation for v ≥ 0, −1 below.
+            if !(v >= -1.0 && v < n + 1.0) {
                 return None;
             }
-            c[k] = f as i64;
+            c[k] = if v >= 0.0 { v as i64 } else { -1 };
         }
         Some(c)
     }

@@ -21,6 +21,7 @@ use std::collections::HashMap;
 use nalgebra::{Isometry3, Point3, Vector3};
 
 use super::icp::IcpTarget;
+use crate::geometry::floor_i64;
 use crate::hash::FastHash;
 use crate::{Error, Result};
 
@@ -86,11 +87,7 @@ impl LocalMap {
 
     fn key(&self, p: &Point3<f64>) -> [i64; 3] {
         let v = self.config.voxel_size_m;
-        [
-            (p.x / v).floor() as i64,
-            (p.y / v).floor() as i64,
-            (p.z / v).floor() as i64,
-        ]
+        [p.x / v, p.y / v, p.z / v].map(floor_i64)
     }
 
     /// Adds a frame's `points` and `normals` (sensor frame) at `world_from_frame`, into voxels not
