@@ -16,9 +16,9 @@ pub use kdtree::{KdTree, Neighbour, Neighbourhoods};
 #[inline]
 pub(crate) fn floor_i64(x: f64) -> i64 {
     let t = x as i64;
-    // Truncation rounds a negative non-integer up: step down once. A saturated `t` never
-    // exceeds x, and NaN compares false.
-    t - i64::from((t as f64) > x)
+    // Truncation rounds a negative non-integer up: step down once (saturating, where x is
+    // below i64::MIN and `t` already is i64::MIN). NaN compares false.
+    t.saturating_sub(i64::from((t as f64) > x))
 }
 pub use normals::{
     estimate_normals, estimate_normals_from_neighbourhoods, estimate_normals_with_tree,
