@@ -394,6 +394,11 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         // Each registered frame's motion, back to the preparing thread for deskewing (unbounded:
         // one small message per frame, drained as frames are prepared).
         let (motion_tx, motion_rx) = std::sync::mpsc::channel::<(usize, Isometry3<f64>, f64)>();
+        // Message buffers back from the preparing thread once decoded, for the next clouds'
+        // bytes: the few buffers in flight are allocated (and faulted in) once, instead of a
+        // multi-megabyte map and unmap per cloud whose timing across threads decided the peak
+        // RSS (unbounded: no more buffers than were sent, and the reading thread drains them).
+        let (recycle_tx, recycle_rx) = std::sync::mpsc::channel::<Vec<u8>>();
         let topic_ref = topic.as_str();
 
         scope.spawn(move || {
@@ -410,7 +415,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                     zero: c.num_dropped_zero,
                 });
                 // The message bytes are not needed past decoding: don't hold them through prepare.
-                drop(msg.data);
+                let _ = recycle_tx.send(msg.data);
                 let decode_s = t.elapsed().as_secs_f64();
                 // A cloud that cannot be decoded, is too large, or that the pipeline cannot take
                 // (e.g. a glitch at 1e38 m) is one bad frame: flag it, keep going.
@@ -565,7 +570,12 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                     CloudMsg {
                         log_time: header.log_time,
                         publish_time: header.publish_time,
-                        data: data.to_vec(),
+                        data: {
+                            let mut buf = recycle_rx.try_recv().unwrap_or_default();
+                            buf.clear();
+                            buf.extend_from_slice(data);
+                            buf
+                        },
                     },
                 );
                 while let Some(msg) = pending.pop_ready() {
