@@ -16,7 +16,10 @@ use crate::correspondence::ranking::{
 use crate::features::fpfh::{Fpfh, compute_fpfh_from_neighbourhoods, compute_fpfh_with_tree};
 use crate::geometry::grid;
 use crate::geometry::kdtree::{KdTree, Neighbourhoods};
-use crate::geometry::normals::{estimate_normals_from_neighbourhoods, estimate_normals_with_tree};
+use crate::geometry::normals::{
+    estimate_normals_from_neighbourhoods, estimate_normals_with_grid, estimate_normals_with_tree,
+};
+use crate::geometry::radius_grid::{DEFAULT_COLUMNS_PER_POINT, DEFAULT_MIN_COLUMNS};
 use crate::geometry::voxel::voxel_downsample;
 use crate::ransac::consensus::{Consensus, ConsensusConfig, Scoring, Termination};
 use crate::ransac::levy::{DEFAULT_SCALE, DEFAULT_WINDOW};
@@ -418,12 +421,29 @@ pub fn prepare_frame_with(
         };
         timings.downsample += t.elapsed().as_secs_f64();
         let t = Instant::now();
-        // NOTE: the kd-tree, not the grid the features use: on the KAIST03 and KITTI ICP clouds
-        // (0.37 m / 0.5 m voxels, 16k / 11k points) grid neighbourhoods took 29–35 / 21–22 ms a
-        // frame against 18 / 17–19 ms (one thread, interleaved, docs/BENCHMARKS.md).
-        let cloud_tree = KdTree::new(&cloud)?;
-        let n = estimate_normals_with_tree(&cloud, &cloud_tree, radius, c.normal_max_nn, origin)?;
-        let target = IcpTarget::with_tree(&cloud, &n, cloud_tree)?;
+        // NOTE: a radius grid streamed point by point, not the stored neighbourhoods the
+        // features use (on the KAIST03 and KITTI ICP clouds, 0.37 m / 0.5 m voxels, 16k / 11k
+        // points, those took 29–35 / 21–22 ms a frame against the kd-tree's 18 / 17–19 ms), nor
+        // the kd-tree (a quarter of a KAIST03 run's instructions): the same normals, bit for
+        // bit, for a fraction of the work (docs/BENCHMARKS.md). ICP builds its own search
+        // structures over the target when it needs them.
+        let columns = (DEFAULT_COLUMNS_PER_POINT * cloud.len()).max(DEFAULT_MIN_COLUMNS);
+        let grid_normals =
+            estimate_normals_with_grid(&cloud, radius, c.normal_max_nn, origin, columns)?;
+        let target = match grid_normals {
+            Some(n) => IcpTarget::new(&cloud, &n)?,
+            None => {
+                let cloud_tree = KdTree::new(&cloud)?;
+                let n = estimate_normals_with_tree(
+                    &cloud,
+                    &cloud_tree,
+                    radius,
+                    c.normal_max_nn,
+                    origin,
+                )?;
+                IcpTarget::with_tree(&cloud, &n, cloud_tree)?
+            }
+        };
         timings.normals += t.elapsed().as_secs_f64();
         Some(target)
     } else {

@@ -21,7 +21,8 @@ pub(crate) fn floor_i64(x: f64) -> i64 {
     t.saturating_sub(i64::from((t as f64) > x))
 }
 pub use normals::{
-    estimate_normals, estimate_normals_from_neighbourhoods, estimate_normals_with_tree,
+    estimate_normals, estimate_normals_from_neighbourhoods, estimate_normals_with_grid,
+    estimate_normals_with_tree,
 };
 pub use radius_grid::RadiusGrid;
 pub use voxel::voxel_downsample;

@@ -252,6 +252,31 @@ impl RadiusGrid {
         (best < self.radius_sq).then(|| (self.index[best_at], best))
     }
 
+    /// Every point of the cloud strictly within the radius of `q`, appended to `out` as one key
+    /// per point, `(squared distance bits) << 32 | index` (index in the cloud given to
+    /// [`RadiusGrid::new`]): for non-negative distances the keys order by (distance, index), so a
+    /// caller sorts or selects on them directly. Unordered. A non-finite `q` finds none.
+    pub fn within(&self, q: &Point3<f64>, out: &mut Vec<u128>) {
+        let Some(c) = self.query_cell(q) else {
+            return;
+        };
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                let Some(run) = self.column_run(c, dx, dy) else {
+                    continue;
+                };
+                for (p, &i) in self.xyz[run.clone()].iter().zip(&self.index[run]) {
+                    // kiddo's squared Euclidean distance, term by term.
+                    let (dx, dy, dz) = (q.x - p[0], q.y - p[1], q.z - p[2]);
+                    let d = dx * dx + dy * dy + dz * dz;
+                    if d < self.radius_sq {
+                        out.push(u128::from(d.to_bits()) << 32 | u128::from(i));
+                    }
+                }
+            }
+        }
+    }
+
     /// Whether some point of the cloud is strictly within the radius of `q`: [`Self::nearest_within`]
     /// `.is_some()`, but scanning `q`'s own column first and stopping at the first point found
     /// (a query near the cloud usually finds one there). A non-finite `q` has none.
@@ -355,6 +380,49 @@ mod tests {
             })
             .min_by(f64::total_cmp)
             .filter(|&d| d < radius * radius)
+    }
+
+    /// `within` against brute force: the same (distance, index) keys, on a noisy shell and on a
+    /// lattice whose spacing equals the radius (many points exactly on it, excluded).
+    #[test]
+    fn within_equals_brute_force() {
+        let mut rng = Pcg64::seed_from_u64(8);
+        let shell: Vec<Point3<f64>> = (0..1500)
+            .map(|_| {
+                let u: [f64; 3] =
+                    rand_distr::Distribution::sample(&rand_distr::UnitSphere, &mut rng);
+                Point3::new(100.0, -20.0, 5.0) + nalgebra::Vector3::from(u) * 0.8
+            })
+            .collect();
+        let lattice: Vec<Point3<f64>> = (0..400)
+            .map(|k| {
+                Point3::new(
+                    (k % 8) as f64 * 0.25,
+                    (k / 8 % 10) as f64 * 0.25,
+                    (k / 80) as f64 * 0.25,
+                )
+            })
+            .collect();
+        for (points, radius) in [(&shell, 0.15), (&shell, 0.4), (&lattice, 0.25)] {
+            let grid = RadiusGrid::new(points, radius, 1 << 20).unwrap().unwrap();
+            let mut got = Vec::new();
+            for q in points.iter().chain([&Point3::new(1e9, 0.0, 0.0)]) {
+                got.clear();
+                grid.within(q, &mut got);
+                got.sort_unstable();
+                let mut want: Vec<u128> = points
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(j, p)| {
+                        let (dx, dy, dz) = (q.x - p.x, q.y - p.y, q.z - p.z);
+                        let d = dx * dx + dy * dy + dz * dz;
+                        (d < radius * radius).then(|| u128::from(d.to_bits()) << 32 | j as u128)
+                    })
+                    .collect();
+                want.sort_unstable();
+                assert_eq!(got, want, "query {q:?}, radius {radius}");
+            }
+        }
     }
 
     #[test]
