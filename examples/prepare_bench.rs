@@ -1,4 +1,5 @@
-//! Times the stages of preparing one real cloud (voxel grid, FPFH neighbourhoods, normals, FPFH)
+//! Times the stages of preparing one real cloud (voxel grid, FPFH neighbourhoods, normals, FPFH,
+//! and the ICP cloud's normals by kd-tree and by radius grid, as `mireg register` makes them)
 //! on the current thread pool, and prints a checksum of the neighbourhoods and descriptors so
 //! that a speed-up can be checked to leave the results bit-identical.
 //!
@@ -12,7 +13,8 @@ use std::time::Instant;
 
 use mireg::features::fpfh::compute_fpfh_from_neighbourhoods;
 use mireg::geometry::{
-    Neighbourhoods, estimate_normals_from_neighbourhoods, grid, voxel_downsample,
+    KdTree, Neighbourhoods, estimate_normals_from_neighbourhoods, estimate_normals_with_grid,
+    estimate_normals_with_tree, grid, voxel_downsample,
 };
 
 /// Minimum and median of `repeats` runs of `f`, in ms, and its last result.
@@ -90,4 +92,23 @@ fn main() {
         f.iter().fold(h, |h, c| mix(h, u64::from(c.to_bits())))
     });
     println!("fpfh           {min:7.2} / {med:7.2} ms  (checksum {h:016x})");
+
+    // The ICP cloud's normals in `mireg register`: the voxel cloud, radius 2·voxel, 30 nearest.
+    let (radius, origin) = (2.0 * voxel, Some(nalgebra::Point3::origin()));
+    let (min, med, by_tree) = time(repeats, || {
+        let tree = KdTree::new(&down).expect("tree");
+        estimate_normals_with_tree(&down, &tree, radius, 30, origin).expect("normals")
+    });
+    println!("ICP normals, kd-tree (with its build) {min:7.2} / {med:7.2} ms");
+    let (min, med, by_grid) = time(repeats, || {
+        estimate_normals_with_grid(&down, radius, 30, origin, 1 << 24)
+            .expect("normals")
+            .expect("the grid takes the cloud")
+    });
+    let same = if by_tree == by_grid {
+        "bit-identical"
+    } else {
+        "DIFFERENT"
+    };
+    println!("ICP normals, radius grid              {min:7.2} / {med:7.2} ms  ({same})");
 }
