@@ -571,7 +571,13 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                         log_time: header.log_time,
                         publish_time: header.publish_time,
                         data: {
-                            let mut buf = recycle_rx.try_recv().unwrap_or_default();
+                            // A buffer more than twice this cloud's size (after an outsized
+                            // cloud) is freed rather than kept for the rest of the log.
+                            let mut buf = recycle_rx
+                                .try_recv()
+                                .ok()
+                                .filter(|b| b.capacity() <= 2 * data.len())
+                                .unwrap_or_default();
                             buf.clear();
                             buf.extend_from_slice(data);
                             buf

@@ -66,16 +66,7 @@ pub fn estimate_normals_with_tree(
         .par_iter()
         .map(|p| {
             let nn = tree.within_radius(p, radius_m, max_nn);
-            let normal = if nn.len() < MIN_NEIGHBOURS {
-                FALLBACK_NORMAL
-            } else {
-                let cov = covariance(points, nn.iter().map(|n| n.index));
-                smallest_eigenvector(&cov).unwrap_or(FALLBACK_NORMAL)
-            };
-            match towards_sensor {
-                Some(o) if normal.dot(&(o - p)) < 0.0 => -normal,
-                _ => normal,
-            }
+            oriented_normal(points, p, nn.iter().map(|n| n.index), towards_sensor)
         })
         .collect())
 }
@@ -83,8 +74,10 @@ pub fn estimate_normals_with_tree(
 /// [`estimate_normals_with_tree`] through a [`RadiusGrid`] of cell edge `radius_m` over `points`
 /// instead of a kd-tree: the same neighbourhoods (every point strictly within the radius, the
 /// `max_nn` nearest by (distance, index)), summed in the same (distance, index) order, so the
-/// normals are the tree's bit for bit. `Ok(None)` where the grid declines the cloud (an extent of
-/// more than `max_columns` columns of the radius): use the tree then.
+/// normals are the tree's bit for bit, but where equal distances straddle the `max_nn` cut: the
+/// grid keeps the lowest indices there, the tree its own choice. `Ok(None)` where the grid
+/// declines the cloud (an extent of more than `max_columns` columns of the radius): use the tree
+/// then.
 ///
 /// NOTE: on the LiDAR ICP clouds of `mireg register` (KAIST03: 16k points, 0.74 m radius) the
 /// tree's bounded-heap search was a quarter of all instructions of a run; a cell scan of the
@@ -118,16 +111,8 @@ pub fn estimate_normals_with_grid(
                     members.truncate(max_nn);
                 }
                 members.sort_unstable();
-                let normal = if members.len() < MIN_NEIGHBOURS {
-                    FALLBACK_NORMAL
-                } else {
-                    let cov = covariance(points, members.iter().map(|&key| key as u32 as usize));
-                    smallest_eigenvector(&cov).unwrap_or(FALLBACK_NORMAL)
-                };
-                match towards_sensor {
-                    Some(o) if normal.dot(&(o - p)) < 0.0 => -normal,
-                    _ => normal,
-                }
+                let indices = members.iter().map(|&key| key as u32 as usize);
+                oriented_normal(points, p, indices, towards_sensor)
             })
             .collect(),
     ))
@@ -175,18 +160,30 @@ pub fn estimate_normals_from_neighbourhoods(
                 members.truncate(max_nn);
                 members.sort_unstable();
             }
-            let normal = if members.len() < MIN_NEIGHBOURS {
-                FALLBACK_NORMAL
-            } else {
-                let cov = covariance(points, members.iter().map(|&key| key as u32 as usize));
-                smallest_eigenvector(&cov).unwrap_or(FALLBACK_NORMAL)
-            };
-            match towards_sensor {
-                Some(o) if normal.dot(&(o - p)) < 0.0 => -normal,
-                _ => normal,
-            }
+            let indices = members.iter().map(|&key| key as u32 as usize);
+            oriented_normal(points, p, indices, towards_sensor)
         })
         .collect())
+}
+
+/// The normal of `p` from its neighbourhood `members` (indices into `points`, summed in this
+/// order): [`FALLBACK_NORMAL`] below [`MIN_NEIGHBOURS`] members or for coincident ones, flipped
+/// towards `towards_sensor` when given.
+fn oriented_normal(
+    points: &[Point3<f64>],
+    p: &Point3<f64>,
+    members: impl ExactSizeIterator<Item = usize> + Clone,
+    towards_sensor: Option<Point3<f64>>,
+) -> Vector3<f64> {
+    let normal = if members.len() < MIN_NEIGHBOURS {
+        FALLBACK_NORMAL
+    } else {
+        smallest_eigenvector(&covariance(points, members)).unwrap_or(FALLBACK_NORMAL)
+    };
+    match towards_sensor {
+        Some(o) if normal.dot(&(o - p)) < 0.0 => -normal,
+        _ => normal,
+    }
 }
 
 /// Validates a hybrid search's radius (m) and neighbour cap.
