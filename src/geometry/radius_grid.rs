@@ -232,23 +232,18 @@ impl RadiusGrid {
         let c = self.query_cell(q)?;
         let mut best = self.radius_sq;
         let mut best_at = usize::MAX;
-        // Columns in storage order, so the first of equidistant points wins.
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                let Some(run) = self.column_run(c, dx, dy) else {
-                    continue;
-                };
-                for (k, p) in self.xyz[run.clone()].iter().enumerate() {
-                    // kiddo's squared Euclidean distance, term by term.
-                    let (dx, dy, dz) = (q.x - p[0], q.y - p[1], q.z - p[2]);
-                    let d = dx * dx + dy * dy + dz * dz;
-                    if d < best {
-                        best = d;
-                        best_at = run.start + k;
-                    }
+        // Runs in storage order, so the first of equidistant points wins.
+        self.for_each_run(c, |run| {
+            for (k, p) in self.xyz[run.clone()].iter().enumerate() {
+                // kiddo's squared Euclidean distance, term by term.
+                let (dx, dy, dz) = (q.x - p[0], q.y - p[1], q.z - p[2]);
+                let d = dx * dx + dy * dy + dz * dz;
+                if d < best {
+                    best = d;
+                    best_at = run.start + k;
                 }
             }
-        }
+        });
         (best < self.radius_sq).then(|| (self.index[best_at], best))
     }
 
@@ -260,21 +255,16 @@ impl RadiusGrid {
         let Some(c) = self.query_cell(q) else {
             return;
         };
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                let Some(run) = self.column_run(c, dx, dy) else {
-                    continue;
-                };
-                for (p, &i) in self.xyz[run.clone()].iter().zip(&self.index[run]) {
-                    // kiddo's squared Euclidean distance, term by term.
-                    let (dx, dy, dz) = (q.x - p[0], q.y - p[1], q.z - p[2]);
-                    let d = dx * dx + dy * dy + dz * dz;
-                    if d < self.radius_sq {
-                        out.push(u128::from(d.to_bits()) << 32 | u128::from(i));
-                    }
+        self.for_each_run(c, |run| {
+            for (p, &i) in self.xyz[run.clone()].iter().zip(&self.index[run]) {
+                // kiddo's squared Euclidean distance, term by term.
+                let (dx, dy, dz) = (q.x - p[0], q.y - p[1], q.z - p[2]);
+                let d = dx * dx + dy * dy + dz * dz;
+                if d < self.radius_sq {
+                    out.push(u128::from(d.to_bits()) << 32 | u128::from(i));
                 }
             }
-        }
+        });
     }
 
     /// Whether some point of the cloud is strictly within the radius of `q`: [`Self::nearest_within`]
@@ -327,6 +317,39 @@ impl RadiusGrid {
             c[k] = if v >= 0.0 { v as i64 } else { -1 };
         }
         Some(c)
+    }
+
+    /// Calls `f` with the storage range of the points in cells `c[2] − 1 ..= c[2] + 1` of each
+    /// column `(c[0] + dx, c[1] + dy)`, dx, dy ∈ {−1, 0, 1}, that is inside the grid and holds
+    /// some, in storage order. [`Self::column_run`] for the 3 × 3 block, with one bounds check
+    /// per row and the row's column entries read as one slice.
+    #[inline]
+    fn for_each_run(&self, c: [i64; 3], mut f: impl FnMut(std::ops::Range<usize>)) {
+        let (n0, n1) = (self.dims[0] as i64, self.dims[1] as i64);
+        let (y_lo, y_hi) = ((c[1] - 1).max(0), (c[1] + 1).min(n1 - 1));
+        if y_lo > y_hi {
+            return;
+        }
+        for x in (c[0] - 1).max(0)..=(c[0] + 1).min(n0 - 1) {
+            let row = x as usize * self.dims[1];
+            // Column y's entry and the next one's offset (its end): the table has one entry
+            // past the last column.
+            let columns = &self.columns[row + y_lo as usize..=row + y_hi as usize + 1];
+            for pair in columns.windows(2) {
+                let ((z_lo, off), end) = (pair[0], pair[1].1);
+                if off == end {
+                    continue;
+                }
+                let z_hi = z_lo as i64 + (end - off) as i64 - 2;
+                let (a, b) = ((c[2] - 1).max(z_lo as i64), (c[2] + 1).min(z_hi));
+                if a > b {
+                    continue;
+                }
+                let first = self.starts[off as usize + (a - z_lo as i64) as usize] as usize;
+                let last = self.starts[off as usize + (b - z_lo as i64) as usize + 1] as usize;
+                f(first..last);
+            }
+        }
     }
 
     /// Storage range of the points in cells `c[2] − 1 ..= c[2] + 1` of column
