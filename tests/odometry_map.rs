@@ -8,6 +8,10 @@ use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_distr::{Distribution, Normal};
 
+#[path = "common/synthetic_log.rs"]
+mod synthetic_log;
+use synthetic_log::add_spheres_and_boxes;
+
 /// A room (three walls) with boxes and spheres; every point seen from every pose (no occlusion).
 fn scene() -> Vec<Point3<f64>> {
     let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(21);
@@ -20,30 +24,7 @@ fn scene() -> Vec<Point3<f64>> {
             _ => pts.push(Point3::new(u, 1.5, v * 2.6 - 4.0)),
         }
     }
-    for k in 0..8 {
-        let c = Vector3::new(
-            rng.random_range(-3.0..3.0),
-            rng.random_range(-1.0..1.2),
-            rng.random_range(-3.0..3.0),
-        );
-        let r = rng.random_range(0.2..0.6);
-        for _ in 0..400 {
-            let d = Vector3::new(
-                rng.random_range(-1.0..1.0),
-                rng.random_range(-1.0..1.0),
-                rng.random_range(-1.0..1.0),
-            );
-            if k % 2 == 0 {
-                let u: [f64; 3] = rand_distr::UnitSphere.sample(&mut rng);
-                pts.push(Point3::from(c + Vector3::from(u) * r));
-            } else {
-                let mut e: Vector3<f64> = d * r;
-                let axis = rng.random_range(0..3usize);
-                e[axis] = r * e[axis].signum();
-                pts.push(Point3::from(c + e));
-            }
-        }
-    }
+    add_spheres_and_boxes(&mut rng, &mut pts, -3.0..3.0, 400);
     pts
 }
 

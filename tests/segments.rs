@@ -21,15 +21,20 @@ fn fixture() -> PathBuf {
 }
 
 fn options(output: &Path) -> RegisterOptions {
+    options_for(&fixture(), output, 0.05, 2)
+}
+
+/// Registering `log` into `output` at `voxel` \[m\] with `seed`.
+fn options_for(log: &Path, output: &Path, voxel: f64, seed: u64) -> RegisterOptions {
     let config = OdometryConfig {
         pair: PairConfig {
-            voxel_size_m: 0.05,
-            seed: 2,
+            voxel_size_m: voxel,
+            seed,
             ..Default::default()
         },
         ..Default::default()
     };
-    RegisterOptions::new(&fixture(), output, config)
+    RegisterOptions::new(log, output, config)
 }
 
 fn poses(path: &Path) -> Vec<(i64, Isometry3<f64>)> {
@@ -211,15 +216,7 @@ fn stitched_segments_recover_known_motion() {
     write_log_full(&log, &(0..frames).collect::<Vec<_>>(), None, |o| o);
     let run = |name: &str, start: Option<u64>, end: Option<u64>| {
         let out = d.join(name);
-        let config = OdometryConfig {
-            pair: PairConfig {
-                voxel_size_m: 0.1,
-                seed: 3,
-                ..Default::default()
-            },
-            ..Default::default()
-        };
-        let mut opts = RegisterOptions::new(&log, &out, config);
+        let mut opts = options_for(&log, &out, 0.1, 3);
         opts.start = start.map(WindowBound::Frame);
         opts.end = end.map(WindowBound::Frame);
         let summary = register_log(&opts).unwrap();

@@ -479,11 +479,11 @@ mod tests {
         assert_eq!(run(1), run(3));
     }
 
-    #[test]
-    fn normals_from_shared_neighbourhoods_equal_direct_search() {
-        // A noisy surface patch plus scattered points: full, partial and tiny neighbourhoods.
-        let mut rng = Pcg64::seed_from_u64(41);
-        let points: Vec<Point3<f64>> = (0..3000)
+    /// A noisy surface patch plus scattered points (every tenth): full, partial and tiny
+    /// neighbourhoods.
+    fn noisy_patch(seed: u64) -> Vec<Point3<f64>> {
+        let mut rng = Pcg64::seed_from_u64(seed);
+        (0..3000)
             .map(|k| {
                 let (x, y): (f64, f64) = (rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
                 let z = if k % 10 == 0 {
@@ -493,7 +493,12 @@ mod tests {
                 };
                 Point3::new(x, y, z)
             })
-            .collect();
+            .collect()
+    }
+
+    #[test]
+    fn normals_from_shared_neighbourhoods_equal_direct_search() {
+        let points = noisy_patch(41);
         let tree = KdTree::new(&points).unwrap();
         let origin = Some(Point3::new(0.0, 0.0, 5.0));
         for (radius, max_nn) in [(0.08, 30), (0.05, 30), (0.1, 8)] {
@@ -512,18 +517,7 @@ mod tests {
     /// the grid declines gives `None`.
     #[test]
     fn grid_normals_equal_tree_normals() {
-        let mut rng = Pcg64::seed_from_u64(43);
-        let patch: Vec<Point3<f64>> = (0..3000)
-            .map(|k| {
-                let (x, y): (f64, f64) = (rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
-                let z = if k % 10 == 0 {
-                    rng.random_range(-1.0..1.0)
-                } else {
-                    0.2 * (3.0 * x).sin() * y + rng.random_range(-0.005..0.005)
-                };
-                Point3::new(x, y, z)
-            })
-            .collect();
+        let patch = noisy_patch(43);
         let far: Vec<Point3<f64>> = patch
             .iter()
             .map(|p| p + Vector3::new(3000.0, -1200.0, 40.0))

@@ -25,21 +25,33 @@ pub fn scene(seed: u64) -> Vec<Point3<f64>> {
             _ => pts.push(Point3::new(u, 1.5, v * 2.5)), // floor (y down)
         }
     }
+    add_spheres_and_boxes(&mut rng, &mut pts, 2.0..7.0, 500);
+    pts
+}
+
+/// Appends 8 objects to `pts`, alternately a sphere and a box of radius (half-edge) 0.2–0.6 m,
+/// centred at x ∈ [−3, 3), y ∈ [−1, 1.2), z ∈ `z`, each of `points_per_object` surface points.
+pub fn add_spheres_and_boxes(
+    rng: &mut rand_pcg::Pcg64Mcg,
+    pts: &mut Vec<Point3<f64>>,
+    z: std::ops::Range<f64>,
+    points_per_object: usize,
+) {
     for k in 0..8 {
         let c = Vector3::new(
             rng.random_range(-3.0..3.0),
             rng.random_range(-1.0..1.2),
-            rng.random_range(2.0..7.0),
+            rng.random_range(z.clone()),
         );
         let r = rng.random_range(0.2..0.6);
-        for _ in 0..500 {
+        for _ in 0..points_per_object {
             let d = Vector3::new(
                 rng.random_range(-1.0..1.0),
                 rng.random_range(-1.0..1.0),
                 rng.random_range(-1.0..1.0),
             );
             if k % 2 == 0 {
-                let u: [f64; 3] = rand_distr::UnitSphere.sample(&mut rng);
+                let u: [f64; 3] = rand_distr::UnitSphere.sample(rng);
                 pts.push(Point3::from(c + Vector3::from(u) * r)); // sphere
             } else {
                 let mut e = d * r;
@@ -49,7 +61,6 @@ pub fn scene(seed: u64) -> Vec<Point3<f64>> {
             }
         }
     }
-    pts
 }
 
 pub fn world_from_camera(k: usize) -> Isometry3<f64> {
