@@ -19,7 +19,7 @@ use crate::geometry::kdtree::{KdTree, Neighbourhoods};
 use crate::geometry::normals::{
     estimate_normals_from_neighbourhoods, estimate_normals_with_grid, estimate_normals_with_tree,
 };
-use crate::geometry::radius_grid::{DEFAULT_COLUMNS_PER_POINT, DEFAULT_MIN_COLUMNS};
+use crate::geometry::radius_grid::default_max_columns;
 use crate::geometry::voxel::voxel_downsample;
 use crate::ransac::consensus::{Consensus, ConsensusConfig, Scoring, Termination};
 use crate::ransac::levy::{DEFAULT_SCALE, DEFAULT_WINDOW};
@@ -427,7 +427,7 @@ pub fn prepare_frame_with(
         // the kd-tree (a quarter of a KAIST03 run's instructions): the same normals, bit for
         // bit, for a fraction of the work (docs/BENCHMARKS.md). ICP builds its own search
         // structures over the target when it needs them.
-        let columns = (DEFAULT_COLUMNS_PER_POINT * cloud.len()).max(DEFAULT_MIN_COLUMNS);
+        let columns = default_max_columns(cloud.len());
         let grid_normals =
             estimate_normals_with_grid(&cloud, radius, c.normal_max_nn, origin, columns)?;
         let target = match grid_normals {

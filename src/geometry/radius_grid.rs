@@ -22,6 +22,12 @@ pub const DEFAULT_COLUMNS_PER_POINT: usize = 64;
 /// See [`DEFAULT_COLUMNS_PER_POINT`].
 pub const DEFAULT_MIN_COLUMNS: usize = 1 << 20;
 
+/// The default cap on the columns of a grid over `points` points:
+/// `max(DEFAULT_COLUMNS_PER_POINT · points, DEFAULT_MIN_COLUMNS)`.
+pub fn default_max_columns(points: usize) -> usize {
+    (DEFAULT_COLUMNS_PER_POINT * points).max(DEFAULT_MIN_COLUMNS)
+}
+
 /// A cloud bucketed for "nearest point strictly within `radius`" queries.
 ///
 /// Layout: the cloud's two longest axes span a dense 2-D array of columns; along the shortest axis

@@ -15,7 +15,7 @@ use super::Scoring;
 use super::estimator::{Estimator, RigidEstimator, Score};
 use crate::Result;
 use crate::geometry::RadiusGrid;
-use crate::geometry::radius_grid::{DEFAULT_COLUMNS_PER_POINT, DEFAULT_MIN_COLUMNS};
+use crate::geometry::radius_grid::default_max_columns;
 use crate::refine::icp::IcpTarget;
 
 /// The target cloud for overlap queries: a [`RadiusGrid`] at the inlier threshold when the cloud's
@@ -37,7 +37,7 @@ impl<'a> OverlapTarget<'a> {
         threshold_m: f64,
         tree: impl FnOnce() -> Result<&'a IcpTarget>,
     ) -> Result<Self> {
-        let cap = (DEFAULT_COLUMNS_PER_POINT * points.len()).max(DEFAULT_MIN_COLUMNS);
+        let cap = default_max_columns(points.len());
         Ok(match RadiusGrid::new(points, threshold_m, cap)? {
             Some(grid) => OverlapTarget::Grid(grid),
             None => OverlapTarget::Tree(tree()?),

@@ -14,7 +14,7 @@ use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3
 use rayon::prelude::*;
 
 use crate::geometry::RadiusGrid;
-use crate::geometry::radius_grid::{DEFAULT_COLUMNS_PER_POINT, DEFAULT_MIN_COLUMNS, GridStorage};
+use crate::geometry::radius_grid::{GridStorage, default_max_columns};
 use crate::{Error, Result};
 
 /// Default [`IcpConfig::max_iterations`] (Open3D's `ICPConvergenceCriteria` default).
@@ -559,7 +559,7 @@ fn correspondence_grid(
     target: &IcpTarget,
     max_distance_m: f64,
 ) -> Result<std::borrow::Cow<'_, Option<RadiusGrid>>> {
-    let cap = (DEFAULT_COLUMNS_PER_POINT * target.points.len()).max(DEFAULT_MIN_COLUMNS);
+    let cap = default_max_columns(target.points.len());
     let build = || RadiusGrid::new(&target.points, max_distance_m, cap);
     let (d, grid) = match target.grid.get() {
         Some(kept) => kept,
