@@ -9,6 +9,12 @@ pub mod radius_grid;
 pub mod voxel;
 
 pub use kdtree::{KdTree, Neighbour, Neighbourhoods};
+pub use normals::{
+    estimate_normals, estimate_normals_from_neighbourhoods, estimate_normals_with_grid,
+    estimate_normals_with_tree,
+};
+pub use radius_grid::RadiusGrid;
+pub use voxel::voxel_downsample;
 
 /// `x.floor() as i64`, exactly (also saturating the same way beyond ±2⁶³), without the libm
 /// call that `f64::floor` costs on a target without SSE4.1: the voxel and grid keys of every
@@ -20,12 +26,6 @@ pub(crate) fn floor_i64(x: f64) -> i64 {
     // below i64::MIN and `t` already is i64::MIN). NaN compares false.
     t.saturating_sub(i64::from((t as f64) > x))
 }
-pub use normals::{
-    estimate_normals, estimate_normals_from_neighbourhoods, estimate_normals_with_grid,
-    estimate_normals_with_tree,
-};
-pub use radius_grid::RadiusGrid;
-pub use voxel::voxel_downsample;
 
 #[cfg(test)]
 mod tests {
