@@ -44,6 +44,9 @@ use crate::{Error, Result};
 
 /// Frames in flight between stages (each queue). Bounds memory.
 pub const QUEUE_CAPACITY: usize = 2;
+/// Cloud message buffers outside the reorder window: the queue to the preparing thread, and the
+/// one it decodes.
+const MESSAGE_BUFFERS: usize = QUEUE_CAPACITY + 1;
 /// Default of [`RegisterOptions::reorder_window`]: 16 clouds.
 pub const REORDER_WINDOW: usize = 16;
 /// Frames between two returns of the allocator's free memory to the system
@@ -397,7 +400,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         // Message buffers back from the preparing thread once decoded, for the next clouds'
         // bytes: the few buffers in flight are allocated (and faulted in) once, instead of a
         // multi-megabyte map and unmap per cloud whose timing across threads decided the peak
-        // RSS (unbounded: no more buffers than were sent, and the reading thread drains them).
+        // RSS. The reader keeps at most MESSAGE_BUFFERS of them outside the reorder window.
         let (recycle_tx, recycle_rx) = std::sync::mpsc::channel::<Vec<u8>>();
         let topic_ref = topic.as_str();
 
@@ -547,6 +550,8 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         let reorder_window = opts.reorder_window;
         let mut pending = Reorder::new(reorder_window, chunk_times);
         let mut cloud_tx = Some(cloud_tx);
+        // Message buffers allocated so far (each is recycled or, when outsized, freed).
+        let mut buffers = 0usize;
         // Input chunks are copied byte for byte; only messages on the cloud and reference
         // channels come here, in file order.
         let copy_only = opts
@@ -573,12 +578,25 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                         data: {
                             // A buffer more than twice this cloud's size (after an outsized
                             // cloud) is freed rather than kept for the rest of the log.
-                            let mut buf = recycle_rx
-                                .try_recv()
-                                .ok()
+                            // At most MESSAGE_BUFFERS outside the reorder window: the
+                            // preparing thread returns each one once decoded, so waiting for it
+                            // cannot deadlock, and the peak memory does not hang on how far the
+                            // reader ran ahead.
+                            let recycled = if buffers - pending.len() >= MESSAGE_BUFFERS {
+                                recycle_rx.recv().ok()
+                            } else {
+                                recycle_rx.try_recv().ok()
+                            };
+                            if recycled.is_none() {
+                                buffers += 1;
+                            }
+                            let mut buf = recycled
                                 .filter(|b| b.capacity() <= 2 * data.len())
                                 .unwrap_or_default();
                             buf.clear();
+                            // Exact: amortised doubling would let a recycled buffer one byte
+                            // short of the next cloud grow to twice its size.
+                            buf.reserve_exact(data.len());
                             buf.extend_from_slice(data);
                             buf
                         },
