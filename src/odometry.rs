@@ -17,6 +17,7 @@ use nalgebra::{Isometry3, Point3};
 use serde::{Deserialize, Serialize};
 
 use crate::Result;
+use crate::geometry::radius_grid::cell_edge;
 use crate::pipeline::refine::fine_stage;
 use crate::pipeline::{
     FailureReason, PairConfig, PairResult, PreparedFrame, refine_prepared, register_prepared_coarse,
@@ -222,7 +223,10 @@ impl Odometry {
             .local_map
             .then(|| {
                 LocalMap::new(LocalMapConfig {
-                    voxel_size_m: c.icp_voxel_size_m.unwrap_or(c.voxel_size_m),
+                    // NOTE: a hair (1e-6) above the ICP voxel, as the cells of a radius grid at
+                    // the ICP distance: the map's voxels then serve as that grid
+                    // (`LocalMap::target`), not re-bucketed every frame.
+                    voxel_size_m: cell_edge(c.icp_voxel_size_m.unwrap_or(c.voxel_size_m)),
                     max_points_per_voxel: config.map_max_points_per_voxel,
                 })
             })
@@ -312,7 +316,7 @@ impl Odometry {
                 if frame.icp.is_none() {
                     return Ok(None);
                 }
-                let Some(target) = map.target()? else {
+                let Some(target) = map.target(distance)? else {
                     return Ok(None);
                 };
                 target.prepare_for_distance(distance)?;

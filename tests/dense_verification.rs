@@ -142,11 +142,11 @@ fn grid_and_kd_tree_scores_equal_brute_force_and_open3d_fitness() {
     let s = scene(2);
     let rigid = RigidEstimator::new(&s.src, &s.tgt);
     let tree = IcpTarget::points_only(&s.target_cloud).unwrap();
-    let grid = OverlapTarget::Grid(
+    let grid = OverlapTarget::Grid(Box::new(
         RadiusGrid::new(&s.target_cloud, TAU, usize::MAX)
             .unwrap()
             .unwrap(),
-    );
+    ));
     let kd = OverlapTarget::Tree(&tree);
     let mut rng = Pcg64Mcg::seed_from_u64(3);
     let mut models = vec![s.gt, s.wrong, Isometry3::identity()];

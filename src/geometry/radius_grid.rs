@@ -44,6 +44,8 @@ pub struct RadiusGrid {
     /// an in-radius pair two cells apart.
     edge: f64,
     radius_sq: f64,
+    /// Bound \[m\] on how far rounding can put a point (or a query) outside its cell's faces.
+    slack: f64,
     /// Cells along the two column axes.
     dims: [usize; 2],
     /// Per column `(first occupied cell along the column, offset into starts)`; an empty column
@@ -52,9 +54,10 @@ pub struct RadiusGrid {
     /// For the cells `lo ..= hi` of a column at `offset`: `starts[offset + k]` is the first point
     /// of cell `lo + k`, `starts[offset + hi − lo + 1]` the end of the column's points.
     starts: Vec<u32>,
-    /// Coordinates in cell order (original axis order).
-    xyz: Vec<[f64; 3]>,
-    /// Index in the input cloud of each entry of `xyz`.
+    /// x, y and z of the points in cell order (original axes), each contiguous: a run of points
+    /// is scanned 4 at a time.
+    xyz: [Vec<f64>; 3],
+    /// Index in the input cloud of each point.
     index: Vec<u32>,
     /// The construction's temporaries, kept for [`RadiusGrid::into_storage`].
     scratch: Box<Scratch>,
@@ -73,7 +76,7 @@ struct Scratch {
 pub struct GridStorage {
     columns: Vec<(u32, u32)>,
     starts: Vec<u32>,
-    xyz: Vec<[f64; 3]>,
+    xyz: [Vec<f64>; 3],
     index: Vec<u32>,
     cell: Vec<(usize, u32)>,
     range: Vec<(u32, u32)>,
@@ -102,18 +105,14 @@ impl RadiusGrid {
         points: &[Point3<f64>],
         radius_m: f64,
         max_columns: usize,
-        storage: GridStorage,
+        mut storage: GridStorage,
     ) -> Result<Option<Self>> {
-        if !(radius_m.is_finite() && radius_m > 0.0) {
-            return Err(crate::Error::InvalidInput(format!(
-                "radius must be finite and > 0, got {radius_m}"
-            )));
-        }
+        check_radius(radius_m)?;
         check_points(points)?;
         if points.is_empty() {
             return Ok(None);
         }
-        let edge = radius_m * (1.0 + 1e-6);
+        let edge = cell_edge(radius_m);
         let (lo, hi) = bounds(points);
         // Longest axes first (ties by index); the shortest runs along the columns.
         let mut axes = [0usize, 1, 2];
@@ -124,15 +123,6 @@ impl RadiusGrid {
         if !(n0 * n1 <= max_columns as f64 && cells(2) <= u32::MAX as f64) {
             return Ok(None);
         }
-        let GridStorage {
-            mut columns,
-            mut starts,
-            mut xyz,
-            mut index,
-            mut cell,
-            mut range,
-            mut next,
-        } = storage;
         let dims = [n0 as usize, n1 as usize];
         let n2 = cells(2) as usize;
         let cell_of = |p: &Point3<f64>| -> (usize, u32) {
@@ -140,73 +130,102 @@ impl RadiusGrid {
             let c = |k: usize, n: usize| (((p[axes[k]] - min[k]) / edge) as usize).min(n - 1);
             (c(0, dims[0]) * dims[1] + c(1, dims[1]), c(2, n2) as u32)
         };
-        cell.clear();
-        cell.extend(points.iter().map(cell_of));
-        // Occupied range of each column.
-        let num_columns = dims[0] * dims[1];
-        range.clear();
-        range.resize(num_columns, (u32::MAX, 0u32));
-        for &(col, z) in &cell {
-            let r = &mut range[col];
-            r.0 = r.0.min(z);
-            r.1 = r.1.max(z);
-        }
-        columns.clear();
-        columns.reserve(num_columns + 1);
-        let mut offset = 0usize;
-        for &(z_lo, z_hi) in &range {
-            columns.push((z_lo, offset as u32));
-            if z_lo <= z_hi {
-                offset += (z_hi - z_lo) as usize + 2;
-            }
-        }
-        columns.push((0, offset as u32));
-        if offset > u32::MAX as usize {
-            return Ok(None);
-        }
-        // Counting sort by (column, cell along it): count into starts[slot + 1], prefix-sum.
-        let slot = |(col, z): (usize, u32)| columns[col].1 as usize + (z - columns[col].0) as usize;
-        starts.clear();
-        starts.resize(offset, 0);
-        for &c in &cell {
-            starts[slot(c) + 1] += 1;
-        }
-        let mut total = 0u32;
-        for (col, &(z_lo, z_hi)) in range.iter().enumerate() {
-            if z_lo > z_hi {
-                continue;
-            }
-            let off = columns[col].1 as usize;
-            starts[off] = total;
-            for start in &mut starts[off + 1..off + (z_hi - z_lo) as usize + 2] {
-                total += *start;
-                *start = total;
-            }
-        }
-        next.clear();
-        next.extend_from_slice(&starts);
-        xyz.clear();
-        xyz.resize(points.len(), [0.0; 3]);
-        index.clear();
-        index.resize(points.len(), 0);
-        for (i, (p, &c)) in points.iter().zip(&cell).enumerate() {
-            let s = &mut next[slot(c)];
-            xyz[*s as usize] = [p.x, p.y, p.z];
-            index[*s as usize] = i as u32;
-            *s += 1;
-        }
-        Ok(Some(Self {
+        storage.cell.clear();
+        storage.cell.extend(points.iter().map(cell_of));
+        let layout = Layout {
             axes,
             min,
             edge,
-            radius_sq: radius_m * radius_m,
+            radius_m,
             dims,
-            columns,
-            starts,
-            xyz,
-            index,
-            scratch: Box::new(Scratch { cell, range, next }),
-        }))
+            max_abs: lo.iter().chain(&hi).fold(0.0f64, |m, v| m.max(v.abs())),
+        };
+        // One point per entry.
+        Ok(assemble(points, layout, storage, |i| i..i + 1))
+    }
+
+    /// A grid over `points` already bucketed on the lattice of edge `edge_m` anchored at the
+    /// origin (a local map's voxels): `cells` lists each occupied cell's key, `floor(p / edge_m)`
+    /// per axis, and the range of `points` it holds; the points of a cell lie in it. No point
+    /// is bucketed again, so this costs a pass over the cells and a copy of the points. The
+    /// cells must be distinct and `edge_m` at least [`cell_edge`]`(radius_m)`, so that rounding
+    /// can never put an in-radius pair two cells apart. `Ok(None)` when there are no cells, more
+    /// than `max_columns` columns or keys beyond ±2³⁰ (where the cell edge no longer covers
+    /// rounding).
+    ///
+    /// Errors: [`Error::InvalidInput`](crate::Error::InvalidInput) on a radius that is not finite
+    /// and positive, an edge below `cell_edge(radius_m)`, or a cell range outside `points`.
+    pub fn from_lattice(
+        points: &[Point3<f64>],
+        cells: &[([i64; 3], std::ops::Range<usize>)],
+        edge_m: f64,
+        radius_m: f64,
+        max_columns: usize,
+        mut storage: GridStorage,
+    ) -> Result<Option<Self>> {
+        check_radius(radius_m)?;
+        if !(edge_m >= cell_edge(radius_m) && edge_m.is_finite()) {
+            return Err(crate::Error::InvalidInput(format!(
+                "lattice edge {edge_m} m is below the cell edge of radius {radius_m} m"
+            )));
+        }
+        if points.len() > u32::MAX as usize {
+            return Err(crate::Error::InvalidInput(format!(
+                "at most {} points, got {}",
+                u32::MAX,
+                points.len()
+            )));
+        }
+        if let Some((_, r)) = cells
+            .iter()
+            .find(|(_, r)| r.start > r.end || r.end > points.len())
+        {
+            return Err(crate::Error::InvalidInput(format!(
+                "cell range {r:?} outside the {} points",
+                points.len()
+            )));
+        }
+        let Some((lo, hi)) =
+            cells
+                .iter()
+                .fold(None, |acc: Option<([i64; 3], [i64; 3])>, (k, _)| {
+                    Some(match acc {
+                        None => (*k, *k),
+                        Some((lo, hi)) => (
+                            std::array::from_fn(|a| lo[a].min(k[a])),
+                            std::array::from_fn(|a| hi[a].max(k[a])),
+                        ),
+                    })
+                })
+        else {
+            return Ok(None);
+        };
+        const KEY_BOUND: i64 = 1 << 30;
+        if lo.iter().chain(&hi).any(|k| k.abs() > KEY_BOUND) {
+            return Ok(None);
+        }
+        let mut axes = [0usize, 1, 2];
+        axes.sort_by(|&a, &b| (hi[b] - lo[b]).cmp(&(hi[a] - lo[a])).then(a.cmp(&b)));
+        let extent = |k: usize| (hi[axes[k]] - lo[axes[k]]) as usize + 1;
+        let dims = [extent(0), extent(1)];
+        if dims[0].saturating_mul(dims[1]) > max_columns {
+            return Ok(None);
+        }
+        let min: [f64; 3] = std::array::from_fn(|k| lo[axes[k]] as f64 * edge_m);
+        storage.cell.clear();
+        storage.cell.extend(cells.iter().map(|(key, _)| {
+            let c = |k: usize| (key[axes[k]] - lo[axes[k]]) as usize;
+            (c(0) * dims[1] + c(1), c(2) as u32)
+        }));
+        let layout = Layout {
+            axes,
+            min,
+            edge: edge_m,
+            radius_m,
+            dims,
+            max_abs: (lo.iter().chain(&hi).map(|k| k.abs()).max().unwrap_or(0) + 1) as f64 * edge_m,
+        };
+        Ok(assemble(points, layout, storage, |i| cells[i].1.clone()))
     }
 
     /// The grid's storage, for [`RadiusGrid::new_reusing`].
@@ -235,22 +254,80 @@ impl RadiusGrid {
     /// equidistant nearest points, the one first in the grid's storage order. A non-finite `q`
     /// has no neighbour.
     pub fn nearest_within(&self, q: &Point3<f64>) -> Option<(u32, f64)> {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked).
+            return unsafe { self.nearest_within_avx2(q) };
+        }
+        self.nearest_within_impl(q)
+    }
+
+    /// [`Self::nearest_within`] compiled for AVX2: the same operations, 4 points per instruction.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn nearest_within_avx2(&self, q: &Point3<f64>) -> Option<(u32, f64)> {
+        self.nearest_within_impl(q)
+    }
+
+    #[inline(always)]
+    fn nearest_within_impl(&self, q: &Point3<f64>) -> Option<(u32, f64)> {
         let c = self.query_cell(q)?;
-        let mut best = self.radius_sq;
-        let mut best_at = usize::MAX;
-        // Runs in storage order, so the first of equidistant points wins.
-        self.for_each_run(c, |run| {
-            for (k, p) in self.xyz[run.clone()].iter().enumerate() {
-                // kiddo's squared Euclidean distance, term by term.
-                let (dx, dy, dz) = (q.x - p[0], q.y - p[1], q.z - p[2]);
-                let d = dx * dx + dy * dy + dz * dz;
-                if d < best {
-                    best = d;
-                    best_at = run.start + k;
+        // Lower bounds on the squared distance from `q` to a point of the column before, at and
+        // after q's own along each column axis: `q`'s distance to the face between them.
+        let bounds = |k: usize| -> [f64; 3] {
+            let face = self.min[k] + c[k] as f64 * self.edge;
+            let v = q[self.axes[k]];
+            let below = (v - face - self.slack).max(0.0);
+            let above = (face + self.edge - v - self.slack).max(0.0);
+            [below * below, 0.0, above * above]
+        };
+        let (bx, by) = (bounds(0), bounds(1));
+        // The least (squared distance, storage position): of equidistant points the first in
+        // storage order, whatever order the columns are visited in.
+        let mut best = (self.radius_sq, usize::MAX);
+        // q's own column first: its nearest point rules out the columns whose face is farther.
+        if let Some(run) = self.column_run(c, 0, 0) {
+            self.scan_nearest(q, run, &mut best);
+        }
+        for dx in -1i64..=1 {
+            for dy in -1i64..=1 {
+                if (dx, dy) == (0, 0) || bx[(dx + 1) as usize] + by[(dy + 1) as usize] > best.0 {
+                    continue;
+                }
+                if let Some(run) = self.column_run(c, dx, dy) {
+                    self.scan_nearest(q, run, &mut best);
                 }
             }
-        });
-        (best < self.radius_sq).then(|| (self.index[best_at], best))
+        }
+        (best.0 < self.radius_sq).then(|| (self.index[best.1], best.0))
+    }
+
+    /// Lowers `best` (squared distance, storage position) to the least over the points of `run`.
+    #[inline(always)]
+    fn scan_nearest(&self, q: &Point3<f64>, run: std::ops::Range<usize>, best: &mut (f64, usize)) {
+        let [xs, ys, zs] = self.xyz.each_ref().map(|v| &v[run.clone()]);
+        let offer = |best: &mut (f64, usize), d: f64, at: usize| {
+            if d < best.0 || (d == best.0 && at < best.1) {
+                *best = (d, at);
+            }
+        };
+        let (x4, y4, z4) = (xs.chunks_exact(4), ys.chunks_exact(4), zs.chunks_exact(4));
+        for (k, ((x, y), z)) in x4.zip(y4).zip(z4).enumerate() {
+            let d: [f64; 4] = std::array::from_fn(|l| squared_distance(q, x[l], y[l], z[l]));
+            // Most quads hold no candidate: one vector compare rules them out.
+            if d.iter().fold(false, |any, &d| any | (d <= best.0)) {
+                for (l, &d) in d.iter().enumerate() {
+                    offer(best, d, run.start + 4 * k + l);
+                }
+            }
+        }
+        for k in xs.len() / 4 * 4..xs.len() {
+            offer(
+                best,
+                squared_distance(q, xs[k], ys[k], zs[k]),
+                run.start + k,
+            );
+        }
     }
 
     /// Every point of the cloud strictly within the radius of `q`, appended to `out` as one key
@@ -262,10 +339,9 @@ impl RadiusGrid {
             return;
         };
         self.for_each_run(c, |run| {
-            for (p, &i) in self.xyz[run.clone()].iter().zip(&self.index[run]) {
-                // kiddo's squared Euclidean distance, term by term.
-                let (dx, dy, dz) = (q.x - p[0], q.y - p[1], q.z - p[2]);
-                let d = dx * dx + dy * dy + dz * dz;
+            let [xs, ys, zs] = self.xyz.each_ref().map(|v| &v[run.clone()]);
+            for (((&x, &y), &z), &i) in xs.iter().zip(ys).zip(zs).zip(&self.index[run]) {
+                let d = squared_distance(q, x, y, z);
                 if d < self.radius_sq {
                     out.push(u128::from(d.to_bits()) << 32 | u128::from(i));
                 }
@@ -294,10 +370,9 @@ impl RadiusGrid {
         ];
         ORDER.iter().any(|&(dx, dy)| {
             self.column_run(c, dx, dy).is_some_and(|run| {
-                self.xyz[run].iter().any(|p| {
-                    let (dx, dy, dz) = (q.x - p[0], q.y - p[1], q.z - p[2]);
-                    dx * dx + dy * dy + dz * dz < self.radius_sq
-                })
+                let [xs, ys, zs] = self.xyz.each_ref().map(|v| &v[run.clone()]);
+                (xs.iter().zip(ys).zip(zs))
+                    .any(|((&x, &y), &z)| squared_distance(q, x, y, z) < self.radius_sq)
             })
         })
     }
@@ -384,13 +459,150 @@ impl RadiusGrid {
 
     /// Number of points.
     pub fn len(&self) -> usize {
-        self.xyz.len()
+        self.index.len()
     }
 
     /// Whether the grid holds no points (never: [`RadiusGrid::new`] declines empty clouds).
     pub fn is_empty(&self) -> bool {
-        self.xyz.is_empty()
+        self.index.is_empty()
     }
+}
+
+/// The cell edge of a grid of radius `radius_m` \[m\]: the radius and 1e-6 of it, so that
+/// rounding of `p / edge` can never put an in-radius pair two cells apart.
+pub fn cell_edge(radius_m: f64) -> f64 {
+    radius_m * (1.0 + 1e-6)
+}
+
+fn check_radius(radius_m: f64) -> Result<()> {
+    if radius_m.is_finite() && radius_m > 0.0 {
+        Ok(())
+    } else {
+        Err(crate::Error::InvalidInput(format!(
+            "radius must be finite and > 0, got {radius_m}"
+        )))
+    }
+}
+
+/// Where a grid's cells lie: see the fields of [`RadiusGrid`].
+struct Layout {
+    axes: [usize; 3],
+    min: [f64; 3],
+    edge: f64,
+    radius_m: f64,
+    dims: [usize; 2],
+    /// Largest coordinate magnitude \[m\] of the points.
+    max_abs: f64,
+}
+
+/// The grid whose entry `i` of `storage.cell` is the (column, cell along it) of the points
+/// `points[run(i)]`; `None` when the columns' cells overflow `u32` offsets.
+fn assemble(
+    points: &[Point3<f64>],
+    layout: Layout,
+    storage: GridStorage,
+    run: impl Fn(usize) -> std::ops::Range<usize>,
+) -> Option<RadiusGrid> {
+    let GridStorage {
+        mut columns,
+        mut starts,
+        mut xyz,
+        mut index,
+        cell,
+        mut range,
+        mut next,
+    } = storage;
+    let Layout {
+        axes,
+        min,
+        edge,
+        radius_m,
+        dims,
+        max_abs,
+    } = layout;
+    // Occupied range of each column.
+    let num_columns = dims[0] * dims[1];
+    range.clear();
+    range.resize(num_columns, (u32::MAX, 0u32));
+    for &(col, z) in &cell {
+        let r = &mut range[col];
+        r.0 = r.0.min(z);
+        r.1 = r.1.max(z);
+    }
+    columns.clear();
+    columns.reserve(num_columns + 1);
+    let mut offset = 0usize;
+    for &(z_lo, z_hi) in &range {
+        columns.push((z_lo, offset as u32));
+        if z_lo <= z_hi {
+            offset += (z_hi - z_lo) as usize + 2;
+        }
+    }
+    columns.push((0, offset as u32));
+    if offset > u32::MAX as usize {
+        return None;
+    }
+    // Counting sort by (column, cell along it): count into starts[slot + 1], prefix-sum.
+    let slot = |(col, z): (usize, u32)| columns[col].1 as usize + (z - columns[col].0) as usize;
+    starts.clear();
+    starts.resize(offset, 0);
+    for (i, &c) in cell.iter().enumerate() {
+        starts[slot(c) + 1] += run(i).len() as u32;
+    }
+    let mut total = 0u32;
+    for (col, &(z_lo, z_hi)) in range.iter().enumerate() {
+        if z_lo > z_hi {
+            continue;
+        }
+        let off = columns[col].1 as usize;
+        starts[off] = total;
+        for start in &mut starts[off + 1..off + (z_hi - z_lo) as usize + 2] {
+            total += *start;
+            *start = total;
+        }
+    }
+    next.clear();
+    next.extend_from_slice(&starts);
+    let n = total as usize;
+    for v in &mut xyz {
+        v.clear();
+        v.resize(n, 0.0);
+    }
+    index.clear();
+    index.resize(n, 0);
+    for (i, &c) in cell.iter().enumerate() {
+        let s = &mut next[slot(c)];
+        for j in run(i) {
+            let p = &points[j];
+            for (v, c) in xyz.iter_mut().zip([p.x, p.y, p.z]) {
+                v[*s as usize] = c;
+            }
+            index[*s as usize] = j as u32;
+            *s += 1;
+        }
+    }
+    Some(RadiusGrid {
+        axes,
+        min,
+        edge,
+        radius_sq: radius_m * radius_m,
+        // (p − min) / edge is off by a few ulps of p's magnitude; 1e-6 of the edge on top.
+        slack: 1e-6 * edge + 64.0 * f64::EPSILON * max_abs,
+        dims,
+        columns,
+        starts,
+        xyz,
+        index,
+        scratch: Box::new(Scratch { cell, range, next }),
+    })
+}
+
+/// Squared distance \[m²\] from `q` to `(x, y, z)`: kiddo's squared Euclidean distance, term by
+/// term, so the grid's answers are the kd-tree's to the bit.
+#[inline(always)]
+fn squared_distance(q: &Point3<f64>, x: f64, y: f64, z: f64) -> f64 {
+    let (dx, dy, dz) = (q.x - x, q.y - y, q.z - z);
+    dx * dx + dy * dy + dz * dz
 }
 
 #[cfg(test)]
@@ -481,16 +693,77 @@ mod tests {
                 .collect()
         };
         for perm in [[0, 1, 2], [2, 0, 1], [1, 2, 0]] {
-            check_cloud(&permuted(perm), &mut rng);
+            let points = permuted(perm);
+            check_cloud(&points, &mut rng, |radius| {
+                let grid = RadiusGrid::new(&points, radius, usize::MAX);
+                (grid.unwrap().unwrap(), points.clone())
+            });
+            // The same queries on grids whose cells are a lattice of voxels given by the caller:
+            // of the cell edge, and 2.5 times larger.
+            for scale in [1.0, 2.5] {
+                check_cloud(&points, &mut rng, |radius| {
+                    lattice_grid(&points, radius, cell_edge(radius) * scale)
+                });
+            }
         }
     }
 
-    fn check_cloud(points: &[Point3<f64>], rng: &mut Pcg64) {
+    /// [`RadiusGrid::from_lattice`] over `points` grouped by voxel of edge `edge`, and the points
+    /// in the order it indexes them.
+    fn lattice_grid(
+        points: &[Point3<f64>],
+        radius: f64,
+        edge: f64,
+    ) -> (RadiusGrid, Vec<Point3<f64>>) {
+        let mut voxels: std::collections::BTreeMap<[i64; 3], Vec<Point3<f64>>> = Default::default();
+        for p in points {
+            let key = [p.x, p.y, p.z].map(|c| crate::geometry::floor_i64(c / edge));
+            voxels.entry(key).or_default().push(*p);
+        }
+        let (mut ordered, mut cells) = (Vec::new(), Vec::new());
+        for (key, pts) in voxels {
+            cells.push((key, ordered.len()..ordered.len() + pts.len()));
+            ordered.extend(pts);
+        }
+        let grid = RadiusGrid::from_lattice(
+            &ordered,
+            &cells,
+            edge,
+            radius,
+            usize::MAX,
+            Default::default(),
+        );
+        (grid.unwrap().unwrap(), ordered)
+    }
+
+    #[test]
+    fn from_lattice_rejects_cells_smaller_than_the_radius_and_bad_ranges() {
+        let points = [Point3::new(0.1, 0.1, 0.1)];
+        let cells = [([0, 0, 0], 0..1)];
+        let build = |edge: f64, cells: &[([i64; 3], std::ops::Range<usize>)]| {
+            RadiusGrid::from_lattice(&points, cells, edge, 0.5, usize::MAX, Default::default())
+        };
+        assert!(
+            build(0.5, &cells).is_err(),
+            "edge = radius: rounding not covered"
+        );
+        assert!(build(cell_edge(0.5), &cells).unwrap().is_some());
+        assert!(build(1.0, &[([0, 0, 0], 0..2)]).is_err());
+        assert!(build(1.0, &[]).unwrap().is_none());
+        // Keys far out, where the edge no longer covers rounding: declined.
+        assert!(build(1.0, &[([1 << 40, 0, 0], 0..1)]).unwrap().is_none());
+    }
+
+    /// `build(radius)` gives a grid and the points in the order it indexes them.
+    fn check_cloud(
+        points: &[Point3<f64>],
+        rng: &mut Pcg64,
+        build: impl Fn(f64) -> (RadiusGrid, Vec<Point3<f64>>),
+    ) {
         let (lo, hi) = bounds(points);
         for radius in [0.01, 0.05, 0.2, 3.0] {
-            let grid = RadiusGrid::new(points, radius, usize::MAX)
-                .unwrap()
-                .unwrap();
+            let (grid, points) = build(radius);
+            let points = &points[..];
             assert_eq!(grid.len(), points.len());
             for _ in 0..4000 {
                 // Queries in and around the bounding box (±1.5 radius beyond it) and near points.

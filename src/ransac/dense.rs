@@ -23,7 +23,7 @@ use crate::refine::icp::IcpTarget;
 #[derive(Debug)]
 pub enum OverlapTarget<'a> {
     /// Grid of cell edge = the inlier threshold.
-    Grid(RadiusGrid),
+    Grid(Box<RadiusGrid>),
     /// kd-tree (e.g. the ICP target's).
     Tree(&'a IcpTarget),
 }
@@ -39,7 +39,7 @@ impl<'a> OverlapTarget<'a> {
     ) -> Result<Self> {
         let cap = default_max_columns(points.len());
         Ok(match RadiusGrid::new(points, threshold_m, cap)? {
-            Some(grid) => OverlapTarget::Grid(grid),
+            Some(grid) => OverlapTarget::Grid(Box::new(grid)),
             None => OverlapTarget::Tree(tree()?),
         })
     }

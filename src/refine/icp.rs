@@ -353,6 +353,28 @@ impl IcpTarget {
         correspondence_grid(self, max_distance_m).map(|_| ())
     }
 
+    /// The storage of the correspondence grid before the last [`IcpTarget::refill`], for a grid
+    /// built outside ([`IcpTarget::set_grid`]).
+    pub(crate) fn take_grid_storage(&self) -> GridStorage {
+        std::mem::take(&mut *self.spare.lock().unwrap_or_else(|e| e.into_inner()))
+    }
+
+    /// Makes `grid`, over exactly this target's points at radius `max_distance_m`, the
+    /// correspondence grid (as if [`IcpTarget::prepare_for_distance`] had built it). Fails if
+    /// one is already set or the grid holds another number of points.
+    pub(crate) fn set_grid(&mut self, max_distance_m: f64, grid: RadiusGrid) -> Result<()> {
+        if grid.len() != self.points.len() {
+            return Err(Error::InvalidInput(format!(
+                "grid holds {} points, the target {}",
+                grid.len(),
+                self.points.len()
+            )));
+        }
+        self.grid
+            .set((max_distance_m, Some(grid)))
+            .map_err(|_| Error::InvalidInput("target already has a correspondence grid".into()))
+    }
+
     /// The target points.
     pub fn points(&self) -> &[Point3<f64>] {
         &self.points

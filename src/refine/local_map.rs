@@ -22,6 +22,7 @@ use nalgebra::{Isometry3, Point3, Vector3};
 
 use super::icp::IcpTarget;
 use crate::geometry::floor_i64;
+use crate::geometry::radius_grid::{RadiusGrid, cell_edge, default_max_columns};
 use crate::hash::FastHash;
 use crate::{Error, Result};
 
@@ -51,6 +52,8 @@ pub struct LocalMap {
     /// The map as an ICP target, rebuilt in place by [`LocalMap::target`] (`None` when that
     /// found the map empty or failed).
     target: Option<IcpTarget>,
+    /// Scratch of [`LocalMap::target`]: each occupied voxel's key and points in the target.
+    cells: Vec<([i64; 3], std::ops::Range<usize>)>,
 }
 
 impl LocalMap {
@@ -72,6 +75,7 @@ impl LocalMap {
             free: Vec::new(),
             points: 0,
             target: None,
+            cells: Vec::new(),
         })
     }
 
@@ -153,13 +157,22 @@ impl LocalMap {
     /// The map as an ICP target (points and normals in slot order); `None` while empty. Built
     /// into the storage of the previous call's target (the map's tens of megabytes are
     /// allocated and faulted in once, not every frame); [`LocalMap::built_target`] returns it
-    /// until the next call.
-    pub fn target(&mut self) -> Result<Option<&IcpTarget>> {
+    /// until the next call. When the voxel is at least the cell edge of `max_distance_m` \[m\]
+    /// ([`cell_edge`]), the voxels also serve as the target's correspondence grid at that
+    /// distance ([`RadiusGrid::from_lattice`]).
+    pub fn target(&mut self, max_distance_m: f64) -> Result<Option<&IcpTarget>> {
         if self.is_empty() {
             self.target = None;
             return Ok(None);
         }
         let cap = self.config.max_points_per_voxel;
+        // Occupied voxels in slot order, with their points' range in the flattened map.
+        self.cells.clear();
+        let mut end = 0;
+        for &(key, held) in self.slots.iter().filter(|(_, held)| *held > 0) {
+            self.cells.push((key, end..end + held));
+            end += held;
+        }
         let fill = |points: &mut Vec<Point3<f64>>, normals: &mut Vec<Vector3<f64>>| {
             points.reserve(self.points);
             normals.reserve(self.points);
@@ -169,15 +182,33 @@ impl LocalMap {
                 normals.extend_from_slice(&self.normals_slab[at]);
             }
         };
-        let built = match self.target.take() {
+        let mut target = match self.target.take() {
             Some(mut target) => target.refill(fill).map(|()| target),
             None => {
                 let (mut points, mut normals) = (Vec::new(), Vec::new());
                 fill(&mut points, &mut normals);
                 IcpTarget::new(&points, &normals)
             }
-        };
-        self.target = Some(built?);
+        }?;
+        // The voxels are the correspondence grid's cells where they are large enough: no point
+        // is bucketed again.
+        let v = self.config.voxel_size_m;
+        if v >= cell_edge(max_distance_m) {
+            let columns = default_max_columns(target.points().len());
+            let storage = target.take_grid_storage();
+            let grid = RadiusGrid::from_lattice(
+                target.points(),
+                &self.cells,
+                v,
+                max_distance_m,
+                columns,
+                storage,
+            )?;
+            if let Some(grid) = grid {
+                target.set_grid(max_distance_m, grid)?;
+            }
+        }
+        self.target = Some(target);
         Ok(self.target.as_ref())
     }
 
@@ -224,7 +255,7 @@ mod tests {
         );
         m.insert(&far, &[], &[], 5.0);
         assert_eq!(m.len(), 2);
-        let t = m.target().unwrap().unwrap();
+        let t = m.target(0.5).unwrap().unwrap();
         assert!(t.points().iter().all(|p| p.x >= 10.0));
     }
 
@@ -270,7 +301,7 @@ mod tests {
             let expected: usize = model.values().map(Vec::len).sum();
             assert_eq!(m.len(), expected, "frame {frame}");
             let mut got: Vec<[f64; 3]> = m
-                .target()
+                .target(0.2)
                 .unwrap()
                 .unwrap()
                 .points()
@@ -302,10 +333,10 @@ mod tests {
             UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2),
         );
         m.insert(&pose, &[Point3::new(1.0, 0.0, 0.0)], &[Vector3::x()], 100.0);
-        let t = m.target().unwrap().unwrap();
+        let t = m.target(0.5).unwrap().unwrap();
         assert!((t.points()[0] - Point3::new(1.0, 3.0, 3.0)).norm() < 1e-12);
         assert!((t.normals().unwrap()[0] - Vector3::y()).norm() < 1e-12);
-        assert!(map(0.5, 20).target().unwrap().is_none());
+        assert!(map(0.5, 20).target(0.2).unwrap().is_none());
         assert!(
             LocalMap::new(LocalMapConfig {
                 voxel_size_m: f64::NAN,
