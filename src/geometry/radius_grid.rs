@@ -147,9 +147,10 @@ impl RadiusGrid {
     /// A grid over `points` already bucketed on the lattice of edge `edge_m` anchored at the
     /// origin (a local map's voxels): `cells` lists each occupied cell's key, `floor(p / edge_m)`
     /// per axis, and the range of `points` it holds; the points of a cell lie in it. No point
-    /// is bucketed again, so this costs a pass over the cells and a copy of the points. The
-    /// cells must be distinct and `edge_m` at least [`cell_edge`]`(radius_m)`, so that rounding
-    /// can never put an in-radius pair two cells apart. `Ok(None)` when there are no cells, more
+    /// is bucketed again, so this costs a pass over the cells and a copy of the points (a key
+    /// listed twice is one cell holding both ranges). `edge_m` must be at least
+    /// [`cell_edge`]`(radius_m)`, so that rounding can never put an in-radius pair two cells
+    /// apart. `Ok(None)` when there are no cells, more
     /// than `max_columns` columns or keys beyond ±2³⁰ (where the cell edge no longer covers
     /// rounding).
     ///
