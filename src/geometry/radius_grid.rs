@@ -751,6 +751,34 @@ mod tests {
         assert!(build(1.0, &[([1 << 40, 0, 0], 0..1)]).unwrap().is_none());
     }
 
+    /// A key listed twice is one cell holding both ranges: the same answers as brute force.
+    #[test]
+    fn from_lattice_takes_a_repeated_key_as_one_cell() {
+        let points = [
+            Point3::new(0.1, 0.1, 0.1),
+            Point3::new(0.9, 0.2, 0.3),
+            Point3::new(0.5, 0.5, 0.5),
+        ];
+        let cells = [([0, 0, 0], 0..2), ([0, 0, 0], 2..3)];
+        let grid =
+            RadiusGrid::from_lattice(&points, &cells, 1.0, 0.5, usize::MAX, Default::default())
+                .unwrap()
+                .unwrap();
+        assert_eq!(grid.len(), 3);
+        for q in [
+            Point3::new(0.45, 0.5, 0.5),
+            Point3::new(0.8, 0.2, 0.3),
+            Point3::new(0.1, 0.1, 0.3),
+            Point3::new(1.2, 0.2, 0.3),
+        ] {
+            assert_eq!(
+                grid.nearest_within_sq(&q),
+                oracle(&points, &q, 0.5),
+                "{q:?}"
+            );
+        }
+    }
+
     /// `build(radius)` gives a grid and the points in the order it indexes them.
     fn check_cloud(
         points: &[Point3<f64>],
