@@ -92,6 +92,63 @@ pub(crate) fn extract(
     row_step: usize,
     point_step: usize,
 ) -> Extracted {
+    let read = |point: &[u8], f: Option<PackedField>| {
+        f.map_or(0.0, |f| f.kind.read(&point[f.offset..], layout.big_endian))
+    };
+    // Little-endian float32 x, y, z (what LiDAR and depth drivers write): read directly, without
+    // the per-field dispatch; the same values as `Scalar::read`.
+    let f32_offsets = match layout.xyz {
+        [Some(x), Some(y), Some(z)]
+            if !layout.big_endian && [x, y, z].iter().all(|f| f.kind == Scalar::F32) =>
+        {
+            Some([x.offset, y.offset, z.offset])
+        }
+        _ => None,
+    };
+    match f32_offsets {
+        Some(o) => extract_with(
+            data,
+            layout,
+            rows,
+            cols,
+            row_step,
+            point_step,
+            |p: &[u8]| {
+                let f =
+                    |o: usize| f64::from(f32::from_le_bytes([p[o], p[o + 1], p[o + 2], p[o + 3]]));
+                [f(o[0]), f(o[1]), f(o[2])]
+            },
+            read,
+        ),
+        None => extract_with(
+            data,
+            layout,
+            rows,
+            cols,
+            row_step,
+            point_step,
+            |p: &[u8]| {
+                let [x, y, z] = layout.xyz;
+                [read(p, x), read(p, y), read(p, z)]
+            },
+            read,
+        ),
+    }
+}
+
+/// [`extract`] with `xyz` reading a point's coordinates and `read` any other field.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn extract_with(
+    data: &[u8],
+    layout: &PackedLayout,
+    rows: usize,
+    cols: usize,
+    row_step: usize,
+    point_step: usize,
+    xyz: impl Fn(&[u8]) -> [f64; 3],
+    read: impl Fn(&[u8], Option<PackedField>) -> f64,
+) -> Extracted {
     let n = rows * cols;
     let mut points = Vec::with_capacity(n);
     let mut intensity = layout.intensity.map(|_| Vec::with_capacity(n));
@@ -99,18 +156,11 @@ pub(crate) fn extract(
     let mut dropped = 0;
     let mut dropped_zero = 0;
     let organised = rows > 1;
-    let read = |point: &[u8], f: Option<PackedField>| {
-        f.map_or(0.0, |f| f.kind.read(&point[f.offset..], layout.big_endian))
-    };
     for row in 0..rows {
         for col in 0..cols {
             let start = row * row_step + col * point_step;
             let point = &data[start..start + point_step];
-            let (x, y, z) = (
-                read(point, layout.xyz[0]),
-                read(point, layout.xyz[1]),
-                read(point, layout.xyz[2]),
-            );
+            let [x, y, z] = xyz(point);
             if !(x.is_finite() && y.is_finite() && z.is_finite()) {
                 dropped += 1;
                 continue;
@@ -140,3 +190,79 @@ pub(crate) fn extract(
 // ---------------------------------------------------------------------------------------------
 // sensor_msgs/msg/PointCloud2
 // ---------------------------------------------------------------------------------------------
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+
+    /// `extract` against a direct decoding of the same bytes, for little-endian float32
+    /// coordinates (the direct path) and for big-endian ones and float64 ones (the dispatching
+    /// path): finite points kept in order, non-finite and (organised) all-zero points counted.
+    #[test]
+    fn extract_equals_direct_decoding() {
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
+        let (rows, cols, point_step) = (3usize, 50usize, 32usize);
+        for (kind, big_endian) in [
+            (Scalar::F32, false),
+            (Scalar::F32, true),
+            (Scalar::F64, false),
+        ] {
+            let size = if kind == Scalar::F32 { 4 } else { 8 };
+            let offsets = [0, size, 2 * size];
+            let field = |offset| Some(PackedField { offset, kind });
+            let layout = PackedLayout {
+                xyz: [field(offsets[0]), field(offsets[1]), field(offsets[2])],
+                intensity: Some(PackedField {
+                    offset: 28,
+                    kind: Scalar::U8,
+                }),
+                time: None,
+                big_endian,
+            };
+            let mut data = vec![0u8; rows * cols * point_step];
+            let mut want = Vec::new();
+            let (mut non_finite, mut zero) = (0, 0);
+            for (k, point) in data.chunks_exact_mut(point_step).enumerate() {
+                let xyz: [f64; 3] = match k % 10 {
+                    0 => [0.0; 3],
+                    1 => [1.0, f64::NAN, 2.0],
+                    2 => [f64::INFINITY, 0.0, 0.0],
+                    _ => std::array::from_fn(|_| rng.random_range(-50.0..50.0)),
+                };
+                let mut stored = [0.0; 3];
+                for ((o, v), s) in offsets.iter().zip(xyz).zip(&mut stored) {
+                    let bytes: Vec<u8> = match (kind, big_endian) {
+                        (Scalar::F32, false) => (v as f32).to_le_bytes().to_vec(),
+                        (Scalar::F32, true) => (v as f32).to_be_bytes().to_vec(),
+                        _ => v.to_le_bytes().to_vec(),
+                    };
+                    point[*o..*o + size].copy_from_slice(&bytes);
+                    *s = if kind == Scalar::F32 {
+                        f64::from(v as f32)
+                    } else {
+                        v
+                    };
+                }
+                point[28] = k as u8;
+                if !stored.iter().all(|c| c.is_finite()) {
+                    non_finite += 1;
+                } else if stored == [0.0; 3] {
+                    zero += 1;
+                } else {
+                    want.push((Point3::from(stored), f32::from(k as u8)));
+                }
+            }
+            let got = extract(&data, &layout, rows, cols, cols * point_step, point_step);
+            let got_pairs: Vec<(Point3<f64>, f32)> = got
+                .points
+                .iter()
+                .copied()
+                .zip(got.intensity.unwrap())
+                .collect();
+            assert_eq!(got_pairs, want, "{kind:?}, big endian {big_endian}");
+            assert_eq!(got.num_dropped_non_finite, non_finite);
+            assert_eq!(got.num_dropped_zero, zero);
+        }
+    }
+}
