@@ -109,12 +109,12 @@ fn centroids_radix<F>(points: &[Point3<f64>], key_bound: u64, key: F) -> Vec<Poi
 where
     F: Fn(&Point3<f64>) -> u32,
 {
-    let mut keyed: Vec<(u32, u32)> = points
-        .iter()
-        .enumerate()
-        .filter(|(_, p)| p.coords.iter().all(|c| c.is_finite()))
-        .map(|(i, p)| (key(p), i as u32))
-        .collect();
+    let mut keyed: Vec<(u32, u32)> = Vec::with_capacity(points.len());
+    for (i, p) in points.iter().enumerate() {
+        if p.coords.iter().all(|c| c.is_finite()) {
+            keyed.push((key(p), i as u32));
+        }
+    }
     let bits = u64::BITS - key_bound.saturating_sub(1).leading_zeros();
     let mut other = vec![(0u32, 0u32); keyed.len()];
     let mut counts = vec![0usize; 1 << RADIX_BITS];
