@@ -73,28 +73,22 @@ pub fn voxel_downsample(points: &[Point3<f64>], voxel_size_m: f64) -> Result<Vec
     };
     let last = index(&max);
     let (ny, nz) = (last[1] + 1, last[2] + 1);
-    let packed_fits = (last[0] + 1)
+    // Row-major packing preserves the (x, y, z) lexicographic order in one integer, keys below
+    // this bound.
+    let packed_bound = (last[0] + 1)
         .checked_mul(ny)
-        .and_then(|v| v.checked_mul(nz))
-        .is_some();
-    let packed_max = (last[0] + 1)
-        .checked_mul(ny)
-        .and_then(|v| v.checked_mul(nz))
-        .unwrap_or(u64::MAX);
-    Ok(if packed_max <= u64::from(u32::MAX) {
-        // Row-major packing preserves the (x, y, z) lexicographic order in one u32.
-        centroids_radix(points, packed_max, |p| {
-            let [x, y, z] = index(p);
-            ((x * ny + y) * nz + z) as u32
-        })
-    } else if packed_fits {
-        // Row-major packing preserves the (x, y, z) lexicographic order in one u64.
-        centroids_hashed(points, |p| {
-            let [x, y, z] = index(p);
-            (x * ny + y) * nz + z
-        })
-    } else {
-        centroids(points, index)
+        .and_then(|v| v.checked_mul(nz));
+    let packed = move |p: &Point3<f64>| {
+        let [x, y, z] = index(p);
+        (x * ny + y) * nz + z
+    };
+    Ok(match packed_bound {
+        Some(bound) if bound <= u64::from(u32::MAX) => {
+            // Keys below the bound fit 32 bits.
+            centroids_radix(points, bound, move |p| packed(p) as u32)
+        }
+        Some(_) => centroids_hashed(points, packed),
+        None => centroids(points, index),
     })
 }
 

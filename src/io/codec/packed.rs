@@ -92,9 +92,6 @@ pub(crate) fn extract(
     row_step: usize,
     point_step: usize,
 ) -> Extracted {
-    let read = |point: &[u8], f: Option<PackedField>| {
-        f.map_or(0.0, |f| f.kind.read(&point[f.offset..], layout.big_endian))
-    };
     // Little-endian float32 x, y, z (what LiDAR and depth drivers write): read directly, without
     // the per-field dispatch; the same values as `Scalar::read`.
     let f32_offsets = match layout.xyz {
@@ -105,85 +102,93 @@ pub(crate) fn extract(
         }
         _ => None,
     };
+    let cloud = Cloud {
+        data,
+        layout,
+        rows,
+        cols,
+        row_step,
+        point_step,
+    };
+    // One loop per coordinate reader, each compiled on its own.
     match f32_offsets {
-        Some(o) => extract_with(
-            data,
-            layout,
-            rows,
-            cols,
-            row_step,
-            point_step,
-            |p: &[u8]| {
-                let f =
-                    |o: usize| f64::from(f32::from_le_bytes([p[o], p[o + 1], p[o + 2], p[o + 3]]));
-                [f(o[0]), f(o[1]), f(o[2])]
-            },
-            read,
-        ),
-        None => extract_with(
-            data,
-            layout,
-            rows,
-            cols,
-            row_step,
-            point_step,
-            |p: &[u8]| {
-                let [x, y, z] = layout.xyz;
-                [read(p, x), read(p, y), read(p, z)]
-            },
-            read,
-        ),
+        Some(o) => cloud.extract(|p| {
+            let f = |o: usize| f64::from(f32::from_le_bytes([p[o], p[o + 1], p[o + 2], p[o + 3]]));
+            [f(o[0]), f(o[1]), f(o[2])]
+        }),
+        None => cloud.extract(|p| {
+            let [x, y, z] = layout.xyz;
+            [cloud.read(p, x), cloud.read(p, y), cloud.read(p, z)]
+        }),
     }
 }
 
-/// [`extract`] with `xyz` reading a point's coordinates and `read` any other field.
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-fn extract_with(
-    data: &[u8],
-    layout: &PackedLayout,
+/// The arguments of [`extract`].
+struct Cloud<'a> {
+    data: &'a [u8],
+    layout: &'a PackedLayout,
     rows: usize,
     cols: usize,
     row_step: usize,
     point_step: usize,
-    xyz: impl Fn(&[u8]) -> [f64; 3],
-    read: impl Fn(&[u8], Option<PackedField>) -> f64,
-) -> Extracted {
-    let n = rows * cols;
-    let mut points = Vec::with_capacity(n);
-    let mut intensity = layout.intensity.map(|_| Vec::with_capacity(n));
-    let mut times = layout.time.map(|_| Vec::with_capacity(n));
-    let mut dropped = 0;
-    let mut dropped_zero = 0;
-    let organised = rows > 1;
-    for row in 0..rows {
-        for col in 0..cols {
-            let start = row * row_step + col * point_step;
-            let point = &data[start..start + point_step];
-            let [x, y, z] = xyz(point);
-            if !(x.is_finite() && y.is_finite() && z.is_finite()) {
-                dropped += 1;
-                continue;
-            }
-            if organised && x == 0.0 && y == 0.0 && z == 0.0 {
-                dropped_zero += 1;
-                continue;
-            }
-            points.push(Point3::new(x, y, z));
-            if let Some(out) = intensity.as_mut() {
-                out.push(read(point, layout.intensity) as f32);
-            }
-            if let Some(out) = times.as_mut() {
-                out.push(read(point, layout.time));
+}
+
+impl Cloud<'_> {
+    /// Field `f` of `point` (0 when absent).
+    #[inline(always)]
+    fn read(&self, point: &[u8], f: Option<PackedField>) -> f64 {
+        f.map_or(0.0, |f| {
+            f.kind.read(&point[f.offset..], self.layout.big_endian)
+        })
+    }
+
+    /// [`extract`] with `xyz` reading a point's coordinates.
+    #[inline(always)]
+    fn extract(&self, xyz: impl Fn(&[u8]) -> [f64; 3]) -> Extracted {
+        let Cloud {
+            data,
+            layout,
+            rows,
+            cols,
+            row_step,
+            point_step,
+        } = *self;
+        let n = rows * cols;
+        let mut points = Vec::with_capacity(n);
+        let mut intensity = layout.intensity.map(|_| Vec::with_capacity(n));
+        let mut times = layout.time.map(|_| Vec::with_capacity(n));
+        let mut dropped = 0;
+        let mut dropped_zero = 0;
+        let organised = rows > 1;
+        for row in 0..rows {
+            for col in 0..cols {
+                let start = row * row_step + col * point_step;
+                let point = &data[start..start + point_step];
+                let [x, y, z] = xyz(point);
+                if !(x.is_finite() && y.is_finite() && z.is_finite()) {
+                    dropped += 1;
+                    continue;
+                }
+                if organised && x == 0.0 && y == 0.0 && z == 0.0 {
+                    dropped_zero += 1;
+                    continue;
+                }
+                points.push(Point3::new(x, y, z));
+                if let Some(out) = intensity.as_mut() {
+                    out.push(self.read(point, layout.intensity) as f32);
+                }
+                if let Some(out) = times.as_mut() {
+                    out.push(self.read(point, layout.time));
+                }
             }
         }
-    }
-    Extracted {
-        points,
-        intensity,
-        times,
-        num_dropped_non_finite: dropped,
-        num_dropped_zero: dropped_zero,
+        Extracted {
+            points,
+            intensity,
+            times,
+            num_dropped_non_finite: dropped,
+            num_dropped_zero: dropped_zero,
+        }
     }
 }
 
