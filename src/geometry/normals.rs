@@ -106,11 +106,10 @@ pub fn estimate_normals_with_grid(
             .map_init(Vec::<u128>::new, |members, p| {
                 members.clear();
                 grid.within(p, members);
-                if members.len() > max_nn {
-                    members.select_nth_unstable(max_nn);
-                    members.truncate(max_nn);
+                // The grid's hits come unordered.
+                if !keep_nearest(members, max_nn) {
+                    members.sort_unstable();
                 }
-                members.sort_unstable();
                 let indices = members.iter().map(|&key| key as u32 as usize);
                 oriented_normal(points, p, indices, towards_sensor)
             })
@@ -155,15 +154,23 @@ pub fn estimate_normals_from_neighbourhoods(
                     .filter(|&(_, &d)| d < radius_sq)
                     .map(|(&j, &d)| u128::from(d.to_bits()) << 32 | u128::from(j)),
             );
-            if members.len() > max_nn {
-                members.select_nth_unstable(max_nn);
-                members.truncate(max_nn);
-                members.sort_unstable();
-            }
+            keep_nearest(members, max_nn);
             let indices = members.iter().map(|&key| key as u32 as usize);
             oriented_normal(points, p, indices, towards_sensor)
         })
         .collect())
+}
+
+/// Keeps the `max_nn` least of `members`, keys `(squared distance bits) << 32 | index` (the
+/// nearest, ties by index), sorted, when there are more; `true` when it dropped some.
+fn keep_nearest(members: &mut Vec<u128>, max_nn: usize) -> bool {
+    if members.len() <= max_nn {
+        return false;
+    }
+    members.select_nth_unstable(max_nn);
+    members.truncate(max_nn);
+    members.sort_unstable();
+    true
 }
 
 /// The normal of `p` from its neighbourhood `members` (indices into `points`, summed in this
