@@ -35,14 +35,33 @@ pub struct LocalMapConfig {
     pub max_points_per_voxel: usize,
 }
 
+/// One voxel's slot in a [`LocalMap`].
+#[derive(Debug, Clone, Copy)]
+struct Slot {
+    key: [i64; 3],
+    held: usize,
+    first: Point3<f64>,
+}
+
+impl Default for Slot {
+    fn default() -> Self {
+        Self {
+            key: [0; 3],
+            held: 0,
+            first: Point3::origin(),
+        }
+    }
+}
+
 /// Points (with normals) of recent frames in the world frame.
 #[derive(Debug)]
 pub struct LocalMap {
     config: LocalMapConfig,
     /// Slot of each occupied voxel.
     index: HashMap<[i64; 3], u32, FastHash>,
-    /// Per slot: its voxel's key and how many points it holds (0: free).
-    slots: Vec<([i64; 3], usize)>,
+    /// Per slot: its voxel's key, how many points it holds (0: free) and its first point
+    /// (a copy, so that dropping far voxels reads one flat array, not the slab at every slot).
+    slots: Vec<Slot>,
     /// `max_points_per_voxel` entries per slot.
     points_slab: Vec<Point3<f64>>,
     normals_slab: Vec<Vector3<f64>>,
@@ -121,20 +140,24 @@ impl LocalMap {
                     let slot = match self.free.pop() {
                         Some(slot) => slot as usize,
                         None => {
-                            self.slots.push(([0; 3], 0));
+                            self.slots.push(Slot::default());
                             let len = self.slots.len() * cap;
                             self.points_slab.resize(len, Point3::origin());
                             self.normals_slab.resize(len, Vector3::zeros());
                             self.slots.len() - 1
                         }
                     };
-                    self.slots[slot] = (key, 0);
+                    self.slots[slot] = Slot {
+                        key,
+                        held: 0,
+                        first: w,
+                    };
                     // Slots beyond u32 would need 4 G voxels: more than any cloud we accept.
                     self.index.insert(key, slot as u32);
                     slot
                 }
             };
-            let held = &mut self.slots[slot].1;
+            let held = &mut self.slots[slot].held;
             if *held < cap {
                 self.points_slab[slot * cap + *held] = w;
                 self.normals_slab[slot * cap + *held] = world_from_frame.rotation * n;
@@ -144,11 +167,11 @@ impl LocalMap {
         }
         let origin = Point3::from(world_from_frame.translation.vector);
         let max_sq = max_distance_m * max_distance_m;
-        for (slot, (key, held)) in self.slots.iter_mut().enumerate() {
-            if *held > 0 && (self.points_slab[slot * cap] - origin).norm_squared() > max_sq {
-                self.points -= *held;
-                *held = 0;
-                self.index.remove(key);
+        for (slot, s) in self.slots.iter_mut().enumerate() {
+            if s.held > 0 && (s.first - origin).norm_squared() > max_sq {
+                self.points -= s.held;
+                s.held = 0;
+                self.index.remove(&s.key);
                 self.free.push(slot as u32);
             }
         }
@@ -169,15 +192,15 @@ impl LocalMap {
         // Occupied voxels in slot order, with their points' range in the flattened map.
         self.cells.clear();
         let mut end = 0;
-        for &(key, held) in self.slots.iter().filter(|(_, held)| *held > 0) {
-            self.cells.push((key, end..end + held));
-            end += held;
+        for s in self.slots.iter().filter(|s| s.held > 0) {
+            self.cells.push((s.key, end..end + s.held));
+            end += s.held;
         }
         let fill = |points: &mut Vec<Point3<f64>>, normals: &mut Vec<Vector3<f64>>| {
             points.reserve(self.points);
             normals.reserve(self.points);
-            for (slot, &(_, held)) in self.slots.iter().enumerate() {
-                let at = slot * cap..slot * cap + held;
+            for (slot, s) in self.slots.iter().enumerate() {
+                let at = slot * cap..slot * cap + s.held;
                 points.extend_from_slice(&self.points_slab[at.clone()]);
                 normals.extend_from_slice(&self.normals_slab[at]);
             }
