@@ -11,6 +11,15 @@ tools/compare_kiss_icp.py read:
 ``--frames 0-3,8-10,16-20`` keeps only those scans (irregular gaps, as when a recorder drops
 messages). MulRan is CC BY-NC-SA 4.0: write the MCAP outside the repository (benchmarks only).
 
+``--ouster-time`` adds the Ouster driver's per-point time field ``t`` (UINT32, ns since the scan
+start, point_step 20), which the PCDs do not keep, inferred from each point's azimuth: the
+OS1-64 spins clockwise at 10 Hz (MulRan's setting), firing its 1024 columns in turn, so a point
+at azimuth ``a`` was measured ``((a0 - a) mod 360) / 360 * 100 ms`` after the first column. The
+first point of each scan gives ``a0``. Each beam's azimuth offset (a few degrees on the OS1) makes
+a time off by up to about 1 ms, and near the seam it cannot tell the scan's start from its end:
+points within 6 degrees of ``a0`` (about 3 %) are left out. For testing deskewing on real LiDAR
+motion; compare with and without deskewing on this same log (``--deskew on|off``).
+
 Usage:
     bash tools/setup_mcap_venv.sh
     tools/.venv-mcap/bin/python tools/make_kaist03_mcap.py --out /tmp/kaist03.mcap
@@ -18,6 +27,7 @@ Usage:
 """
 
 import argparse
+import math
 import os
 import struct
 import sys
@@ -33,6 +43,27 @@ DEFAULT_DATA = os.path.join(TOOLS_DIR, "..", "..", "shared", "data", "mulran_kai
 CLOUD_TOPIC = "/os1_cloud_node/points"
 CLOUD_FRAME = "os1_lidar"
 FLOAT32 = 7
+UINT32 = 6
+SCAN_PERIOD_NS = 100_000_000  # MulRan's OS1-64 spins at 10 Hz
+SEAM_DEG = 6.0  # azimuths this close to the first point's are ambiguous (start or end of scan?)
+
+
+def with_ouster_time(data, n):
+    """`data` (n points of x, y, z, intensity float32) with a uint32 `t` appended to each point
+    (ns since the scan start, from the point's azimuth), without the points near the seam
+    (module docstring); returns (points kept, bytes)."""
+    points = list(struct.iter_unpack("<4f", data))
+    azimuth = [math.degrees(math.atan2(p[1], p[0])) for p in points]
+    first = azimuth[0]
+    out = bytearray()
+    kept = 0
+    for p, a in zip(points, azimuth):
+        behind = (first - a) % 360.0
+        if behind < SEAM_DEG or behind > 360.0 - SEAM_DEG:
+            continue
+        out += struct.pack("<4fI", *p, round(behind / 360.0 * SCAN_PERIOD_NS))
+        kept += 1
+    return kept, bytes(out)
 
 
 def read_pcd_xyzi(path):
@@ -75,6 +106,8 @@ def main(argv):
     ap.add_argument("--data", default=DEFAULT_DATA)
     ap.add_argument("--out", required=True)
     ap.add_argument("--frames", default="", help="scans to keep, e.g. 0-3,8-10,16-20 (default: all)")
+    ap.add_argument("--ouster-time", action="store_true",
+                    help="add the Ouster per-point time field t, inferred from azimuth (see above)")
     args = ap.parse_args(argv)
     if not os.path.isdir(args.data):
         raise SystemExit(f"{args.data}: not found (the KAIST03 keyframes live in ../shared/data)")
@@ -91,15 +124,21 @@ def main(argv):
         for seq, k in enumerate(frames):
             n, data = read_pcd_xyzi(os.path.join(args.data, "Scans", f"{k:06d}.pcd"))
             t_ns = round(times[k] * 1e9)
+            fields = [{"name": c, "offset": 4 * i, "datatype": FLOAT32, "count": 1}
+                      for i, c in enumerate(("x", "y", "z", "intensity"))]
+            step = 16
+            if args.ouster_time:
+                n, data = with_ouster_time(data, n)
+                fields.append({"name": "t", "offset": 16, "datatype": UINT32, "count": 1})
+                step = 20
             cloud = {
                 "header": fx.header(t_ns, CLOUD_FRAME),
                 "height": 1,
                 "width": n,
-                "fields": [{"name": c, "offset": 4 * i, "datatype": FLOAT32, "count": 1}
-                           for i, c in enumerate(("x", "y", "z", "intensity"))],
+                "fields": fields,
                 "is_bigendian": False,
-                "point_step": 16,
-                "row_step": 16 * n,
+                "point_step": step,
+                "row_step": step * n,
                 "data": data,
                 "is_dense": True,
             }
