@@ -566,11 +566,15 @@ fn map_icp_distance(pair: &PairConfig) -> Result<f64> {
 /// frame's farthest point from its origin are dropped.
 fn add_to_map(map: &mut LocalMap, frame: &PreparedFrame, world_from_frame: &Isometry3<f64>) {
     let Some(icp) = &frame.icp else { return };
-    let Some(normals) = icp.normals() else { return };
+    if !icp.has_normals() {
+        return;
+    }
     let range = icp
         .points()
         .iter()
         .map(|p| p.coords.norm())
         .fold(0.0f64, f64::max);
-    map.insert(world_from_frame, icp.points(), normals, range);
+    // Normals only for the points the map keeps (most of a 10 Hz frame lands in full voxels).
+    let normals_at = |at: &[u32]| icp.normals_at(at).unwrap_or_default();
+    map.insert_with(world_from_frame, icp.points(), normals_at, range);
 }

@@ -17,7 +17,7 @@ use crate::features::fpfh::{Fpfh, compute_fpfh_from_neighbourhoods, compute_fpfh
 use crate::geometry::grid;
 use crate::geometry::kdtree::{KdTree, Neighbourhoods};
 use crate::geometry::normals::{
-    estimate_normals_from_neighbourhoods, estimate_normals_with_grid, estimate_normals_with_tree,
+    NormalEstimate, estimate_normals_from_neighbourhoods, estimate_normals_with_tree,
 };
 use crate::geometry::radius_grid::default_max_columns;
 use crate::geometry::voxel::voxel_downsample;
@@ -420,32 +420,23 @@ pub fn prepare_frame_with(
             (cloud, normal_radius * icp_voxel / c.voxel_size_m)
         };
         timings.downsample += t.elapsed().as_secs_f64();
-        let t = Instant::now();
-        // NOTE: a radius grid streamed point by point, not the stored neighbourhoods the
-        // features use (on the KAIST03 and KITTI ICP clouds, 0.37 m / 0.5 m voxels, 16k / 11k
-        // points, those took 29–35 / 21–22 ms a frame against the kd-tree's 18 / 17–19 ms), nor
-        // the kd-tree (a quarter of a KAIST03 run's instructions): the same normals, bit for
-        // bit, for a fraction of the work (docs/BENCHMARKS.md). ICP builds its own search
-        // structures over the target when it needs them.
-        let columns = default_max_columns(cloud.len());
-        let grid_normals =
-            estimate_normals_with_grid(&cloud, radius, c.normal_max_nn, origin, columns)?;
-        let target = match grid_normals {
-            Some(n) => IcpTarget::new(&cloud, &n)?,
-            None => {
-                let cloud_tree = KdTree::new(&cloud)?;
-                let n = estimate_normals_with_tree(
-                    &cloud,
-                    &cloud_tree,
-                    radius,
-                    c.normal_max_nn,
-                    origin,
-                )?;
-                IcpTarget::with_tree(&cloud, &n, cloud_tree)?
-            }
-        };
-        timings.normals += t.elapsed().as_secs_f64();
-        Some(target)
+        // NOTE: the normals are estimated when first needed, and only where: all of them when
+        // the frame is an ICP target (`mireg pair`'s target, a fallback to frame-to-frame ICP),
+        // for a few points when `mireg register` adds the frame to its local map (only those
+        // landing in voxels not yet full: 6 % of the ICP points on the KITTI replay log, 69 % on
+        // the KAIST03 keyframes), never for a source. Through a radius grid streamed point by
+        // point, not the stored neighbourhoods the features use (on the KAIST03 and KITTI ICP
+        // clouds, 0.37 m / 0.5 m voxels, 16k / 11k points, those took 29–35 / 21–22 ms a frame
+        // against the kd-tree's 18 / 17–19 ms), nor the kd-tree (a quarter of a KAIST03 run's
+        // instructions): the same normals, bit for bit, for a fraction of the work
+        // (docs/BENCHMARKS.md).
+        let estimate = NormalEstimate::new(
+            radius,
+            c.normal_max_nn,
+            origin,
+            default_max_columns(cloud.len()),
+        )?;
+        Some(IcpTarget::with_deferred_normals(cloud, estimate)?)
     } else {
         Some(IcpTarget::with_tree(&down, &normals, tree)?)
     };

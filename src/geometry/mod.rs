@@ -10,8 +10,8 @@ pub mod voxel;
 
 pub use kdtree::{KdTree, Neighbour, Neighbourhoods};
 pub use normals::{
-    estimate_normals, estimate_normals_from_neighbourhoods, estimate_normals_with_grid,
-    estimate_normals_with_tree,
+    NormalEstimate, estimate_normals, estimate_normals_from_neighbourhoods,
+    estimate_normals_with_grid, estimate_normals_with_tree,
 };
 pub use radius_grid::RadiusGrid;
 pub use voxel::voxel_downsample;

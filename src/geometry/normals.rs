@@ -100,21 +100,114 @@ pub fn estimate_normals_with_grid(
             None
         });
     };
-    Ok(Some(
-        points
+    Ok(Some(grid_normals(
+        &grid,
+        points,
+        None,
+        max_nn,
+        towards_sensor,
+    )))
+}
+
+/// The normals of `points` (all, or those at the indices `at`, in that order) from `grid`'s
+/// neighbourhoods ([`estimate_normals_with_grid`]); each depends on its own point only.
+fn grid_normals(
+    grid: &RadiusGrid,
+    points: &[Point3<f64>],
+    at: Option<&[u32]>,
+    max_nn: usize,
+    towards_sensor: Option<Point3<f64>>,
+) -> Vec<Vector3<f64>> {
+    let normal = |members: &mut Vec<u128>, p: &Point3<f64>| {
+        members.clear();
+        grid.within(p, members);
+        // The grid's hits come unordered.
+        if !keep_nearest(members, max_nn) {
+            members.sort_unstable();
+        }
+        let indices = members.iter().map(|&key| key as u32 as usize);
+        oriented_normal(points, p, indices, towards_sensor)
+    };
+    match at {
+        None => points.par_iter().map_init(Vec::new, normal).collect(),
+        Some(at) => at
             .par_iter()
-            .map_init(Vec::<u128>::new, |members, p| {
-                members.clear();
-                grid.within(p, members);
-                // The grid's hits come unordered.
-                if !keep_nearest(members, max_nn) {
-                    members.sort_unstable();
-                }
-                let indices = members.iter().map(|&key| key as u32 as usize);
-                oriented_normal(points, p, indices, towards_sensor)
-            })
+            .map_init(Vec::new, |members, &i| normal(members, &points[i as usize]))
             .collect(),
-    ))
+    }
+}
+
+/// The settings of a normal estimation kept for later, so that a cloud's normals can be
+/// estimated where and when they are needed: `mireg register` adds only the points of a frame
+/// that land in a local-map voxel not yet full, 6 % of the ICP points on the KITTI replay log.
+/// Through a [`RadiusGrid`] as [`estimate_normals_with_grid`], or a kd-tree where the grid
+/// declines the cloud, as `prepare_frame` does.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NormalEstimate {
+    /// Neighbourhood radius \[m\].
+    pub radius_m: f64,
+    /// Most neighbours used (the nearest).
+    pub max_nn: usize,
+    /// Orient the normals towards this point (the sensor); `None`: as they come.
+    pub towards_sensor: Option<Point3<f64>>,
+    /// Most grid columns before the kd-tree is used instead.
+    pub max_columns: usize,
+}
+
+impl NormalEstimate {
+    /// Checks the settings (as [`estimate_normals`]).
+    pub fn new(
+        radius_m: f64,
+        max_nn: usize,
+        towards_sensor: Option<Point3<f64>>,
+        max_columns: usize,
+    ) -> Result<Self> {
+        check_search_params(radius_m, max_nn)?;
+        Ok(Self {
+            radius_m,
+            max_nn,
+            towards_sensor,
+            max_columns,
+        })
+    }
+
+    /// The normals of `points` (finite), all of them or those at the indices `at` (in that
+    /// order), each from its neighbourhood in the whole cloud: bit for bit what estimating all of
+    /// them and picking those would give.
+    ///
+    /// Errors: an index in `at` outside `points`; otherwise as [`estimate_normals`].
+    pub fn estimate(
+        &self,
+        points: &[Point3<f64>],
+        at: Option<&[u32]>,
+    ) -> Result<Vec<Vector3<f64>>> {
+        check_search_params(self.radius_m, self.max_nn)?;
+        if let Some(i) = at.and_then(|at| at.iter().find(|&&i| i as usize >= points.len())) {
+            return Err(Error::InvalidInput(format!(
+                "normal asked for point {i} of {}",
+                points.len()
+            )));
+        }
+        if points.is_empty() {
+            return Ok(Vec::new());
+        }
+        let (radius, max_nn, towards) = (self.radius_m, self.max_nn, self.towards_sensor);
+        if let Some(grid) = RadiusGrid::new(points, radius, self.max_columns)? {
+            return Ok(grid_normals(&grid, points, at, max_nn, towards));
+        }
+        let tree = KdTree::new(points)?;
+        let normal = |p: &Point3<f64>| {
+            let nn = tree.within_radius(p, radius, max_nn);
+            oriented_normal(points, p, nn.iter().map(|n| n.index), towards)
+        };
+        Ok(match at {
+            None => points.par_iter().map(normal).collect(),
+            Some(at) => at
+                .par_iter()
+                .map(|&i| normal(&points[i as usize]))
+                .collect(),
+        })
+    }
 }
 
 /// [`estimate_normals_with_tree`] from precomputed neighbourhoods `nbhd` of every point (e.g. the
@@ -395,6 +488,59 @@ mod tests {
             smallest_eigenvector(&Matrix3::from_diagonal(&Vector3::new(2.0, 1.0, 3.0))),
             Some(Vector3::y())
         );
+    }
+
+    #[test]
+    fn deferred_estimation_of_some_points_equals_all_of_them_picked() {
+        // Noisy samples of a sphere and a plane: neighbourhoods of varied size.
+        let mut rng = Pcg64::seed_from_u64(77);
+        let mut points: Vec<Point3<f64>> = (0..1500)
+            .map(|_| {
+                let d = Vector3::new(
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                );
+                Point3::from(d.normalize() * 0.8)
+            })
+            .collect();
+        points.extend((0..1500).map(|_| {
+            Point3::new(
+                rng.random_range(-2.0..2.0),
+                rng.random_range(-2.0..2.0),
+                -1.0 + rng.random_range(-0.01..0.01),
+            )
+        }));
+        let sensor = Some(Point3::new(0.1, 0.2, 3.0));
+        let at: Vec<u32> = (0..points.len() as u32)
+            .filter(|i| i % 7 == 3)
+            .rev()
+            .collect();
+        let pick = |all: &[Vector3<f64>]| -> Vec<Vector3<f64>> {
+            at.iter().map(|&i| all[i as usize]).collect()
+        };
+        // Through the grid: the same as estimate_normals_with_grid, for all or some points.
+        let grid = NormalEstimate::new(0.25, 20, sensor, usize::MAX).unwrap();
+        let by_grid = estimate_normals_with_grid(&points, 0.25, 20, sensor, usize::MAX)
+            .unwrap()
+            .unwrap();
+        assert_eq!(grid.estimate(&points, None).unwrap(), by_grid);
+        assert_eq!(grid.estimate(&points, Some(&at)).unwrap(), pick(&by_grid));
+        // A grid of one column declines the cloud: the kd-tree then, as estimate_normals_with_tree.
+        let tree = NormalEstimate::new(0.25, 20, sensor, 1).unwrap();
+        let by_tree =
+            estimate_normals_with_tree(&points, &KdTree::new(&points).unwrap(), 0.25, 20, sensor)
+                .unwrap();
+        assert_eq!(tree.estimate(&points, None).unwrap(), by_tree);
+        assert_eq!(tree.estimate(&points, Some(&at)).unwrap(), pick(&by_tree));
+        // Nothing asked, nothing computed; an index outside the cloud and bad settings fail.
+        assert!(grid.estimate(&points, Some(&[])).unwrap().is_empty());
+        assert!(
+            grid.estimate(&points, Some(&[points.len() as u32]))
+                .is_err()
+        );
+        assert!(NormalEstimate::new(0.0, 20, None, 10).is_err());
+        assert!(NormalEstimate::new(0.25, 0, None, 10).is_err());
     }
 
     #[test]

@@ -13,8 +13,8 @@ use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
 use rayon::prelude::*;
 
-use crate::geometry::RadiusGrid;
 use crate::geometry::radius_grid::{GridStorage, default_max_columns};
+use crate::geometry::{NormalEstimate, RadiusGrid};
 use crate::{Error, Result};
 
 /// Default [`IcpConfig::max_iterations`] (Open3D's `ICPConvergenceCriteria` default).
@@ -207,10 +207,16 @@ pub struct RegistrationEvaluation {
     pub num_inliers: usize,
 }
 
+/// All the normals of a target with deferred ones, once estimated (`None` if that failed).
+type DeferredNormals = std::sync::OnceLock<Option<Vec<Vector3<f64>>>>;
+
 /// Target points with a kd-tree built once, plus (for ICP) their normals.
 pub struct IcpTarget {
     points: Vec<Point3<f64>>,
     normals: Option<Vec<Vector3<f64>>>,
+    /// Without given normals: how to estimate them, and all of them once asked for
+    /// ([`IcpTarget::with_deferred_normals`]; `None` inside if that failed).
+    deferred: Option<(NormalEstimate, DeferredNormals)>,
     /// Built on first use: ICP answers from a radius grid where it can, so a target that only
     /// serves ICP (a local map rebuilt every frame) never pays for the tree.
     tree: std::sync::OnceLock<ImmutableKdTree<f64, 3>>,
@@ -226,7 +232,7 @@ impl std::fmt::Debug for IcpTarget {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("IcpTarget")
             .field("points", &self.points.len())
-            .field("has_normals", &self.normals.is_some())
+            .field("has_normals", &self.has_normals())
             .finish()
     }
 }
@@ -302,6 +308,7 @@ impl IcpTarget {
         Ok(Self {
             points: points.to_vec(),
             normals: Some(normals.to_vec()),
+            deferred: None,
             tree: std::sync::OnceLock::from(tree),
             grid: std::sync::OnceLock::new(),
             spare: Default::default(),
@@ -315,6 +322,7 @@ impl IcpTarget {
         Ok(Self {
             points: points.to_vec(),
             normals: None,
+            deferred: None,
             tree: std::sync::OnceLock::new(),
             grid: std::sync::OnceLock::new(),
             spare: Default::default(),
@@ -342,6 +350,7 @@ impl IcpTarget {
         check_target_points(&points)?;
         self.points = points;
         self.normals = Some(normals);
+        self.deferred = None;
         Ok(())
     }
 
@@ -380,9 +389,60 @@ impl IcpTarget {
         &self.points
     }
 
-    /// The target normals, if built with [`IcpTarget::new`].
+    /// The target normals: those given ([`IcpTarget::new`]) or, for
+    /// [`IcpTarget::with_deferred_normals`], all of them estimated at the first call.
     pub fn normals(&self) -> Option<&[Vector3<f64>]> {
-        self.normals.as_deref()
+        match (&self.normals, &self.deferred) {
+            (Some(normals), _) => Some(normals),
+            (None, Some((estimate, all))) => all
+                .get_or_init(|| estimate.estimate(&self.points, None).ok())
+                .as_deref(),
+            (None, None) => None,
+        }
+    }
+
+    /// The normals of the points at the indices `at`, in that order: picked from the known
+    /// normals, or estimated for those points only while the deferred ones have not been (the
+    /// same values, bit for bit). `None` without normals or for an index outside the points.
+    pub fn normals_at(&self, at: &[u32]) -> Option<Vec<Vector3<f64>>> {
+        let known = match (&self.normals, &self.deferred) {
+            (Some(normals), _) => Some(normals.as_slice()),
+            (None, Some((_, all))) => all.get().and_then(|n| n.as_deref()),
+            (None, None) => return None,
+        };
+        match (known, &self.deferred) {
+            (Some(normals), _) => at
+                .iter()
+                .map(|&i| normals.get(i as usize).copied())
+                .collect(),
+            (None, Some((estimate, _))) => estimate.estimate(&self.points, Some(at)).ok(),
+            (None, None) => None,
+        }
+    }
+
+    /// Whether the target has normals (given or deferred): point-to-plane ICP needs them.
+    pub fn has_normals(&self) -> bool {
+        self.normals.is_some() || self.deferred.is_some()
+    }
+
+    /// A target over `points` (taken as they are) whose normals are estimated with `estimate`
+    /// only when asked for: all of them at the first point-to-plane ICP against it, or a few
+    /// ([`IcpTarget::normals_at`]). A frame of `mireg register` is a target only when its
+    /// registration falls back to frame-to-frame ICP, and adds to the local map only the points
+    /// that land in a voxel not yet full. Fails on an empty cloud or non-finite coordinates.
+    pub fn with_deferred_normals(
+        points: Vec<Point3<f64>>,
+        estimate: NormalEstimate,
+    ) -> Result<Self> {
+        check_target_points(&points)?;
+        Ok(Self {
+            points,
+            normals: None,
+            deferred: Some((estimate, std::sync::OnceLock::new())),
+            tree: std::sync::OnceLock::new(),
+            grid: std::sync::OnceLock::new(),
+            spare: Default::default(),
+        })
     }
 
     /// The kd-tree over the points (built on first use).
@@ -491,7 +551,7 @@ fn correspondence_pass(
     kernel: Option<RobustKernel>,
 ) -> PassSums {
     let max_squared = max_distance_m * max_distance_m;
-    let normals = target.normals.as_deref();
+    let normals = target.normals();
     let partials: Vec<PassSums> = source
         .par_chunks(CHUNK_POINTS)
         .map(|chunk| {
@@ -653,7 +713,7 @@ pub fn registration_icp_point_to_plane(
     if source.is_empty() {
         return Err(Error::InvalidInput("source cloud is empty".into()));
     }
-    if target.normals.is_none() {
+    if target.normals().is_none() {
         return Err(Error::InvalidInput(
             "point-to-plane ICP needs target normals (use IcpTarget::new)".into(),
         ));

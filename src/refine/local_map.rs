@@ -73,6 +73,8 @@ pub struct LocalMap {
     target: Option<IcpTarget>,
     /// Scratch of [`LocalMap::target`]: each occupied voxel's key and points in the target.
     cells: Vec<([i64; 3], std::ops::Range<usize>)>,
+    /// Scratch of [`LocalMap::insert_with`]: each kept point's index and place in the slabs.
+    kept: Vec<(u32, usize)>,
 }
 
 impl LocalMap {
@@ -95,6 +97,7 @@ impl LocalMap {
             points: 0,
             target: None,
             cells: Vec::new(),
+            kept: Vec::new(),
         })
     }
 
@@ -127,8 +130,30 @@ impl LocalMap {
         max_distance_m: f64,
     ) {
         assert_eq!(points.len(), normals.len(), "one normal per point");
+        self.insert_with(
+            world_from_frame,
+            points,
+            |at| at.iter().map(|&i| normals[i as usize]).collect(),
+            max_distance_m,
+        );
+    }
+
+    /// [`LocalMap::insert`] asking `normals_at` for the normals (sensor frame) of only the points
+    /// kept, by index into `points` in increasing order, so that normals can be estimated for
+    /// those alone ([`crate::refine::icp::IcpTarget::normals_at`]): on a 10 Hz log most points
+    /// land in voxels already full. The map is the same as with all normals given. Normals
+    /// missing from its answer (it must return one per index) stay zero.
+    pub fn insert_with(
+        &mut self,
+        world_from_frame: &Isometry3<f64>,
+        points: &[Point3<f64>],
+        normals_at: impl FnOnce(&[u32]) -> Vec<Vector3<f64>>,
+        max_distance_m: f64,
+    ) {
         let cap = self.config.max_points_per_voxel;
-        for (p, n) in points.iter().zip(normals) {
+        // The points kept: their index in `points` and their place in the slabs.
+        self.kept.clear();
+        for (i, p) in points.iter().enumerate() {
             let w = world_from_frame * p;
             if !w.coords.iter().all(|c| c.is_finite()) {
                 continue;
@@ -159,11 +184,19 @@ impl LocalMap {
             };
             let held = &mut self.slots[slot].held;
             if *held < cap {
-                self.points_slab[slot * cap + *held] = w;
-                self.normals_slab[slot * cap + *held] = world_from_frame.rotation * n;
+                let at = slot * cap + *held;
+                self.points_slab[at] = w;
+                self.kept.push((i as u32, at));
                 *held += 1;
                 self.points += 1;
             }
+        }
+        let at: Vec<u32> = self.kept.iter().map(|&(i, _)| i).collect();
+        let normals = normals_at(&at);
+        for (k, &(_, slab)) in self.kept.iter().enumerate() {
+            self.normals_slab[slab] = normals
+                .get(k)
+                .map_or_else(Vector3::zeros, |n| world_from_frame.rotation * n);
         }
         let origin = Point3::from(world_from_frame.translation.vector);
         let max_sq = max_distance_m * max_distance_m;
@@ -367,5 +400,59 @@ mod tests {
             })
             .is_err()
         );
+    }
+
+    #[test]
+    fn normals_asked_for_the_kept_points_only_give_the_same_map() {
+        // Two overlapping frames of a noisy slab: the second lands mostly in voxels the first
+        // filled up.
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(9);
+        let frame: Vec<Point3<f64>> = (0..4000)
+            .map(|_| {
+                Point3::new(
+                    rng.random_range(0.0..4.0),
+                    rng.random_range(0.0..4.0),
+                    rng.random_range(0.0..0.3),
+                )
+            })
+            .collect();
+        let normals: Vec<Vector3<f64>> = frame
+            .iter()
+            .map(|p| Vector3::new(p.x, 1.0, p.y).normalize())
+            .collect();
+        let poses = [
+            Isometry3::identity(),
+            Isometry3::from_parts(
+                Translation3::new(0.3, 0.1, 0.0),
+                UnitQuaternion::from_euler_angles(0.0, 0.0, 0.05),
+            ),
+        ];
+        let (mut all, mut lazy) = (map(0.5, 3), map(0.5, 3));
+        let mut asked = Vec::new();
+        for pose in &poses {
+            all.insert(pose, &frame, &normals, 100.0);
+            lazy.insert_with(
+                pose,
+                &frame,
+                |at| {
+                    asked.push(at.to_vec());
+                    at.iter().map(|&i| normals[i as usize]).collect()
+                },
+                100.0,
+            );
+        }
+        assert_eq!(all.len(), lazy.len());
+        let (a, b) = (
+            all.target(0.5).unwrap().unwrap(),
+            lazy.target(0.5).unwrap().unwrap(),
+        );
+        assert_eq!(a.points(), b.points());
+        assert_eq!(a.normals(), b.normals());
+        // Asked once per frame, in increasing order, for exactly the points kept.
+        assert_eq!(asked.len(), 2);
+        assert!(asked.iter().all(|at| at.windows(2).all(|w| w[0] < w[1])));
+        assert_eq!(asked.iter().map(Vec::len).sum::<usize>(), all.len());
+        assert!(asked[1].len() < frame.len() / 2, "{}", asked[1].len());
     }
 }

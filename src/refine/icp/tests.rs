@@ -366,3 +366,34 @@ fn a_refilled_target_answers_as_a_new_one() {
     });
     assert!(err.is_err());
 }
+
+#[test]
+fn deferred_normals_answer_as_given_ones() {
+    let (scene, _) = corner_and_sphere();
+    let mut rng = Pcg64Mcg::seed_from_u64(5);
+    let estimate = NormalEstimate::new(0.1, 30, Some(Point3::new(0.2, 0.3, 2.0)), 1 << 20).unwrap();
+    let normals = estimate.estimate(&scene, None).unwrap();
+    let given = IcpTarget::new(&scene, &normals).unwrap();
+    // A few normals before all of them are estimated, and after: the given ones, bit for bit.
+    let deferred = IcpTarget::with_deferred_normals(scene.clone(), estimate).unwrap();
+    assert!(deferred.has_normals());
+    let at = [7u32, 0, 4000, 3];
+    let picked: Vec<_> = at.iter().map(|&i| normals[i as usize]).collect();
+    assert_eq!(deferred.normals_at(&at).unwrap(), picked);
+    let source: Vec<_> = scene.iter().map(|p| ground_truth().inverse() * p).collect();
+    let init = ground_truth() * perturbation(&mut rng, 3.0, 0.05);
+    let config = IcpConfig::new(0.3);
+    assert_eq!(
+        registration_icp_point_to_plane(&source, &deferred, &init, &config).unwrap(),
+        registration_icp_point_to_plane(&source, &given, &init, &config).unwrap()
+    );
+    assert_eq!(deferred.normals().unwrap(), &normals[..]);
+    assert_eq!(deferred.normals_at(&at).unwrap(), picked);
+    // An index outside the cloud has no normal; a target without normals has none at all.
+    assert_eq!(deferred.normals_at(&[scene.len() as u32]), None);
+    let bare = IcpTarget::points_only(&scene).unwrap();
+    assert!(!bare.has_normals());
+    assert_eq!(bare.normals_at(&at), None);
+    assert!(registration_icp_point_to_plane(&source, &bare, &init, &config).is_err());
+    assert!(IcpTarget::with_deferred_normals(Vec::new(), estimate).is_err());
+}
