@@ -310,13 +310,19 @@ impl Odometry {
                 let Some(map) = map.as_mut() else {
                     return Ok(None);
                 };
-                if std::mem::take(map_pending) {
-                    add_to_map(map, prev, &world_from_prev);
-                }
+                let pending = std::mem::take(map_pending);
                 if frame.icp.is_none() {
+                    if pending {
+                        add_to_map(map, prev, &world_from_prev);
+                    }
                     return Ok(None);
                 }
-                let Some(target) = map.target(distance)? else {
+                let target = if pending {
+                    add_to_map_and_target(map, prev, &world_from_prev, distance)?
+                } else {
+                    map.target(distance)?
+                };
+                let Some(target) = target else {
                     return Ok(None);
                 };
                 target.prepare_for_distance(distance)?;
@@ -565,16 +571,36 @@ fn map_icp_distance(pair: &PairConfig) -> Result<f64> {
 /// Adds an accepted frame's ICP cloud at `world_from_frame` to `map`; voxels farther than the
 /// frame's farthest point from its origin are dropped.
 fn add_to_map(map: &mut LocalMap, frame: &PreparedFrame, world_from_frame: &Isometry3<f64>) {
-    let Some(icp) = &frame.icp else { return };
-    if !icp.has_normals() {
-        return;
+    if let Some((icp, range)) = map_input(frame) {
+        // Normals only for the points the map keeps (most of a 10 Hz frame lands in full voxels).
+        let normals_at = |at: &[u32]| icp.normals_at(at).unwrap_or_default();
+        map.insert_with(world_from_frame, icp.points(), normals_at, range);
     }
+}
+
+/// [`add_to_map`], then the map as an ICP target at `distance` \[m\]; the kept points' normals
+/// are estimated while the target is built ([`LocalMap::insert_and_target`]).
+fn add_to_map_and_target<'m>(
+    map: &'m mut LocalMap,
+    frame: &PreparedFrame,
+    world_from_frame: &Isometry3<f64>,
+    distance: f64,
+) -> Result<Option<&'m IcpTarget>> {
+    let Some((icp, range)) = map_input(frame) else {
+        return map.target(distance);
+    };
+    let normals_at = |at: &[u32]| icp.normals_at(at).unwrap_or_default();
+    map.insert_and_target(world_from_frame, icp.points(), normals_at, range, distance)
+}
+
+/// A frame's ICP cloud, if it can join the map (it has normals, given or deferred), and its
+/// farthest point's range \[m\].
+fn map_input(frame: &PreparedFrame) -> Option<(&IcpTarget, f64)> {
+    let icp = frame.icp.as_ref().filter(|icp| icp.has_normals())?;
     let range = icp
         .points()
         .iter()
         .map(|p| p.coords.norm())
         .fold(0.0f64, f64::max);
-    // Normals only for the points the map keeps (most of a 10 Hz frame lands in full voxels).
-    let normals_at = |at: &[u32]| icp.normals_at(at).unwrap_or_default();
-    map.insert_with(world_from_frame, icp.points(), normals_at, range);
+    Some((icp, range))
 }

@@ -362,10 +362,34 @@ impl IcpTarget {
         correspondence_grid(self, max_distance_m).map(|_| ())
     }
 
-    /// The storage of the correspondence grid before the last [`IcpTarget::refill`], for a grid
-    /// built outside ([`IcpTarget::set_grid`]).
-    pub(crate) fn take_grid_storage(&self) -> GridStorage {
-        std::mem::take(&mut *self.spare.lock().unwrap_or_else(|e| e.into_inner()))
+    /// Takes the target apart for a rebuild in place ([`IcpTarget::from_storage`]): its points,
+    /// given normals (empty without) and the storage of its correspondence grid (or of the one
+    /// before the last [`IcpTarget::refill`]).
+    pub(crate) fn into_storage(mut self) -> (Vec<Point3<f64>>, Vec<Vector3<f64>>, GridStorage) {
+        let grid = match self.grid.take() {
+            Some((_, Some(grid))) => grid.into_storage(),
+            _ => self.spare.into_inner().unwrap_or_else(|e| e.into_inner()),
+        };
+        (self.points, self.normals.unwrap_or_default(), grid)
+    }
+
+    /// [`IcpTarget::new`] taking the vectors as they are (no copy), with `spare` as the storage
+    /// of the next correspondence grid.
+    pub(crate) fn from_storage(
+        points: Vec<Point3<f64>>,
+        normals: Vec<Vector3<f64>>,
+        spare: GridStorage,
+    ) -> Result<Self> {
+        check_normals(&points, &normals)?;
+        check_target_points(&points)?;
+        Ok(Self {
+            points,
+            normals: Some(normals),
+            deferred: None,
+            tree: std::sync::OnceLock::new(),
+            grid: std::sync::OnceLock::new(),
+            spare: std::sync::Mutex::new(spare),
+        })
     }
 
     /// Makes `grid`, over exactly this target's points at radius `max_distance_m`, the

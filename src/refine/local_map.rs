@@ -22,7 +22,7 @@ use nalgebra::{Isometry3, Point3, Vector3};
 
 use super::icp::IcpTarget;
 use crate::geometry::floor_i64;
-use crate::geometry::radius_grid::{RadiusGrid, cell_edge, default_max_columns};
+use crate::geometry::radius_grid::{GridStorage, RadiusGrid, cell_edge, default_max_columns};
 use crate::hash::FastHash;
 use crate::{Error, Result};
 
@@ -33,6 +33,17 @@ pub struct LocalMapConfig {
     pub voxel_size_m: f64,
     /// Points kept per voxel (the first ones to arrive). KISS-ICP's default: 20.
     pub max_points_per_voxel: usize,
+}
+
+/// The map's points in a target's storage, with their grid, before the normals
+/// ([`LocalMap::target`]).
+struct BuiltPoints {
+    points: Vec<Point3<f64>>,
+    /// Storage for the normals.
+    normals: Vec<Vector3<f64>>,
+    /// Storage for the next grid.
+    spare: GridStorage,
+    grid: Option<RadiusGrid>,
 }
 
 /// One voxel's slot in a [`LocalMap`].
@@ -150,6 +161,40 @@ impl LocalMap {
         normals_at: impl FnOnce(&[u32]) -> Vec<Vector3<f64>>,
         max_distance_m: f64,
     ) {
+        let at = self.place_points(world_from_frame, points, max_distance_m);
+        let normals = normals_at(&at);
+        self.write_normals(world_from_frame, &normals);
+    }
+
+    /// [`LocalMap::insert_with`] followed by [`LocalMap::target`]`(target_distance_m)`, with the
+    /// normals of the kept points estimated while the target's points and grid are built (the
+    /// grid needs the points only): the same map and target, sooner where estimating the
+    /// normals takes long (most points of the KAIST03 keyframes, 1 m apart, are kept).
+    pub fn insert_and_target(
+        &mut self,
+        world_from_frame: &Isometry3<f64>,
+        points: &[Point3<f64>],
+        normals_at: impl FnOnce(&[u32]) -> Vec<Vector3<f64>> + Send,
+        max_distance_m: f64,
+        target_distance_m: f64,
+    ) -> Result<Option<&IcpTarget>> {
+        let at = self.place_points(world_from_frame, points, max_distance_m);
+        let (normals, built) =
+            rayon::join(|| normals_at(&at), || self.target_points(target_distance_m));
+        self.write_normals(world_from_frame, &normals);
+        self.finish_target(built?, target_distance_m)
+    }
+
+    /// The first part of an insertion: each point goes to its voxel unless that is full, then
+    /// voxels farther than `max_distance_m` from the frame's origin are dropped. Returns the kept
+    /// points' indices into `points` (increasing); [`LocalMap::write_normals`] then gives them
+    /// their normals.
+    fn place_points(
+        &mut self,
+        world_from_frame: &Isometry3<f64>,
+        points: &[Point3<f64>],
+        max_distance_m: f64,
+    ) -> Vec<u32> {
         let cap = self.config.max_points_per_voxel;
         // The points kept: their index in `points` and their place in the slabs.
         self.kept.clear();
@@ -191,13 +236,6 @@ impl LocalMap {
                 self.points += 1;
             }
         }
-        let at: Vec<u32> = self.kept.iter().map(|&(i, _)| i).collect();
-        let normals = normals_at(&at);
-        for (k, &(_, slab)) in self.kept.iter().enumerate() {
-            self.normals_slab[slab] = normals
-                .get(k)
-                .map_or_else(Vector3::zeros, |n| world_from_frame.rotation * n);
-        }
         let origin = Point3::from(world_from_frame.translation.vector);
         let max_sq = max_distance_m * max_distance_m;
         for (slot, s) in self.slots.iter_mut().enumerate() {
@@ -208,6 +246,18 @@ impl LocalMap {
                 self.free.push(slot as u32);
             }
         }
+        self.kept.iter().map(|&(i, _)| i).collect()
+    }
+
+    /// The normals (the frame's sensor frame) of the points the last
+    /// [`LocalMap::place_points`] kept, one per kept point, rotated into the world; missing ones
+    /// stay zero. (A kept point whose voxel was then dropped writes into a free slot: harmless.)
+    fn write_normals(&mut self, world_from_frame: &Isometry3<f64>, normals: &[Vector3<f64>]) {
+        for (k, &(_, slab)) in self.kept.iter().enumerate() {
+            self.normals_slab[slab] = normals
+                .get(k)
+                .map_or_else(Vector3::zeros, |n| world_from_frame.rotation * n);
+        }
     }
 
     /// The map as an ICP target (points and normals in slot order); `None` while empty. Built
@@ -217,52 +267,80 @@ impl LocalMap {
     /// ([`cell_edge`]), the voxels also serve as the target's correspondence grid at that
     /// distance ([`RadiusGrid::from_lattice`]).
     pub fn target(&mut self, max_distance_m: f64) -> Result<Option<&IcpTarget>> {
+        let built = self.target_points(max_distance_m);
+        self.finish_target(built?, max_distance_m)
+    }
+
+    /// The first part of [`LocalMap::target`]: the map's points in slot order, in the storage of
+    /// the previous target, and their correspondence grid where the voxels serve as its cells
+    /// (the grid needs no normals); `None` for an empty map.
+    fn target_points(&mut self, max_distance_m: f64) -> Result<Option<BuiltPoints>> {
+        let (mut points, normals, mut spare) = match self.target.take() {
+            Some(previous) => previous.into_storage(),
+            None => Default::default(),
+        };
         if self.is_empty() {
-            self.target = None;
             return Ok(None);
         }
         let cap = self.config.max_points_per_voxel;
         // Occupied voxels in slot order, with their points' range in the flattened map.
         self.cells.clear();
-        let mut end = 0;
-        for s in self.slots.iter().filter(|s| s.held > 0) {
-            self.cells.push((s.key, end..end + s.held));
-            end += s.held;
+        points.clear();
+        points.reserve(self.points);
+        for (slot, s) in self.slots.iter().enumerate().filter(|(_, s)| s.held > 0) {
+            self.cells
+                .push((s.key, points.len()..points.len() + s.held));
+            points.extend_from_slice(&self.points_slab[slot * cap..slot * cap + s.held]);
         }
-        let fill = |points: &mut Vec<Point3<f64>>, normals: &mut Vec<Vector3<f64>>| {
-            points.reserve(self.points);
-            normals.reserve(self.points);
-            for (slot, s) in self.slots.iter().enumerate() {
-                let at = slot * cap..slot * cap + s.held;
-                points.extend_from_slice(&self.points_slab[at.clone()]);
-                normals.extend_from_slice(&self.normals_slab[at]);
-            }
-        };
-        let mut target = match self.target.take() {
-            Some(mut target) => target.refill(fill).map(|()| target),
-            None => {
-                let (mut points, mut normals) = (Vec::new(), Vec::new());
-                fill(&mut points, &mut normals);
-                IcpTarget::new(&points, &normals)
-            }
-        }?;
         // The voxels are the correspondence grid's cells where they are large enough: no point
         // is bucketed again.
         let v = self.config.voxel_size_m;
-        if v >= cell_edge(max_distance_m) {
-            let columns = default_max_columns(target.points().len());
-            let storage = target.take_grid_storage();
-            let grid = RadiusGrid::from_lattice(
-                target.points(),
+        let grid = if v >= cell_edge(max_distance_m) {
+            RadiusGrid::from_lattice(
+                &points,
                 &self.cells,
                 v,
                 max_distance_m,
-                columns,
-                storage,
-            )?;
-            if let Some(grid) = grid {
-                target.set_grid(max_distance_m, grid)?;
-            }
+                default_max_columns(points.len()),
+                std::mem::take(&mut spare),
+            )?
+        } else {
+            None
+        };
+        Ok(Some(BuiltPoints {
+            points,
+            normals,
+            spare,
+            grid,
+        }))
+    }
+
+    /// The second part of [`LocalMap::target`]: the normals, in the points' order, and the
+    /// target made.
+    fn finish_target(
+        &mut self,
+        built: Option<BuiltPoints>,
+        max_distance_m: f64,
+    ) -> Result<Option<&IcpTarget>> {
+        let Some(BuiltPoints {
+            points,
+            mut normals,
+            spare,
+            grid,
+        }) = built
+        else {
+            self.target = None;
+            return Ok(None);
+        };
+        let cap = self.config.max_points_per_voxel;
+        normals.clear();
+        normals.reserve(points.len());
+        for (slot, s) in self.slots.iter().enumerate().filter(|(_, s)| s.held > 0) {
+            normals.extend_from_slice(&self.normals_slab[slot * cap..slot * cap + s.held]);
+        }
+        let mut target = IcpTarget::from_storage(points, normals, spare)?;
+        if let Some(grid) = grid {
+            target.set_grid(max_distance_m, grid)?;
         }
         self.target = Some(target);
         Ok(self.target.as_ref())
@@ -449,6 +527,26 @@ mod tests {
         );
         assert_eq!(a.points(), b.points());
         assert_eq!(a.normals(), b.normals());
+        // Inserting and building the target in one call (normals estimated beside the grid)
+        // gives the same target, frame after frame, with its grid at the distance asked.
+        let mut fused = map(0.5, 3);
+        for pose in &poses {
+            let gather = |at: &[u32]| at.iter().map(|&i| normals[i as usize]).collect();
+            let t = fused
+                .insert_and_target(pose, &frame, gather, 100.0, 0.4)
+                .unwrap()
+                .unwrap();
+            assert_eq!(t.points().len(), fused.len());
+        }
+        let f = fused.built_target().unwrap();
+        assert_eq!(f.points(), a.points());
+        assert_eq!(f.normals(), a.normals());
+        let probes = [Point3::new(1.0, 1.0, 0.1), Point3::new(3.3, 0.2, 0.25)];
+        let id = Isometry3::identity();
+        assert_eq!(
+            crate::refine::icp::evaluate_registration(&probes, f, &id, 0.4).unwrap(),
+            crate::refine::icp::evaluate_registration(&probes, a, &id, 0.4).unwrap()
+        );
         // Asked once per frame, in increasing order, for exactly the points kept.
         assert_eq!(asked.len(), 2);
         assert!(asked.iter().all(|at| at.windows(2).all(|w| w[0] < w[1])));
