@@ -2,7 +2,9 @@
 //! thread-count independence, Open3D-equal evaluation, degenerate geometry, bad input.
 
 use super::*;
+use crate::geometry::NormalEstimate;
 use nalgebra::Unit;
+use nalgebra::Vector3;
 use rand::{RngExt, SeedableRng};
 use rand_distr::Distribution;
 use rand_pcg::Pcg64Mcg;
