@@ -62,13 +62,37 @@ pub fn estimate_normals_with_tree(
             points.len()
         )));
     }
-    Ok(points
-        .par_iter()
-        .map(|p| {
-            let nn = tree.within_radius(p, radius_m, max_nn);
-            oriented_normal(points, p, nn.iter().map(|n| n.index), towards_sensor)
-        })
-        .collect())
+    Ok(tree_normals(
+        tree,
+        points,
+        None,
+        radius_m,
+        max_nn,
+        towards_sensor,
+    ))
+}
+
+/// The normals of `points` (all, or those at the indices `at`, in that order) from `tree`'s
+/// neighbourhoods ([`estimate_normals_with_tree`]); each depends on its own point only.
+fn tree_normals(
+    tree: &KdTree,
+    points: &[Point3<f64>],
+    at: Option<&[u32]>,
+    radius_m: f64,
+    max_nn: usize,
+    towards_sensor: Option<Point3<f64>>,
+) -> Vec<Vector3<f64>> {
+    let normal = |p: &Point3<f64>| {
+        let nn = tree.within_radius(p, radius_m, max_nn);
+        oriented_normal(points, p, nn.iter().map(|n| n.index), towards_sensor)
+    };
+    match at {
+        None => points.par_iter().map(normal).collect(),
+        Some(at) => at
+            .par_iter()
+            .map(|&i| normal(&points[i as usize]))
+            .collect(),
+    }
 }
 
 /// [`estimate_normals_with_tree`] through a [`RadiusGrid`] of cell edge `radius_m` over `points`
@@ -196,17 +220,7 @@ impl NormalEstimate {
             return Ok(grid_normals(&grid, points, at, max_nn, towards));
         }
         let tree = KdTree::new(points)?;
-        let normal = |p: &Point3<f64>| {
-            let nn = tree.within_radius(p, radius, max_nn);
-            oriented_normal(points, p, nn.iter().map(|n| n.index), towards)
-        };
-        Ok(match at {
-            None => points.par_iter().map(normal).collect(),
-            Some(at) => at
-                .par_iter()
-                .map(|&i| normal(&points[i as usize]))
-                .collect(),
-        })
+        Ok(tree_normals(&tree, points, at, radius, max_nn, towards))
     }
 }
 

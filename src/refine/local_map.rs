@@ -64,6 +64,17 @@ impl Default for Slot {
     }
 }
 
+/// Each occupied voxel's key and its points' range in the slabs (`cap` entries per slot), in slot
+/// order: the order of the map as a target.
+fn occupied(
+    slots: &[Slot],
+    cap: usize,
+) -> impl Iterator<Item = ([i64; 3], std::ops::Range<usize>)> + '_ {
+    (slots.iter().enumerate())
+        .filter(|(_, s)| s.held > 0)
+        .map(move |(slot, s)| (s.key, slot * cap..slot * cap + s.held))
+}
+
 /// Points (with normals) of recent frames in the world frame.
 #[derive(Debug)]
 pub struct LocalMap {
@@ -287,10 +298,10 @@ impl LocalMap {
         self.cells.clear();
         points.clear();
         points.reserve(self.points);
-        for (slot, s) in self.slots.iter().enumerate().filter(|(_, s)| s.held > 0) {
+        for (key, at) in occupied(&self.slots, cap) {
             self.cells
-                .push((s.key, points.len()..points.len() + s.held));
-            points.extend_from_slice(&self.points_slab[slot * cap..slot * cap + s.held]);
+                .push((key, points.len()..points.len() + at.len()));
+            points.extend_from_slice(&self.points_slab[at]);
         }
         // The voxels are the correspondence grid's cells where they are large enough: no point
         // is bucketed again.
@@ -335,8 +346,8 @@ impl LocalMap {
         let cap = self.config.max_points_per_voxel;
         normals.clear();
         normals.reserve(points.len());
-        for (slot, s) in self.slots.iter().enumerate().filter(|(_, s)| s.held > 0) {
-            normals.extend_from_slice(&self.normals_slab[slot * cap..slot * cap + s.held]);
+        for (_, at) in occupied(&self.slots, cap) {
+            normals.extend_from_slice(&self.normals_slab[at]);
         }
         let mut target = IcpTarget::from_storage(points, normals, spare)?;
         if let Some(grid) = grid {

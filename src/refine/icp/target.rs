@@ -26,7 +26,7 @@ pub struct IcpTarget {
     /// several ICP runs at one distance (a local map, refined from two starts and at two
     /// resolutions) buckets its points once.
     pub(super) grid: std::sync::OnceLock<(f64, Option<RadiusGrid>)>,
-    /// The storage of the grid before the last [`IcpTarget::refill`], for building the next.
+    /// Storage for the next grid ([`IcpTarget::from_storage`]), used once by the first.
     pub(super) spare: std::sync::Mutex<GridStorage>,
 }
 
@@ -132,31 +132,6 @@ impl IcpTarget {
         })
     }
 
-    /// Replaces the points and normals by those `fill` appends to the two (empty) vectors,
-    /// keeping the storage of the old ones and of the correspondence grid: a target rebuilt every
-    /// frame (a local map) allocates and faults in its megabytes once. Fails like
-    /// [`IcpTarget::new`] (the target is then empty).
-    pub fn refill(
-        &mut self,
-        fill: impl FnOnce(&mut Vec<Point3<f64>>, &mut Vec<Vector3<f64>>),
-    ) -> Result<()> {
-        let mut points = std::mem::take(&mut self.points);
-        let mut normals = self.normals.take().unwrap_or_default();
-        points.clear();
-        normals.clear();
-        fill(&mut points, &mut normals);
-        self.tree = std::sync::OnceLock::new();
-        if let Some((_, Some(grid))) = self.grid.take() {
-            *self.spare.lock().unwrap_or_else(|e| e.into_inner()) = grid.into_storage();
-        }
-        check_normals(&points, &normals)?;
-        check_target_points(&points)?;
-        self.points = points;
-        self.normals = Some(normals);
-        self.deferred = None;
-        Ok(())
-    }
-
     /// Builds now, instead of at the first ICP call, the search structure that ICP and
     /// [`evaluate_registration`](super::evaluate_registration) at `max_distance_m` \[m\] use
     /// (kept in the target), so that a caller can overlap its construction with other work.
@@ -165,9 +140,10 @@ impl IcpTarget {
         correspondence_grid(self, max_distance_m).map(|_| ())
     }
 
-    /// Takes the target apart for a rebuild in place ([`IcpTarget::from_storage`]): its points,
-    /// given normals (empty without) and the storage of its correspondence grid (or of the one
-    /// before the last [`IcpTarget::refill`]).
+    /// Takes the target apart for a rebuild in place ([`IcpTarget::from_storage`]): a target
+    /// rebuilt every frame (a local map) allocates and faults in its megabytes once. Returns its
+    /// points, given normals (empty without) and the storage of its correspondence grid (or the
+    /// spare storage it was made with, if it built none).
     pub(crate) fn into_storage(mut self) -> (Vec<Point3<f64>>, Vec<Vector3<f64>>, GridStorage) {
         let grid = match self.grid.take() {
             Some((_, Some(grid))) => grid.into_storage(),

@@ -340,33 +340,35 @@ fn a_minimum_update_stops_early_and_bad_values_are_rejected() {
 }
 
 #[test]
-fn a_refilled_target_answers_as_a_new_one() {
+fn a_target_rebuilt_in_its_storage_answers_as_a_new_one() {
     let (scene, scene_normals) = corner_and_sphere();
     let mut rng = Pcg64Mcg::seed_from_u64(12);
     let source: Vec<_> = scene.iter().map(|p| ground_truth().inverse() * p).collect();
     let init = ground_truth() * perturbation(&mut rng, 3.0, 0.05);
     let config = IcpConfig::new(0.3);
-    // A target first holding another cloud (its grid built), then refilled with the scene.
+    // A target first holding another cloud (its grid built), then rebuilt in its storage with
+    // the scene.
     let half = scene.len() / 2;
-    let mut reused = IcpTarget::new(&scene[half..], &scene_normals[half..]).unwrap();
-    reused.prepare_for_distance(0.3).unwrap();
-    reused
-        .refill(|p, n| {
-            p.extend_from_slice(&scene);
-            n.extend_from_slice(&scene_normals);
-        })
-        .unwrap();
+    let old = IcpTarget::new(&scene[half..], &scene_normals[half..]).unwrap();
+    old.prepare_for_distance(0.3).unwrap();
+    let (mut p, mut n, spare) = old.into_storage();
+    p.clear();
+    n.clear();
+    p.extend_from_slice(&scene);
+    n.extend_from_slice(&scene_normals);
+    let reused = IcpTarget::from_storage(p, n, spare).unwrap();
     let fresh = IcpTarget::new(&scene, &scene_normals).unwrap();
     assert_eq!(
         registration_icp_point_to_plane(&source, &reused, &init, &config).unwrap(),
         registration_icp_point_to_plane(&source, &fresh, &init, &config).unwrap()
     );
-    // A refill with a bad normal is an error, not a panic.
-    let err = reused.refill(|p, n| {
-        p.push(Point3::origin());
-        n.push(Vector3::new(f64::NAN, 0.0, 1.0));
-    });
-    assert!(err.is_err());
+    // A rebuild with a bad normal is an error, not a panic.
+    let (mut p, mut n, spare) = reused.into_storage();
+    p.clear();
+    n.clear();
+    p.push(Point3::origin());
+    n.push(Vector3::new(f64::NAN, 0.0, 1.0));
+    assert!(IcpTarget::from_storage(p, n, spare).is_err());
 }
 
 #[test]
