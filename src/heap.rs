@@ -16,20 +16,37 @@
 //! time 3.8–4.5 s per 200 frames); at 1 MiB, which leaves the sub-megabyte per-frame buffers in
 //! the arenas, 53.1–53.2 → 57.2–57.8 MB at 10.2–10.5 frames/s (3.3–3.5 s). 1 MiB is used: both
 //! stay within 10 % between a log and one 10× longer, and only 1 MiB keeps 10 frames/s.
+//!
+//! The trim threshold: at glibc's 128 KiB each arena gave the top of its heap back to the system
+//! whenever that much lay free there, and faulted it in again for the next frame's buffers: a
+//! frame's sub-megabyte blocks (neighbourhoods, sort buffers, the map's growing vectors) were
+//! faulted in once per frame. `mireg register` already returns every arena's free memory
+//! every few frames ([`trim`]), which is what bounds the RSS of a long log; between two such
+//! returns the arenas now keep what they freed ([`TRIM_THRESHOLD_BYTES`]). Measured with the
+//! cloud buffers reused (docs/BENCHMARKS.md): on the KITTI replay log (100 frames, 0.5 m voxel)
+//! 157k → 28k page faults and 0.50 → 0.20 s of system time; peak RSS 20 → 200 frames
+//! 45.5–47.1 → 48.1–48.9 MB (+2.4–5.5 %, against +3.9–10 % before).
 
 /// The static `mmap` threshold \[bytes\] (glibc's default is 128 KiB, dynamic).
 pub const MMAP_THRESHOLD_BYTES: i32 = 1024 * 1024;
 
-/// Makes glibc's `mmap` threshold static at [`MMAP_THRESHOLD_BYTES`] (which also fixes the trim
-/// threshold at its 128 KiB default), so the large blocks a frame frees go back to the system
-/// instead of accumulating in per-thread arenas. Process-wide: for the binary, not the library. No effect
-/// with other allocators or C libraries.
+/// The trim threshold \[bytes\] of [`release_large_blocks_promptly`]: free memory at the top of
+/// an arena's heap that glibc keeps rather than returning it on each free (default 128 KiB).
+/// Large enough that the arenas never trim themselves between two [`trim`] calls.
+pub const TRIM_THRESHOLD_BYTES: i32 = 256 * 1024 * 1024;
+
+/// Makes glibc's `mmap` threshold static at [`MMAP_THRESHOLD_BYTES`], so the large blocks a frame
+/// frees go back to the system instead of accumulating in per-thread arenas, and lets the arenas
+/// keep their smaller freed blocks ([`TRIM_THRESHOLD_BYTES`]) until the caller returns them with
+/// [`trim`], as `mireg register` does every few frames. Process-wide: for the binary, not the
+/// library. No effect with other allocators or C libraries.
 pub fn release_large_blocks_promptly() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    // SAFETY: mallopt only sets an allocator parameter; it is thread-safe (it takes each arena's
-    // lock) and M_MMAP_THRESHOLD accepts any value up to 32 MiB.
+    // SAFETY: mallopt only sets allocator parameters; it is thread-safe (it takes each arena's
+    // lock), M_MMAP_THRESHOLD accepts any value up to 32 MiB and M_TRIM_THRESHOLD any value.
     unsafe {
         libc::mallopt(libc::M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES);
     }
 }
 

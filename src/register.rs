@@ -409,9 +409,12 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
             // The frame id of a cloud that cannot be decoded: the previous cloud's.
             let mut last_frame_id = String::new();
             let mut motions = Motions::new(motion_rx);
+            // The previous cloud's points, once prepared: their buffer takes the next cloud's
+            // (a LiDAR frame's few megabytes are allocated and faulted in once, not per cloud).
+            let mut spare_points = Vec::new();
             for (frame_index, msg) in cloud_rx.into_iter().enumerate() {
                 let t = Instant::now();
-                let decoded = kind.decode(&msg.data);
+                let decoded = kind.decode_reusing(&msg.data, std::mem::take(&mut spare_points));
                 let (mut time_field, mut deskewed, mut fatal) = (None, false, None);
                 let dropped = decoded.as_ref().map_or(Dropped::default(), |c| Dropped {
                     non_finite: c.num_dropped_non_finite,
@@ -461,6 +464,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                         let prepared =
                             prepare_frame_with(&cloud.points, &config.pair, &mut scratch)
                                 .map_err(|e| (FailureReason::InvalidCloud, e.to_string()));
+                        spare_points = cloud.points;
                         (cloud.header, prepared)
                     }
                 };

@@ -50,10 +50,20 @@ impl CloudKind {
         self,
         payload: &[u8],
     ) -> std::result::Result<codec::PointCloud, codec::DecodeError> {
+        self.decode_reusing(payload, Vec::new())
+    }
+
+    /// [`Self::decode`] writing the points into `points` (cleared first: the previous cloud's
+    /// buffer, reused).
+    pub(super) fn decode_reusing(
+        self,
+        payload: &[u8],
+        points: Vec<nalgebra::Point3<f64>>,
+    ) -> std::result::Result<codec::PointCloud, codec::DecodeError> {
         match self {
-            CloudKind::Ros2 => cdr::decode_point_cloud2(payload),
-            CloudKind::Ros1 => ros1::decode_point_cloud2(payload),
-            CloudKind::Foxglove => foxglove::decode_foxglove_point_cloud(payload),
+            CloudKind::Ros2 => cdr::decode_point_cloud2_reusing(payload, points),
+            CloudKind::Ros1 => ros1::decode_point_cloud2_reusing(payload, points),
+            CloudKind::Foxglove => foxglove::decode_foxglove_point_cloud_reusing(payload, points),
         }
     }
 }

@@ -420,9 +420,19 @@ fn write_header(w: &mut CdrWriter, header: &Header) {
 /// `point_step` (`fields[i]`), `row_step < width·point_step` with `height > 1` (`row_step`), or
 /// `data` shorter than `(height−1)·row_step + width·point_step` (`data`).
 pub fn decode_point_cloud2(payload: &[u8]) -> Result<PointCloud, DecodeError> {
+    decode_point_cloud2_reusing(payload, Vec::new())
+}
+
+/// [`decode_point_cloud2`] writing the points into `points` (cleared first): a stream of clouds
+/// reuses one buffer, that of the previous cloud, instead of allocating (and faulting in) a new
+/// one for each.
+pub fn decode_point_cloud2_reusing(
+    payload: &[u8],
+    points: Vec<Point3<f64>>,
+) -> Result<PointCloud, DecodeError> {
     let mut r = CdrReader::new(payload)?;
     let header = read_header(&mut r, "header.")?;
-    point_cloud2::decode_body(&mut r, header)
+    point_cloud2::decode_body(&mut r, header, points)
 }
 
 /// Encodes a little-endian CDR `sensor_msgs/msg/PointCloud2` with FLOAT32 fields `x`, `y`, `z`

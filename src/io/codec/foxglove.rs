@@ -15,7 +15,7 @@ use foxglove::schemas::packed_element_field::NumericType;
 use foxglove::schemas::{
     FrameTransform, FrameTransforms, Pose, PoseInFrame, Quaternion, Timestamp, Vector3,
 };
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Point3};
 use prost::Message;
 
 use super::packed::{PackedField, PackedLayout, check_field_fits, extract};
@@ -146,6 +146,15 @@ pub fn encode_frame_transforms(transforms: &[(u64, &str, &str, Isometry3<f64>)])
 /// a non-finite or non-unit pose (`pose.position`, `pose.orientation`), or a timestamp whose
 /// seconds exceed `i32` (`timestamp`).
 pub fn decode_foxglove_point_cloud(payload: &[u8]) -> Result<PointCloud, DecodeError> {
+    decode_foxglove_point_cloud_reusing(payload, Vec::new())
+}
+
+/// [`decode_foxglove_point_cloud`] writing the points into `points` (cleared first), as
+/// [`super::cdr::decode_point_cloud2_reusing`].
+pub fn decode_foxglove_point_cloud_reusing(
+    payload: &[u8],
+    points: Vec<Point3<f64>>,
+) -> Result<PointCloud, DecodeError> {
     let msg = foxglove::schemas::PointCloud::decode(payload)
         .map_err(|e| DecodeError::new("PointCloud", format!("invalid protobuf: {e}")))?;
 
@@ -272,7 +281,7 @@ pub fn decode_foxglove_point_cloud(payload: &[u8]) -> Result<PointCloud, DecodeE
         time: None,
         big_endian: false,
     };
-    let mut ex = extract(data, &layout, 1, n, 0, stride);
+    let mut ex = extract(data, &layout, 1, n, 0, stride, points);
     if pose != Isometry3::identity() {
         for p in &mut ex.points {
             *p = pose * *p;

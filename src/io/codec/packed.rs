@@ -78,7 +78,8 @@ pub(crate) struct Extracted {
     pub(crate) num_dropped_zero: usize,
 }
 
-/// Reads `rows × cols` points starting at `row·row_step + col·point_step` in `data`. The caller
+/// Reads `rows × cols` points starting at `row·row_step + col·point_step` in `data` into
+/// `points` (cleared first: a buffer of an earlier cloud, whose capacity is reused). The caller
 /// has checked that every point lies inside `data` and every field inside `point_step`.
 ///
 /// Points with a non-finite coordinate are dropped and counted; so are points exactly at
@@ -91,6 +92,7 @@ pub(crate) fn extract(
     cols: usize,
     row_step: usize,
     point_step: usize,
+    points: Vec<Point3<f64>>,
 ) -> Extracted {
     // Little-endian float32 x, y, z (what LiDAR and depth drivers write): read directly, without
     // the per-field dispatch; the same values as `Scalar::read`.
@@ -112,11 +114,11 @@ pub(crate) fn extract(
     };
     // One loop per coordinate reader, each compiled on its own.
     match f32_offsets {
-        Some(o) => cloud.extract(|p| {
+        Some(o) => cloud.extract(points, |p| {
             let f = |o: usize| f64::from(f32::from_le_bytes([p[o], p[o + 1], p[o + 2], p[o + 3]]));
             [f(o[0]), f(o[1]), f(o[2])]
         }),
-        None => cloud.extract(|p| {
+        None => cloud.extract(points, |p| {
             let [x, y, z] = layout.xyz;
             [cloud.read(p, x), cloud.read(p, y), cloud.read(p, z)]
         }),
@@ -144,7 +146,7 @@ impl Cloud<'_> {
 
     /// [`extract`] with `xyz` reading a point's coordinates.
     #[inline(always)]
-    fn extract(&self, xyz: impl Fn(&[u8]) -> [f64; 3]) -> Extracted {
+    fn extract(&self, mut points: Vec<Point3<f64>>, xyz: impl Fn(&[u8]) -> [f64; 3]) -> Extracted {
         let Cloud {
             data,
             layout,
@@ -154,7 +156,8 @@ impl Cloud<'_> {
             point_step,
         } = *self;
         let n = rows * cols;
-        let mut points = Vec::with_capacity(n);
+        points.clear();
+        points.reserve(n);
         let mut intensity = layout.intensity.map(|_| Vec::with_capacity(n));
         let mut times = layout.time.map(|_| Vec::with_capacity(n));
         let mut dropped = 0;
@@ -203,7 +206,8 @@ mod tests {
 
     /// `extract` against a direct decoding of the same bytes, for little-endian float32
     /// coordinates (the direct path) and for big-endian ones and float64 ones (the dispatching
-    /// path): finite points kept in order, non-finite and (organised) all-zero points counted.
+    /// path): finite points kept in order, non-finite and (organised) all-zero points counted;
+    /// into a buffer that held more points before.
     #[test]
     fn extract_equals_direct_decoding() {
         let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
@@ -258,7 +262,17 @@ mod tests {
                     want.push((Point3::from(stored), f32::from(k as u8)));
                 }
             }
-            let got = extract(&data, &layout, rows, cols, cols * point_step, point_step);
+            // Into a buffer that held another cloud: its points must not survive.
+            let spare = vec![Point3::new(7.0, 8.0, 9.0); 2 * rows * cols];
+            let got = extract(
+                &data,
+                &layout,
+                rows,
+                cols,
+                cols * point_step,
+                point_step,
+                spare,
+            );
             let got_pairs: Vec<(Point3<f64>, f32)> = got
                 .points
                 .iter()

@@ -34,6 +34,8 @@ struct RawField {
 ///   at (0, 0, 0), the drivers' "no return", in [`PointCloud::num_dropped_zero`].
 /// - An empty cloud (`width·height == 0`) decodes without requiring `x`, `y`, `z` fields.
 /// - Fields other than x, y, z, intensity are not validated.
+/// - The points are written into `points` (cleared first), so that a stream of clouds can reuse
+///   one buffer.
 ///
 /// # Errors
 /// [`DecodeError`] naming the field for a truncated message, a
@@ -43,6 +45,7 @@ struct RawField {
 pub(crate) fn decode_body<'a>(
     r: &mut impl WireRead<'a>,
     header: Header,
+    points: Vec<Point3<f64>>,
 ) -> Result<PointCloud, DecodeError> {
     let height = r.u32("height")?;
     let width = r.u32("width")?;
@@ -167,6 +170,7 @@ pub(crate) fn decode_body<'a>(
         width as usize,
         if height > 1 { row_step as usize } else { 0 },
         point_step as usize,
+        points,
     );
     let stamp_s = empty.header.stamp.to_ns() as f64 * 1e-9;
     let times = time_field

@@ -14,7 +14,7 @@
 //!
 //! Robustness: as for every codec ([`super`]).
 
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Point3};
 
 use super::point_cloud2;
 use super::{
@@ -307,9 +307,18 @@ fn write_header(w: &mut Ros1Writer, header: &Header) {
 /// # Errors
 /// [`DecodeError`] naming the field, as for [`super::cdr::decode_point_cloud2`].
 pub fn decode_point_cloud2(payload: &[u8]) -> Result<PointCloud, DecodeError> {
+    decode_point_cloud2_reusing(payload, Vec::new())
+}
+
+/// [`decode_point_cloud2`] writing the points into `points` (cleared first), as
+/// [`super::cdr::decode_point_cloud2_reusing`].
+pub fn decode_point_cloud2_reusing(
+    payload: &[u8],
+    points: Vec<Point3<f64>>,
+) -> Result<PointCloud, DecodeError> {
     let mut r = Ros1Reader::new(payload);
     let header = read_header(&mut r, "header.")?;
-    point_cloud2::decode_body(&mut r, header)
+    point_cloud2::decode_body(&mut r, header, points)
 }
 
 /// Encodes a ROS 1 `sensor_msgs/PointCloud2` with FLOAT32 fields `x`, `y`, `z` (and

@@ -704,6 +704,11 @@ fn point_cloud2_round_trip_f32_and_f64_with_and_without_intensity() {
     assert_eq!(c.points, want);
     assert_eq!(c.intensity, None);
 
+    // Into the buffer of a larger cloud decoded before: the same cloud, none of the old points.
+    let stale = vec![p(1.0, 2.0, 3.0); 1000];
+    let c = decode_point_cloud2_reusing(&encode_point_cloud2(&header, &pts32, None), stale);
+    assert_eq!(c.unwrap().points, want);
+
     let empty: [Point3<f32>; 0] = [];
     let c = decode_point_cloud2(&encode_point_cloud2(&header, &empty, None)).unwrap();
     assert!(c.points.is_empty());
