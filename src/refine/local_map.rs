@@ -8,8 +8,8 @@
 //!
 //! Storage: each voxel owns a slot of `max_points_per_voxel` points (and normals) in one flat
 //! slab, found through a hash index of voxel keys; freed slots are reused. The map's points come
-//! out in slot order, which depends only on the frames inserted, never on the hash or the thread
-//! count: the same seed gives the same poses.
+//! out in the order of its correspondence grid (else in slot order), which depends only on the
+//! frames inserted, never on the hash or the thread count: the same seed gives the same poses.
 //!
 //! NOTE: a [`BTreeMap`](std::collections::BTreeMap) of per-voxel vectors, the first layout, cost
 //! 15–19 ms a frame on the KAIST03 keyframes (80–87k voxels, mostly of 1–2 points): the tree
@@ -93,7 +93,8 @@ pub struct LocalMap {
     /// The map as an ICP target, rebuilt in place by [`LocalMap::target`] (`None` when that
     /// found the map empty or failed).
     target: Option<IcpTarget>,
-    /// Scratch of [`LocalMap::target`]: each occupied voxel's key and points in the target.
+    /// Scratch of [`LocalMap::target`]: each occupied voxel's key and its points' range in the
+    /// slabs, in slot order.
     cells: Vec<([i64; 3], std::ops::Range<usize>)>,
     /// Scratch of [`LocalMap::insert_with`]: each kept point's index and place in the slabs.
     kept: Vec<(u32, usize)>,
@@ -271,7 +272,8 @@ impl LocalMap {
         }
     }
 
-    /// The map as an ICP target (points and normals in slot order); `None` while empty. Built
+    /// The map as an ICP target; `None` while empty. Its points and normals are in the order of
+    /// its correspondence grid where the voxels serve as one (see below), else in slot order. Built
     /// into the storage of the previous call's target (the map's tens of megabytes are
     /// allocated and faulted in once, not every frame); [`LocalMap::built_target`] returns it
     /// until the next call. When the voxel is at least the cell edge of `max_distance_m` \[m\]
@@ -282,9 +284,9 @@ impl LocalMap {
         self.finish_target(built?, max_distance_m)
     }
 
-    /// The first part of [`LocalMap::target`]: the map's points in slot order, in the storage of
-    /// the previous target, and their correspondence grid where the voxels serve as its cells
-    /// (the grid needs no normals); `None` for an empty map.
+    /// The first part of [`LocalMap::target`]: the map's correspondence grid where the voxels
+    /// serve as its cells (the grid needs no normals), and the map's points in its order (else in
+    /// slot order), in the storage of the previous target; `None` for an empty map.
     fn target_points(&mut self, max_distance_m: f64) -> Result<Option<BuiltPoints>> {
         let (mut points, normals, mut spare) = match self.target.take() {
             Some(previous) => previous.into_storage(),
@@ -294,30 +296,36 @@ impl LocalMap {
             return Ok(None);
         }
         let cap = self.config.max_points_per_voxel;
-        // Occupied voxels in slot order, with their points' range in the flattened map.
+        // Occupied voxels in slot order, with their points' range in the slab.
         self.cells.clear();
-        points.clear();
-        points.reserve(self.points);
-        for (key, at) in occupied(&self.slots, cap) {
-            self.cells
-                .push((key, points.len()..points.len() + at.len()));
-            points.extend_from_slice(&self.points_slab[at]);
-        }
+        self.cells.extend(occupied(&self.slots, cap));
         // The voxels are the correspondence grid's cells where they are large enough: no point
         // is bucketed again.
         let v = self.config.voxel_size_m;
         let grid = if v >= cell_edge(max_distance_m) {
             RadiusGrid::from_lattice(
-                &points,
+                &self.points_slab,
                 &self.cells,
                 v,
                 max_distance_m,
-                default_max_columns(points.len()),
+                default_max_columns(self.points),
                 std::mem::take(&mut spare),
             )?
         } else {
             None
         };
+        // The target's points in the grid's order where there is a grid: the points near a query
+        // (ICP reads their normals) then lie near each other in memory.
+        points.clear();
+        points.reserve(self.points);
+        match &grid {
+            Some(grid) => points.extend(grid.points_in_storage_order()),
+            None => {
+                for (_, at) in &self.cells {
+                    points.extend_from_slice(&self.points_slab[at.clone()]);
+                }
+            }
+        }
         Ok(Some(BuiltPoints {
             points,
             normals,
@@ -337,17 +345,25 @@ impl LocalMap {
             points,
             mut normals,
             spare,
-            grid,
+            mut grid,
         }) = built
         else {
             self.target = None;
             return Ok(None);
         };
-        let cap = self.config.max_points_per_voxel;
         normals.clear();
         normals.reserve(points.len());
-        for (_, at) in occupied(&self.slots, cap) {
-            normals.extend_from_slice(&self.normals_slab[at]);
+        match &mut grid {
+            Some(grid) => {
+                let slab = &self.normals_slab;
+                normals.extend(grid.storage_index().iter().map(|&i| slab[i as usize]));
+                grid.index_by_storage_order();
+            }
+            None => {
+                for (_, at) in &self.cells {
+                    normals.extend_from_slice(&self.normals_slab[at.clone()]);
+                }
+            }
         }
         let mut target = IcpTarget::from_storage(points, normals, spare)?;
         if let Some(grid) = grid {
@@ -549,9 +565,17 @@ mod tests {
                 .unwrap();
             assert_eq!(t.points().len(), fused.len());
         }
+        // At 0.4 m the voxels are its grid and the target comes in the grid's order; at 0.5 m
+        // (just above the voxel) in slot order: the same points with the same normals.
         let f = fused.built_target().unwrap();
-        assert_eq!(f.points(), a.points());
-        assert_eq!(f.normals(), a.normals());
+        let pairs = |t: &IcpTarget| {
+            let mut v: Vec<[f64; 6]> = (t.points().iter().zip(t.normals().unwrap()))
+                .map(|(p, n)| [p.x, p.y, p.z, n.x, n.y, n.z])
+                .collect();
+            v.sort_by(|a, b| a.partial_cmp(b).unwrap());
+            v
+        };
+        assert_eq!(pairs(f), pairs(a));
         let probes = [Point3::new(1.0, 1.0, 0.1), Point3::new(3.3, 0.2, 0.25)];
         let id = Isometry3::identity();
         assert_eq!(
