@@ -62,15 +62,26 @@ pub fn feature_voxel_for_cloud(
     if max_points == 0 || fine.len() <= max_points {
         return Ok(voxel_m);
     }
-    let mut v = voxel_m;
-    for k in 1..=24 {
-        v = voxel_m * FEATURE_VOXEL_STEP.powi(k);
-        if voxel_downsample(&fine, v)?.len() <= max_points {
-            break;
+    // Two candidates at a time, one per core: this runs once, before the frames' pipeline
+    // starts, so nothing else would use the second core.
+    let voxel = |k: i32| voxel_m * FEATURE_VOXEL_STEP.powi(k);
+    let fits =
+        |k: i32| -> Result<bool> { Ok(voxel_downsample(&fine, voxel(k))?.len() <= max_points) };
+    for k in (1..MAX_FEATURE_VOXEL_STEPS).step_by(2) {
+        let (a, b) = rayon::join(|| fits(k), || fits(k + 1));
+        if a? {
+            return Ok(voxel(k));
+        }
+        if b? {
+            return Ok(voxel(k + 1));
         }
     }
-    Ok(v)
+    Ok(voxel(MAX_FEATURE_VOXEL_STEPS))
 }
+
+/// Candidates of [`feature_voxel_for_cloud`] beyond the voxel, up to 64 × the voxel (even: they
+/// are tried in pairs).
+const MAX_FEATURE_VOXEL_STEPS: i32 = 24;
 
 /// `pair` with its global registration on a `feature_voxel_m` cloud: `voxel_size_m` becomes
 /// `feature_voxel_m` (normal, FPFH and inlier radii derive from it unless set), while ICP keeps
