@@ -55,11 +55,14 @@ pub const REORDER_WINDOW: usize = 16;
 const TRIM_EVERY_FRAMES: usize = 8;
 
 /// Runs `f` on a worker of rayon's global pool, the calling thread waiting (`rayon::scope` from
-/// outside the pool). The stages of a frame are many short parallel loops (an ICP iteration
-/// each); called from the pipeline's own threads, each loop was injected into the pool and woke
-/// the caller when done, where from a worker the loops split among the workers directly. On the
-/// KAIST03 keyframes: 2 122 → 726 context switches per run and 5 % less CPU time
-/// (docs/BENCHMARKS.md).
+/// outside the pool). Registering a frame is many short parallel loops (an ICP iteration each);
+/// called from the registering thread, each loop was injected into the pool and woke the caller
+/// when done, where from a worker the loops split among the workers directly. On the KAIST03
+/// keyframes: ~2 100 → ~1 000 context switches per run (docs/BENCHMARKS.md).
+///
+/// NOTE: not for preparing frames: on the workers, that stage's buffers shared their malloc
+/// arenas with registration's, and the peak RSS of 200 KITTI-size frames rose to 1.11–1.12 × that
+/// of 20 (issue 11's bound: 1.10); preparing on its own thread, 1.067.
 fn on_pool<R: Send>(f: impl FnOnce() -> R + Send) -> R {
     rayon::scope(|_| f())
 }
@@ -471,10 +474,9 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                                 msg.log_time
                             )));
                         }
-                        let prepared = on_pool(|| {
+                        let prepared =
                             prepare_frame_with(&cloud.points, &config.pair, &mut scratch)
-                        })
-                        .map_err(|e| (FailureReason::InvalidCloud, e.to_string()));
+                                .map_err(|e| (FailureReason::InvalidCloud, e.to_string()));
                         spare_points = cloud.points;
                         (cloud.header, prepared)
                     }
