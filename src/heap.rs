@@ -25,7 +25,7 @@
 //! returns the arenas now keep what they freed ([`TRIM_THRESHOLD_BYTES`]). Measured with the
 //! cloud buffers reused (docs/BENCHMARKS.md): on the KITTI replay log (100 frames, 0.5 m voxel)
 //! 157k → 28k page faults and 0.50 → 0.20 s of system time; peak RSS 20 → 200 frames
-//! 45.5–47.1 → 48.1–48.9 MB (+2.4–5.5 %, against +3.9–10 % before).
+//! 45.5–47.1 → 48.1–48.9 MB (+3.8–5.7 % per round, against +3.9–10 % before).
 
 /// The static `mmap` threshold \[bytes\] (glibc's default is 128 KiB, dynamic).
 pub const MMAP_THRESHOLD_BYTES: i32 = 1024 * 1024;
