@@ -115,7 +115,7 @@ pub(crate) fn extract(
     // One loop per coordinate reader, each compiled on its own.
     match f32_offsets {
         Some(o) => cloud.extract(points, |p| {
-            let f = |o: usize| f64::from(f32::from_le_bytes([p[o], p[o + 1], p[o + 2], p[o + 3]]));
+            let f = |o: usize| f64::from(le_f32(p, o));
             [f(o[0]), f(o[1]), f(o[2])]
         }),
         None => cloud.extract(points, |p| {
@@ -123,6 +123,13 @@ pub(crate) fn extract(
             [cloud.read(p, x), cloud.read(p, y), cloud.read(p, z)]
         }),
     }
+}
+
+/// The little-endian `f32` at byte `o` of `point` (one bounds check for its four bytes).
+#[inline(always)]
+fn le_f32(point: &[u8], o: usize) -> f32 {
+    let bytes: [u8; 4] = point[o..o + 4].try_into().expect("four bytes");
+    f32::from_le_bytes(bytes)
 }
 
 /// The arguments of [`extract`].
@@ -158,6 +165,13 @@ impl Cloud<'_> {
         let n = rows * cols;
         points.clear();
         points.reserve(n);
+        // Little-endian float32 intensity (what drivers write) read directly, as x, y, z are in
+        // `extract`: the per-field dispatch of `Scalar::read` was a third of a LiDAR frame's
+        // decoding. The same values.
+        let intensity_f32_le = layout
+            .intensity
+            .filter(|f| !layout.big_endian && f.kind == Scalar::F32)
+            .map(|f| f.offset);
         let mut intensity = layout.intensity.map(|_| Vec::with_capacity(n));
         let mut times = layout.time.map(|_| Vec::with_capacity(n));
         let mut dropped = 0;
@@ -178,7 +192,10 @@ impl Cloud<'_> {
                 }
                 points.push(Point3::new(x, y, z));
                 if let Some(out) = intensity.as_mut() {
-                    out.push(self.read(point, layout.intensity) as f32);
+                    out.push(match intensity_f32_le {
+                        Some(o) => le_f32(point, o),
+                        None => self.read(point, layout.intensity) as f32,
+                    });
                 }
                 if let Some(out) = times.as_mut() {
                     out.push(self.read(point, layout.time));
@@ -205,9 +222,10 @@ mod tests {
     use rand::{RngExt, SeedableRng};
 
     /// `extract` against a direct decoding of the same bytes, for little-endian float32
-    /// coordinates (the direct path) and for big-endian ones and float64 ones (the dispatching
-    /// path): finite points kept in order, non-finite and (organised) all-zero points counted;
-    /// into a buffer that held more points before.
+    /// coordinates and intensity (the direct paths) and for big-endian ones and float64
+    /// coordinates with a uint8 intensity (the dispatching paths): finite points kept in order,
+    /// non-finite and (organised) all-zero points counted; into a buffer that held more points
+    /// before.
     #[test]
     fn extract_equals_direct_decoding() {
         let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
@@ -222,9 +240,17 @@ mod tests {
             let field = |offset| Some(PackedField { offset, kind });
             let layout = PackedLayout {
                 xyz: [field(offsets[0]), field(offsets[1]), field(offsets[2])],
-                intensity: Some(PackedField {
-                    offset: 28,
-                    kind: Scalar::U8,
+                // float32 at 24 in the byte order of the coordinates, or uint8 at 28.
+                intensity: Some(if kind == Scalar::F32 {
+                    PackedField {
+                        offset: 24,
+                        kind: Scalar::F32,
+                    }
+                } else {
+                    PackedField {
+                        offset: 28,
+                        kind: Scalar::U8,
+                    }
                 }),
                 time: None,
                 big_endian,
@@ -254,12 +280,24 @@ mod tests {
                     };
                 }
                 point[28] = k as u8;
+                let value = rng.random_range(0.0f32..4096.0);
+                let bytes = if big_endian {
+                    value.to_be_bytes()
+                } else {
+                    value.to_le_bytes()
+                };
+                point[24..28].copy_from_slice(&bytes);
+                let intensity = if kind == Scalar::F32 {
+                    value
+                } else {
+                    f32::from(k as u8)
+                };
                 if !stored.iter().all(|c| c.is_finite()) {
                     non_finite += 1;
                 } else if stored == [0.0; 3] {
                     zero += 1;
                 } else {
-                    want.push((Point3::from(stored), f32::from(k as u8)));
+                    want.push((Point3::from(stored), intensity));
                 }
             }
             // Into a buffer that held another cloud: its points must not survive.
