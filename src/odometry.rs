@@ -13,7 +13,7 @@
 //! (docs/ODOMETRY.md). The global estimate stays prior-free, so a dropped frame, a jump or a kidnap
 //! still recovers: its start wins where the prediction is wrong.
 
-use nalgebra::{Isometry3, Point3};
+use nalgebra::{Isometry3, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::Result;
@@ -572,9 +572,7 @@ fn map_icp_distance(pair: &PairConfig) -> Result<f64> {
 /// frame's farthest point from its origin are dropped.
 fn add_to_map(map: &mut LocalMap, frame: &PreparedFrame, world_from_frame: &Isometry3<f64>) {
     if let Some((icp, range)) = map_input(frame) {
-        // Normals only for the points the map keeps (most of a 10 Hz frame lands in full voxels).
-        let normals_at = |at: &[u32]| icp.normals_at(at).unwrap_or_default();
-        map.insert_with(world_from_frame, icp.points(), normals_at, range);
+        map.insert_with(world_from_frame, icp.points(), kept_normals(icp), range);
     }
 }
 
@@ -589,8 +587,19 @@ fn add_to_map_and_target<'m>(
     let Some((icp, range)) = map_input(frame) else {
         return map.target(distance);
     };
-    let normals_at = |at: &[u32]| icp.normals_at(at).unwrap_or_default();
-    map.insert_and_target(world_from_frame, icp.points(), normals_at, range, distance)
+    map.insert_and_target(
+        world_from_frame,
+        icp.points(),
+        kept_normals(icp),
+        range,
+        distance,
+    )
+}
+
+/// The normals of the points of `icp` that a map insertion keeps, estimated for those only
+/// (most of a 10 Hz frame lands in voxels already full).
+fn kept_normals(icp: &IcpTarget) -> impl FnOnce(&[u32]) -> Vec<Vector3<f64>> + Send + '_ {
+    |at: &[u32]| icp.normals_at(at).unwrap_or_default()
 }
 
 /// A frame's ICP cloud, if it can join the map (it has normals, given or deferred), and its

@@ -65,7 +65,7 @@ impl Default for Slot {
 }
 
 /// Each occupied voxel's key and its points' range in the slabs (`cap` entries per slot), in slot
-/// order: the order of the map as a target.
+/// order (the order of the map as a target when its voxels are no correspondence grid).
 fn occupied(
     slots: &[Slot],
     cap: usize,

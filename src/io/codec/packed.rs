@@ -42,6 +42,17 @@ pub(crate) struct PackedLayout {
     pub(crate) big_endian: bool,
 }
 
+impl PackedLayout {
+    /// The offset of `field` if it is a little-endian float32 (what LiDAR and depth drivers
+    /// write), which [`extract`] reads directly instead of through `Scalar::read`'s per-field
+    /// dispatch (the same values).
+    fn le_f32_offset(&self, field: Option<PackedField>) -> Option<usize> {
+        field
+            .filter(|f| !self.big_endian && f.kind == Scalar::F32)
+            .map(|f| f.offset)
+    }
+}
+
 /// Checks that `kind` at `offset` fits in `point_step`, naming `field` otherwise.
 pub(crate) fn check_field_fits(
     field: &str,
@@ -94,14 +105,9 @@ pub(crate) fn extract(
     point_step: usize,
     points: Vec<Point3<f64>>,
 ) -> Extracted {
-    // Little-endian float32 x, y, z (what LiDAR and depth drivers write): read directly, without
-    // the per-field dispatch; the same values as `Scalar::read`.
-    let f32_offsets = match layout.xyz {
-        [Some(x), Some(y), Some(z)]
-            if !layout.big_endian && [x, y, z].iter().all(|f| f.kind == Scalar::F32) =>
-        {
-            Some([x.offset, y.offset, z.offset])
-        }
+    // Little-endian float32 x, y, z: read directly.
+    let f32_offsets = match layout.xyz.map(|f| layout.le_f32_offset(f)) {
+        [Some(x), Some(y), Some(z)] => Some([x, y, z]),
         _ => None,
     };
     let cloud = Cloud {
@@ -165,13 +171,9 @@ impl Cloud<'_> {
         let n = rows * cols;
         points.clear();
         points.reserve(n);
-        // Little-endian float32 intensity (what drivers write) read directly, as x, y, z are in
-        // `extract`: the per-field dispatch of `Scalar::read` was a third of a LiDAR frame's
-        // decoding. The same values.
-        let intensity_f32_le = layout
-            .intensity
-            .filter(|f| !layout.big_endian && f.kind == Scalar::F32)
-            .map(|f| f.offset);
+        // Little-endian float32 intensity read directly too: the per-field dispatch of
+        // `Scalar::read` was a third of a LiDAR frame's decoding.
+        let intensity_f32_le = layout.le_f32_offset(layout.intensity);
         let mut intensity = layout.intensity.map(|_| Vec::with_capacity(n));
         let mut times = layout.time.map(|_| Vec::with_capacity(n));
         let mut dropped = 0;
