@@ -186,47 +186,71 @@ impl RadiusGrid {
                 points.len()
             )));
         }
-        let Some((lo, hi)) =
-            cells
-                .iter()
-                .fold(None, |acc: Option<([i64; 3], [i64; 3])>, (k, _)| {
-                    Some(match acc {
-                        None => (*k, *k),
-                        Some((lo, hi)) => (
-                            std::array::from_fn(|a| lo[a].min(k[a])),
-                            std::array::from_fn(|a| hi[a].max(k[a])),
-                        ),
-                    })
-                })
-        else {
+        let Some((lo, hi)) = key_bounds(cells.iter().map(|(k, _)| k)) else {
             return Ok(None);
         };
-        const KEY_BOUND: i64 = 1 << 30;
-        if lo.iter().chain(&hi).any(|k| k.abs() > KEY_BOUND) {
+        let Some(layout) = lattice_layout(lo, hi, edge_m, radius_m, max_columns) else {
             return Ok(None);
-        }
-        let mut axes = [0usize, 1, 2];
-        axes.sort_by(|&a, &b| (hi[b] - lo[b]).cmp(&(hi[a] - lo[a])).then(a.cmp(&b)));
-        let extent = |k: usize| (hi[axes[k]] - lo[axes[k]]) as usize + 1;
-        let dims = [extent(0), extent(1)];
-        if dims[0].saturating_mul(dims[1]) > max_columns {
-            return Ok(None);
-        }
-        let min: [f64; 3] = std::array::from_fn(|k| lo[axes[k]] as f64 * edge_m);
+        };
+        let (axes, dims) = (layout.axes, layout.dims);
         storage.cell.clear();
         storage.cell.extend(cells.iter().map(|(key, _)| {
             let c = |k: usize| (key[axes[k]] - lo[axes[k]]) as usize;
             (c(0) * dims[1] + c(1), c(2) as u32)
         }));
-        let layout = Layout {
-            axes,
-            min,
-            edge: edge_m,
-            radius_m,
-            dims,
-            max_abs: (lo.iter().chain(&hi).map(|k| k.abs()).max().unwrap_or(0) + 1) as f64 * edge_m,
-        };
         Ok(assemble(points, layout, storage, |i| cells[i].1.clone()))
+    }
+
+    /// [`RadiusGrid::from_lattice`] over points already in the grid's storage order: `cells`
+    /// lists each occupied cell's key (`floor(p / edge_m)` per axis) and how many points it
+    /// holds, in increasing [`lattice_order`] under [`lattice_axes`] of the keys' bounds, and
+    /// `points` holds the cells' points one cell after the other in that order. Nothing is
+    /// sorted: the tables are written in one pass over the cells, and the queries answer with
+    /// positions in `points`. The same grid as `from_lattice` over the same cells, which a
+    /// local map kept in this order hands over every frame ([`crate::refine::local_map`]).
+    /// `Ok(None)` as `from_lattice`.
+    ///
+    /// Errors: as `from_lattice`, and when the cells are not in that order (or a key repeats)
+    /// or their counts do not add up to `points.len()`.
+    pub fn from_sorted_lattice(
+        points: &[Point3<f64>],
+        cells: &[([i64; 3], u32)],
+        edge_m: f64,
+        radius_m: f64,
+        max_columns: usize,
+        storage: GridStorage,
+    ) -> Result<Option<Self>> {
+        check_radius(radius_m)?;
+        if !(edge_m >= cell_edge(radius_m) && edge_m.is_finite()) {
+            return Err(crate::Error::InvalidInput(format!(
+                "lattice edge {edge_m} m is below the cell edge of radius {radius_m} m"
+            )));
+        }
+        let total: u64 = cells.iter().map(|&(_, n)| u64::from(n)).sum();
+        if total != points.len() as u64 || points.len() > u32::MAX as usize {
+            return Err(crate::Error::InvalidInput(format!(
+                "the cells hold {total} points, the cloud {} (at most {})",
+                points.len(),
+                u32::MAX
+            )));
+        }
+        let Some((lo, hi)) = key_bounds(cells.iter().map(|(k, _)| k)) else {
+            return Ok(None);
+        };
+        let Some(layout) = lattice_layout(lo, hi, edge_m, radius_m, max_columns) else {
+            return Ok(None);
+        };
+        let axes = layout.axes;
+        if let Some(w) = cells
+            .windows(2)
+            .find(|w| lattice_order(&w[0].0, axes) >= lattice_order(&w[1].0, axes))
+        {
+            return Err(crate::Error::InvalidInput(format!(
+                "lattice cells out of order: {:?} before {:?} (axes {axes:?})",
+                w[0].0, w[1].0
+            )));
+        }
+        Ok(assemble_sorted(points, layout, storage, cells, lo))
     }
 
     /// The grid's storage, for [`RadiusGrid::new_reusing`].
@@ -507,6 +531,65 @@ fn check_radius(radius_m: f64) -> Result<()> {
     }
 }
 
+/// The lowest and highest lattice key along each axis; `None` for no keys.
+pub(crate) fn key_bounds<'a>(
+    keys: impl Iterator<Item = &'a [i64; 3]>,
+) -> Option<([i64; 3], [i64; 3])> {
+    keys.fold(None, |acc, k| {
+        Some(match acc {
+            None => (*k, *k),
+            Some((lo, hi)) => (
+                std::array::from_fn(|a| lo[a].min(k[a])),
+                std::array::from_fn(|a| hi[a].max(k[a])),
+            ),
+        })
+    })
+}
+
+/// The axes of a grid over lattice keys between `lo` and `hi`: the two of widest extent span
+/// its columns (ties by axis index), the third runs along them.
+pub fn lattice_axes(lo: [i64; 3], hi: [i64; 3]) -> [usize; 3] {
+    let mut axes = [0usize, 1, 2];
+    axes.sort_by(|&a, &b| (hi[b] - lo[b]).cmp(&(hi[a] - lo[a])).then(a.cmp(&b)));
+    axes
+}
+
+/// A lattice key permuted to `axes`: keys in increasing order of this are cells in a grid's
+/// storage order (column by column, along each column), whatever the grid's bounds.
+#[inline]
+pub fn lattice_order(key: &[i64; 3], axes: [usize; 3]) -> [i64; 3] {
+    axes.map(|a| key[a])
+}
+
+/// The layout of a grid over lattice keys between `lo` and `hi`; `None` beyond `max_columns`
+/// columns or keys beyond ±2³⁰ (where the cell edge no longer covers rounding).
+fn lattice_layout(
+    lo: [i64; 3],
+    hi: [i64; 3],
+    edge_m: f64,
+    radius_m: f64,
+    max_columns: usize,
+) -> Option<Layout> {
+    const KEY_BOUND: i64 = 1 << 30;
+    if lo.iter().chain(&hi).any(|k| k.abs() > KEY_BOUND) {
+        return None;
+    }
+    let axes = lattice_axes(lo, hi);
+    let extent = |k: usize| (hi[axes[k]] - lo[axes[k]]) as usize + 1;
+    let dims = [extent(0), extent(1)];
+    if dims[0].saturating_mul(dims[1]) > max_columns {
+        return None;
+    }
+    Some(Layout {
+        axes,
+        min: std::array::from_fn(|k| lo[axes[k]] as f64 * edge_m),
+        edge: edge_m,
+        radius_m,
+        dims,
+        max_abs: (lo.iter().chain(&hi).map(|k| k.abs()).max().unwrap_or(0) + 1) as f64 * edge_m,
+    })
+}
+
 /// Where a grid's cells lie: see the fields of [`RadiusGrid`].
 struct Layout {
     axes: [usize; 3],
@@ -606,6 +689,90 @@ fn assemble(
         edge,
         radius_sq: radius_m * radius_m,
         // (p − min) / edge is off by a few ulps of p's magnitude; 1e-6 of the edge on top.
+        slack: 1e-6 * edge + 64.0 * f64::EPSILON * max_abs,
+        dims,
+        columns,
+        starts,
+        xyz,
+        index,
+        scratch: Box::new(Scratch { cell, range, next }),
+    })
+}
+
+/// [`assemble`] for points already in storage order, `cells` (key, points) in lattice order
+/// under `layout.axes` and `lo` the keys' lower bounds: the same tables, written in one pass
+/// over the cells (and the empty columns between them) instead of a counting sort.
+fn assemble_sorted(
+    points: &[Point3<f64>],
+    layout: Layout,
+    storage: GridStorage,
+    cells: &[([i64; 3], u32)],
+    lo: [i64; 3],
+) -> Option<RadiusGrid> {
+    let GridStorage {
+        mut columns,
+        mut starts,
+        mut xyz,
+        mut index,
+        cell,
+        range,
+        next,
+    } = storage;
+    let Layout {
+        axes,
+        min,
+        edge,
+        radius_m,
+        dims,
+        max_abs,
+    } = layout;
+    let at = |key: &[i64; 3], k: usize| (key[axes[k]] - lo[axes[k]]) as usize;
+    let column_of = |key: &[i64; 3]| at(key, 0) * dims[1] + at(key, 1);
+    let num_columns = dims[0] * dims[1];
+    columns.clear();
+    columns.reserve(num_columns + 1);
+    starts.clear();
+    // An empty column: no cells, its offset that of the next one.
+    let empty = |starts: &Vec<u32>| (u32::MAX, starts.len() as u32);
+    let mut total = 0u32;
+    let mut rest = cells;
+    while let Some((first, _)) = rest.first() {
+        let col = column_of(first);
+        let len = rest.iter().take_while(|(k, _)| column_of(k) == col).count();
+        let (here, after) = rest.split_at(len);
+        columns.resize(col, empty(&starts));
+        // The column's cells z_lo ..= z_hi: each one's first point (an empty cell's is the next
+        // one's), then the end of the column's points.
+        let z_lo = at(first, 2) as u32;
+        columns.push((z_lo, starts.len() as u32));
+        let mut z = z_lo;
+        for (key, n) in here {
+            let zc = at(key, 2) as u32;
+            while z <= zc {
+                starts.push(total);
+                z += 1;
+            }
+            total += n;
+        }
+        starts.push(total);
+        rest = after;
+    }
+    columns.resize(num_columns, empty(&starts));
+    if starts.len() > u32::MAX as usize {
+        return None;
+    }
+    columns.push((0, starts.len() as u32));
+    for (v, k) in xyz.iter_mut().zip(0..3) {
+        v.clear();
+        v.extend(points.iter().map(|p| p[k]));
+    }
+    index.clear();
+    index.extend(0..points.len() as u32);
+    Some(RadiusGrid {
+        axes,
+        min,
+        edge,
+        radius_sq: radius_m * radius_m,
         slack: 1e-6 * edge + 64.0 * f64::EPSILON * max_abs,
         dims,
         columns,

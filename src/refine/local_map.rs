@@ -6,15 +6,22 @@
 //! NOTE: KISS-ICP registers point-to-point; we keep point-to-plane (our ICP), so each map point
 //! carries the normal estimated in the frame it came from, rotated into the world.
 //!
-//! Storage: each voxel owns a slot of `max_points_per_voxel` points (and normals) in one flat
-//! slab, found through a hash index of voxel keys; freed slots are reused. The map's points come
-//! out in the order of its correspondence grid (else in slot order), which depends only on the
-//! frames inserted, never on the hash or the thread count: the same seed gives the same poses.
+//! Storage: the map's points and normals are kept voxel after voxel in lattice order (the order
+//! of a radius grid's storage, [`lattice_order`]), each voxel's in arrival order, and they are
+//! the arrays of the map's ICP target itself. A hash index finds each voxel's record (its key,
+//! how many points it holds, its first point). Points added by a frame wait beside the stored
+//! ones; building the target merges them in: the surviving voxels are already in order, only
+//! the frame's new voxels are sorted, and the stored points are read in order, not gathered.
+//! The voxels also serve as the target's correspondence grid, built from that order in one pass
+//! ([`RadiusGrid::from_sorted_lattice`]). The order depends only on the frames inserted, never on
+//! the hash or the thread count: the same seed gives the same poses.
 //!
-//! NOTE: a [`BTreeMap`](std::collections::BTreeMap) of per-voxel vectors, the first layout, cost
-//! 15–19 ms a frame on the KAIST03 keyframes (80–87k voxels, mostly of 1–2 points): the tree
-//! search for every inserted point, a pointer chase per voxel for dropping far ones and again for
-//! flattening the map into the ICP target (docs/ODOMETRY.md).
+//! NOTE: two earlier layouts, measured on the KAIST03 keyframes (docs/ODOMETRY.md,
+//! docs/BENCHMARKS.md): a [`BTreeMap`](std::collections::BTreeMap) of per-voxel vectors cost
+//! 15–19 ms a frame (a tree search per inserted point, a pointer chase per voxel); a slab of
+//! `max_points_per_voxel` slots per voxel (84 MB for 87k voxels of 2.5 points on average),
+//! bucketed into a grid by a counting sort every frame, spent its time gathering points and
+//! normals from random slots.
 
 use std::collections::HashMap;
 
@@ -22,7 +29,10 @@ use nalgebra::{Isometry3, Point3, Vector3};
 
 use super::icp::IcpTarget;
 use crate::geometry::floor_i64;
-use crate::geometry::radius_grid::{GridStorage, RadiusGrid, cell_edge, default_max_columns};
+use crate::geometry::radius_grid::{
+    GridStorage, RadiusGrid, cell_edge, default_max_columns, key_bounds, lattice_axes,
+    lattice_order,
+};
 use crate::hash::FastHash;
 use crate::{Error, Result};
 
@@ -35,69 +45,93 @@ pub struct LocalMapConfig {
     pub max_points_per_voxel: usize,
 }
 
-/// The map's points in a target's storage, with their grid, before the normals
-/// ([`LocalMap::target`]).
-struct BuiltPoints {
-    points: Vec<Point3<f64>>,
-    /// Storage for the normals.
-    normals: Vec<Vector3<f64>>,
-    /// Storage for the next grid.
-    spare: GridStorage,
-    grid: Option<RadiusGrid>,
-}
-
-/// One voxel's slot in a [`LocalMap`].
+/// One voxel of a [`LocalMap`].
 #[derive(Debug, Clone, Copy)]
-struct Slot {
+struct Voxel {
     key: [i64; 3],
-    held: usize,
+    /// Points it holds, stored and waiting (0: free, or dropped since the last rebuild).
+    held: u32,
+    /// Its first point (dropping far voxels reads these, one flat array).
     first: Point3<f64>,
+    /// Its points stored at the last rebuild: `start .. start + stored` of the target's arrays.
+    start: u32,
+    stored: u32,
 }
 
-impl Default for Slot {
+impl Default for Voxel {
     fn default() -> Self {
         Self {
             key: [0; 3],
             held: 0,
             first: Point3::origin(),
+            start: 0,
+            stored: 0,
         }
     }
 }
 
-/// Each occupied voxel's key and its points' range in the slabs (`cap` entries per slot), in slot
-/// order (the order of the map as a target when its voxels are no correspondence grid).
-fn occupied(
-    slots: &[Slot],
-    cap: usize,
-) -> impl Iterator<Item = ([i64; 3], std::ops::Range<usize>)> + '_ {
-    (slots.iter().enumerate())
-        .filter(|(_, s)| s.held > 0)
-        .map(move |(slot, s)| (s.key, slot * cap..slot * cap + s.held))
+/// The first part of a rebuild ([`LocalMap::target_points`]): the new points in order, with
+/// their grid, before the normals.
+struct BuiltPoints {
+    points: Vec<Point3<f64>>,
+    /// The previous target's normals (read by the normals' merge) and points (to recycle).
+    old_normals: Vec<Vector3<f64>>,
+    old_points: Vec<Point3<f64>>,
+    /// Storage for the next grid.
+    spare: GridStorage,
+    grid: Option<RadiusGrid>,
+}
+
+/// Scratch of a rebuild, kept between frames.
+#[derive(Debug, Default)]
+struct Rebuild {
+    /// The voxels in the new order.
+    order: Vec<u32>,
+    /// Voxels created since the last rebuild that are still held.
+    fresh: Vec<u32>,
+    /// Per voxel of the new order: its stored points' start and count in the previous arrays,
+    /// and its waiting points' start and count in `grouped`.
+    plan: Vec<[u32; 4]>,
+    /// Indices of the waiting points, grouped by voxel in the new order (arrival order within).
+    grouped: Vec<u32>,
+    /// Per voxel id: its waiting points' count, then their end in `grouped`.
+    waiting: Vec<u32>,
+    /// Each voxel's key and point count in the new order, for the grid.
+    cells: Vec<([i64; 3], u32)>,
+    /// Arrays for the next target.
+    points: Vec<Point3<f64>>,
+    normals: Vec<Vector3<f64>>,
 }
 
 /// Points (with normals) of recent frames in the world frame.
 #[derive(Debug)]
 pub struct LocalMap {
     config: LocalMapConfig,
-    /// Slot of each occupied voxel.
+    /// Id of each held voxel.
     index: HashMap<[i64; 3], u32, FastHash>,
-    /// Per slot: its voxel's key, how many points it holds (0: free) and its first point
-    /// (a copy, so that dropping far voxels reads one flat array, not the slab at every slot).
-    slots: Vec<Slot>,
-    /// `max_points_per_voxel` entries per slot.
-    points_slab: Vec<Point3<f64>>,
-    normals_slab: Vec<Vector3<f64>>,
-    /// Slots to reuse, last freed first.
+    /// Per id: the voxel's record.
+    voxels: Vec<Voxel>,
+    /// Ids to reuse, last freed first.
     free: Vec<u32>,
+    /// Voxels dropped since the last rebuild: their ids are reused only after it, when no
+    /// waiting point refers to them any more.
+    dropped: Vec<u32>,
+    /// Voxels created since the last rebuild.
+    created: Vec<u32>,
+    /// The voxels of the last rebuild in lattice order under `axes`.
+    order: Vec<u32>,
+    axes: [usize; 3],
+    /// Points added since the last rebuild, in arrival order, with their voxel (world frame),
+    /// and their normals (world frame) once given.
+    waiting: Vec<(u32, Point3<f64>)>,
+    waiting_normals: Vec<Vector3<f64>>,
     points: usize,
-    /// The map as an ICP target, rebuilt in place by [`LocalMap::target`] (`None` when that
-    /// found the map empty or failed).
+    /// The map as an ICP target (`None` when the last [`LocalMap::target`] found the map empty
+    /// or failed); its arrays are the map's stored points and normals.
     target: Option<IcpTarget>,
-    /// Scratch of [`LocalMap::target`]: each occupied voxel's key and its points' range in the
-    /// slabs, in slot order.
-    cells: Vec<([i64; 3], std::ops::Range<usize>)>,
-    /// Scratch of [`LocalMap::insert_with`]: each kept point's index and place in the slabs.
-    kept: Vec<(u32, usize)>,
+    rebuild: Rebuild,
+    /// Scratch of [`LocalMap::insert_with`]: the kept points' indices.
+    kept: Vec<u32>,
 }
 
 impl LocalMap {
@@ -113,13 +147,17 @@ impl LocalMap {
         Ok(Self {
             config,
             index: HashMap::default(),
-            slots: Vec::new(),
-            points_slab: Vec::new(),
-            normals_slab: Vec::new(),
+            voxels: Vec::new(),
             free: Vec::new(),
+            dropped: Vec::new(),
+            created: Vec::new(),
+            order: Vec::new(),
+            axes: [0, 1, 2],
+            waiting: Vec::new(),
+            waiting_normals: Vec::new(),
             points: 0,
             target: None,
-            cells: Vec::new(),
+            rebuild: Rebuild::default(),
             kept: Vec::new(),
         })
     }
@@ -190,25 +228,25 @@ impl LocalMap {
         max_distance_m: f64,
         target_distance_m: f64,
     ) -> Result<Option<&IcpTarget>> {
+        check_distance(target_distance_m)?;
         let at = self.place_points(world_from_frame, points, max_distance_m);
         let (normals, built) =
             rayon::join(|| normals_at(&at), || self.target_points(target_distance_m));
         self.write_normals(world_from_frame, &normals);
-        self.finish_target(built?, target_distance_m)
+        self.finish_target(built, target_distance_m)
     }
 
-    /// The first part of an insertion: each point goes to its voxel unless that is full, then
-    /// voxels farther than `max_distance_m` from the frame's origin are dropped. Returns the kept
-    /// points' indices into `points` (increasing); [`LocalMap::write_normals`] then gives them
-    /// their normals.
+    /// The first part of an insertion: each point joins its voxel's waiting points unless the
+    /// voxel is full, then voxels farther than `max_distance_m` from the frame's origin are
+    /// dropped. Returns the kept points' indices into `points` (increasing);
+    /// [`LocalMap::write_normals`] then gives them their normals.
     fn place_points(
         &mut self,
         world_from_frame: &Isometry3<f64>,
         points: &[Point3<f64>],
         max_distance_m: f64,
     ) -> Vec<u32> {
-        let cap = self.config.max_points_per_voxel;
-        // The points kept: their index in `points` and their place in the slabs.
+        let cap = self.config.max_points_per_voxel.min(u32::MAX as usize) as u32;
         self.kept.clear();
         for (i, p) in points.iter().enumerate() {
             let w = world_from_frame * p;
@@ -216,161 +254,250 @@ impl LocalMap {
                 continue;
             }
             let key = self.key(&w);
-            let slot = match self.index.get(&key) {
-                Some(&slot) => slot as usize,
+            let id = match self.index.get(&key) {
+                Some(&id) => id,
                 None => {
-                    let slot = match self.free.pop() {
-                        Some(slot) => slot as usize,
-                        None => {
-                            self.slots.push(Slot::default());
-                            let len = self.slots.len() * cap;
-                            self.points_slab.resize(len, Point3::origin());
-                            self.normals_slab.resize(len, Vector3::zeros());
-                            self.slots.len() - 1
-                        }
-                    };
-                    self.slots[slot] = Slot {
+                    let id = self.free.pop().unwrap_or_else(|| {
+                        self.voxels.push(Voxel::default());
+                        // Ids beyond u32 would need 4 G voxels: more than any cloud we accept.
+                        (self.voxels.len() - 1) as u32
+                    });
+                    self.voxels[id as usize] = Voxel {
                         key,
-                        held: 0,
                         first: w,
+                        ..Voxel::default()
                     };
-                    // Slots beyond u32 would need 4 G voxels: more than any cloud we accept.
-                    self.index.insert(key, slot as u32);
-                    slot
+                    self.index.insert(key, id);
+                    self.created.push(id);
+                    id
                 }
             };
-            let held = &mut self.slots[slot].held;
-            if *held < cap {
-                let at = slot * cap + *held;
-                self.points_slab[at] = w;
-                self.kept.push((i as u32, at));
-                *held += 1;
+            let voxel = &mut self.voxels[id as usize];
+            if voxel.held < cap {
+                voxel.held += 1;
+                self.waiting.push((id, w));
+                self.kept.push(i as u32);
                 self.points += 1;
             }
         }
         let origin = Point3::from(world_from_frame.translation.vector);
         let max_sq = max_distance_m * max_distance_m;
-        for (slot, s) in self.slots.iter_mut().enumerate() {
-            if s.held > 0 && (s.first - origin).norm_squared() > max_sq {
-                self.points -= s.held;
-                s.held = 0;
-                self.index.remove(&s.key);
-                self.free.push(slot as u32);
+        for (id, v) in self.voxels.iter_mut().enumerate() {
+            if v.held > 0 && (v.first - origin).norm_squared() > max_sq {
+                self.points -= v.held as usize;
+                v.held = 0;
+                self.index.remove(&v.key);
+                self.dropped.push(id as u32);
             }
         }
-        self.kept.iter().map(|&(i, _)| i).collect()
+        self.kept.clone()
     }
 
     /// The normals (the frame's sensor frame) of the points the last
     /// [`LocalMap::place_points`] kept, one per kept point, rotated into the world; missing ones
-    /// stay zero. (A kept point whose voxel was then dropped writes into a free slot: harmless.)
+    /// stay zero.
     fn write_normals(&mut self, world_from_frame: &Isometry3<f64>, normals: &[Vector3<f64>]) {
-        for (k, &(_, slab)) in self.kept.iter().enumerate() {
-            self.normals_slab[slab] = normals
+        let new = self.waiting.len() - self.waiting_normals.len();
+        self.waiting_normals.extend((0..new).map(|k| {
+            normals
                 .get(k)
-                .map_or_else(Vector3::zeros, |n| world_from_frame.rotation * n);
-        }
+                .map_or_else(Vector3::zeros, |n| world_from_frame.rotation * n)
+        }));
     }
 
-    /// The map as an ICP target; `None` while empty. Its points and normals are in the order of
-    /// its correspondence grid where the voxels serve as one (see below), else in slot order. Built
-    /// into the storage of the previous call's target (the map's tens of megabytes are
-    /// allocated and faulted in once, not every frame); [`LocalMap::built_target`] returns it
-    /// until the next call. When the voxel is at least the cell edge of `max_distance_m` \[m\]
-    /// ([`cell_edge`]), the voxels also serve as the target's correspondence grid at that
-    /// distance ([`RadiusGrid::from_lattice`]).
+    /// The map as an ICP target; `None` while empty. Its points and normals are voxel after
+    /// voxel in lattice order ([`lattice_order`] under [`lattice_axes`] of the voxels' bounds),
+    /// each voxel's in arrival order. Built into the storage of the previous call's target (the
+    /// map's megabytes are allocated and faulted in once, not every frame);
+    /// [`LocalMap::built_target`] returns it until the next call. When the voxel is at least the
+    /// cell edge of `max_distance_m` \[m\] ([`cell_edge`]), the voxels also serve as the
+    /// target's correspondence grid at that distance ([`RadiusGrid::from_sorted_lattice`]).
+    ///
+    /// On an error (a non-finite normal given to an insertion) the map is emptied.
     pub fn target(&mut self, max_distance_m: f64) -> Result<Option<&IcpTarget>> {
+        check_distance(max_distance_m)?;
         let built = self.target_points(max_distance_m);
-        self.finish_target(built?, max_distance_m)
+        self.finish_target(built, max_distance_m)
     }
 
-    /// The first part of [`LocalMap::target`]: the map's correspondence grid where the voxels
-    /// serve as its cells (the grid needs no normals), and the map's points in its order (else in
-    /// slot order), in the storage of the previous target; `None` for an empty map.
+    /// The first part of [`LocalMap::target`]: the voxels' new order (the surviving ones keep
+    /// theirs, the new ones are sorted and merged in), the points in it, and the grid (it needs
+    /// no normals); `None` for an empty map.
     fn target_points(&mut self, max_distance_m: f64) -> Result<Option<BuiltPoints>> {
-        let (mut points, normals, mut spare) = match self.target.take() {
+        let (old_points, old_normals, spare) = match self.target.take() {
             Some(previous) => previous.into_storage(),
             None => Default::default(),
         };
-        if self.is_empty() {
+        let Self {
+            voxels,
+            order,
+            created,
+            waiting,
+            rebuild: r,
+            ..
+        } = self;
+        // The voxels in order: the survivors keep theirs, the new ones are sorted and merged in
+        // (all are sorted again when the grid's axes change).
+        let held = |id: &u32| voxels[*id as usize].held > 0;
+        order.retain(held);
+        r.fresh.clear();
+        r.fresh.extend(created.drain(..).filter(held));
+        let keys = (order.iter().chain(&r.fresh)).map(|&id| &voxels[id as usize].key);
+        let Some((lo, hi)) = key_bounds(keys) else {
+            self.after_rebuild();
             return Ok(None);
-        }
-        let cap = self.config.max_points_per_voxel;
-        // Occupied voxels in slot order, with their points' range in the slab.
-        self.cells.clear();
-        self.cells.extend(occupied(&self.slots, cap));
-        // The voxels are the correspondence grid's cells where they are large enough: no point
-        // is bucketed again.
-        let v = self.config.voxel_size_m;
-        let grid = if v >= cell_edge(max_distance_m) {
-            RadiusGrid::from_lattice(
-                &self.points_slab,
-                &self.cells,
-                v,
-                max_distance_m,
-                default_max_columns(self.points),
-                std::mem::take(&mut spare),
-            )?
-        } else {
-            None
         };
-        // The target's points in the grid's order where there is a grid: the points near a query
-        // (ICP reads their normals) then lie near each other in memory.
-        points.clear();
-        points.reserve(self.points);
-        match &grid {
-            Some(grid) => points.extend(grid.points_in_storage_order()),
-            None => {
-                for (_, at) in &self.cells {
-                    points.extend_from_slice(&self.points_slab[at.clone()]);
-                }
+        let axes = lattice_axes(lo, hi);
+        let rank = |id: &u32| lattice_order(&voxels[*id as usize].key, axes);
+        r.order.clear();
+        if axes == self.axes {
+            r.fresh.sort_unstable_by_key(rank);
+            merge_by_key(order, &r.fresh, rank, &mut r.order);
+        } else {
+            r.order.extend(order.iter().chain(&r.fresh));
+            r.order.sort_unstable_by_key(rank);
+            self.axes = axes;
+        }
+        std::mem::swap(order, &mut r.order);
+        // The waiting points grouped by voxel in the new order (a counting sort; those of
+        // dropped voxels are left out).
+        r.waiting.clear();
+        r.waiting.resize(voxels.len(), 0);
+        for (id, _) in waiting.iter() {
+            if voxels[*id as usize].held > 0 {
+                r.waiting[*id as usize] += 1;
             }
         }
+        let mut end = 0u32;
+        for &id in order.iter() {
+            end += r.waiting[id as usize];
+            r.waiting[id as usize] = end;
+        }
+        r.grouped.clear();
+        r.grouped.resize(end as usize, 0);
+        for (k, (id, _)) in waiting.iter().enumerate().rev() {
+            if voxels[*id as usize].held > 0 {
+                let at = &mut r.waiting[*id as usize];
+                *at -= 1;
+                r.grouped[*at as usize] = k as u32;
+            }
+        }
+        // The points: each voxel's stored ones, read in order from the previous arrays, then its
+        // waiting ones.
+        let mut points = std::mem::take(&mut r.points);
+        points.clear();
+        points.reserve(self.points);
+        r.plan.clear();
+        r.cells.clear();
+        for &id in order.iter() {
+            let v = &mut voxels[id as usize];
+            let (from, waits) = (r.waiting[id as usize], v.held - v.stored);
+            r.plan.push([v.start, v.stored, from, waits]);
+            r.cells.push((v.key, v.held));
+            let new_start = points.len() as u32;
+            points.extend_from_slice(&old_points[v.start as usize..(v.start + v.stored) as usize]);
+            let group = &r.grouped[from as usize..(from + waits) as usize];
+            points.extend(group.iter().map(|&k| waiting[k as usize].1));
+            (v.start, v.stored) = (new_start, v.held);
+        }
+        let v = self.config.voxel_size_m;
+        let (grid, spare) = if v >= cell_edge(max_distance_m) {
+            let max_columns = default_max_columns(points.len());
+            let grid = RadiusGrid::from_sorted_lattice(
+                &points,
+                &r.cells,
+                v,
+                max_distance_m,
+                max_columns,
+                spare,
+            )?;
+            (grid, GridStorage::default())
+        } else {
+            (None, spare)
+        };
         Ok(Some(BuiltPoints {
             points,
-            normals,
+            old_normals,
+            old_points,
             spare,
             grid,
         }))
     }
 
-    /// The second part of [`LocalMap::target`]: the normals, in the points' order, and the
-    /// target made.
+    /// The second part of [`LocalMap::target`]: the normals merged as the points were (the
+    /// stored ones in order, then each voxel's waiting ones), and the target made. On an error
+    /// the map is emptied: its stored points went with the failed target.
     fn finish_target(
         &mut self,
-        built: Option<BuiltPoints>,
+        built: Result<Option<BuiltPoints>>,
         max_distance_m: f64,
     ) -> Result<Option<&IcpTarget>> {
-        let Some(BuiltPoints {
-            points,
-            mut normals,
-            spare,
-            mut grid,
-        }) = built
-        else {
-            self.target = None;
-            return Ok(None);
+        let target = match built {
+            Ok(Some(built)) => self.merge_normals(built, max_distance_m),
+            Ok(None) => Ok(None),
+            Err(e) => Err(e),
         };
-        normals.clear();
-        normals.reserve(points.len());
-        match &mut grid {
-            Some(grid) => {
-                let slab = &self.normals_slab;
-                normals.extend(grid.storage_index().iter().map(|&i| slab[i as usize]));
-                grid.index_by_storage_order();
+        self.after_rebuild();
+        match target {
+            Ok(target) => {
+                self.target = target;
+                Ok(self.target.as_ref())
             }
-            None => {
-                for (_, at) in &self.cells {
-                    normals.extend_from_slice(&self.normals_slab[at.clone()]);
-                }
+            Err(e) => {
+                self.clear();
+                Err(e)
             }
         }
+    }
+
+    /// The normals in the order of `built`'s points, and the target.
+    fn merge_normals(
+        &mut self,
+        built: BuiltPoints,
+        max_distance_m: f64,
+    ) -> Result<Option<IcpTarget>> {
+        let BuiltPoints {
+            points,
+            old_normals,
+            old_points,
+            spare,
+            grid,
+        } = built;
+        let r = &mut self.rebuild;
+        let mut normals = std::mem::take(&mut r.normals);
+        normals.clear();
+        normals.reserve(points.len());
+        for &[start, stored, from, waits] in &r.plan {
+            normals.extend_from_slice(&old_normals[start as usize..(start + stored) as usize]);
+            let group = &r.grouped[from as usize..(from + waits) as usize];
+            normals.extend(group.iter().map(|&k| self.waiting_normals[k as usize]));
+        }
+        // The previous arrays serve the next rebuild.
+        (r.points, r.normals) = (old_points, old_normals);
         let mut target = IcpTarget::from_storage(points, normals, spare)?;
         if let Some(grid) = grid {
             target.set_grid(max_distance_m, grid)?;
         }
-        self.target = Some(target);
-        Ok(self.target.as_ref())
+        Ok(Some(target))
+    }
+
+    /// After a rebuild: no point waits, and the dropped voxels' ids can be reused.
+    fn after_rebuild(&mut self) {
+        self.free.append(&mut self.dropped);
+        self.waiting.clear();
+        self.waiting_normals.clear();
+    }
+
+    /// Empties the map.
+    fn clear(&mut self) {
+        self.index.clear();
+        self.voxels.clear();
+        self.free.clear();
+        self.dropped.clear();
+        self.created.clear();
+        self.order.clear();
+        self.points = 0;
+        self.target = None;
     }
 
     /// The target of the last [`LocalMap::target`] call (`None` before it, or if the map was
@@ -380,212 +507,33 @@ impl LocalMap {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use nalgebra::{Translation3, UnitQuaternion};
-
-    fn map(voxel: f64, cap: usize) -> LocalMap {
-        LocalMap::new(LocalMapConfig {
-            voxel_size_m: voxel,
-            max_points_per_voxel: cap,
-        })
-        .unwrap()
-    }
-
-    #[test]
-    fn voxels_hold_at_most_their_cap_and_far_voxels_go() {
-        let mut m = map(1.0, 2);
-        let pts: Vec<Point3<f64>> = (0..5)
-            .map(|k| Point3::new(0.1 * k as f64, 0.5, 0.5))
-            .collect();
-        let normals = vec![Vector3::z(); pts.len()];
-        m.insert(&Isometry3::identity(), &pts, &normals, 100.0);
-        assert_eq!(m.len(), 2, "one voxel, capped at two");
-        // The same points seen from 10 m further along x land in another voxel.
-        let moved = Isometry3::from_parts(
-            Translation3::new(10.0, 0.0, 0.0),
-            UnitQuaternion::identity(),
-        );
-        m.insert(&moved, &pts, &normals, 100.0);
-        assert_eq!(m.len(), 4);
-        // From 20 m on, with a 5 m range, the first voxel (10+ m away) is dropped.
-        let far = Isometry3::from_parts(
-            Translation3::new(12.0, 0.0, 0.0),
-            UnitQuaternion::identity(),
-        );
-        m.insert(&far, &[], &[], 5.0);
-        assert_eq!(m.len(), 2);
-        let t = m.target(0.5).unwrap().unwrap();
-        assert!(t.points().iter().all(|p| p.x >= 10.0));
-    }
-
-    /// Against a direct model of the map's rule (per voxel, the first `cap` points in arrival
-    /// order; voxels whose first point is beyond the range dropped after each frame), over
-    /// frames that move away so that slots are freed and reused.
-    #[test]
-    fn the_slab_holds_what_the_rule_says() {
-        use rand::{RngExt, SeedableRng};
-        use std::collections::BTreeMap;
-        let (voxel, cap, range) = (0.5, 3, 4.0);
-        let mut m = map(voxel, cap);
-        let mut model: BTreeMap<[i64; 3], Vec<Point3<f64>>> = BTreeMap::new();
-        let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
-        let mut created = 0;
-        for frame in 0..12 {
-            let pose = Isometry3::from_parts(
-                Translation3::new(0.7 * frame as f64, 0.1 * frame as f64, 0.0),
-                UnitQuaternion::from_euler_angles(0.0, 0.0, 0.2 * frame as f64),
-            );
-            let pts: Vec<Point3<f64>> = (0..300)
-                .map(|_| {
-                    Point3::new(
-                        rng.random_range(-3.0..3.0),
-                        rng.random_range(-3.0..3.0),
-                        rng.random_range(-0.5..0.5),
-                    )
-                })
-                .collect();
-            let normals = vec![Vector3::z(); pts.len()];
-            m.insert(&pose, &pts, &normals, range);
-            for p in &pts {
-                let w = pose * p;
-                let key = [0, 1, 2].map(|k| (w[k] / voxel).floor() as i64);
-                created += usize::from(!model.contains_key(&key));
-                let v = model.entry(key).or_default();
-                if v.len() < cap {
-                    v.push(w);
-                }
-            }
-            let origin = Point3::from(pose.translation.vector);
-            model.retain(|_, v| (v[0] - origin).norm() <= range);
-            let expected: usize = model.values().map(Vec::len).sum();
-            assert_eq!(m.len(), expected, "frame {frame}");
-            let mut got: Vec<[f64; 3]> = m
-                .target(0.2)
-                .unwrap()
-                .unwrap()
-                .points()
-                .iter()
-                .map(|p| [p.x, p.y, p.z])
-                .collect();
-            let mut want: Vec<[f64; 3]> =
-                model.values().flatten().map(|p| [p.x, p.y, p.z]).collect();
-            got.sort_by(|a, b| a.partial_cmp(b).unwrap());
-            want.sort_by(|a, b| a.partial_cmp(b).unwrap());
-            assert!(
-                got == want,
-                "frame {frame}: the map's points differ from the model's"
-            );
-        }
-        // Voxels were dropped and their slots reused.
-        assert!(
-            m.slots.len() < created,
-            "{} slots for {created} voxels",
-            m.slots.len()
-        );
-    }
-
-    #[test]
-    fn points_and_normals_go_to_the_world_frame() {
-        let mut m = map(0.5, 20);
-        let pose = Isometry3::from_parts(
-            Translation3::new(1.0, 2.0, 3.0),
-            UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2),
-        );
-        m.insert(&pose, &[Point3::new(1.0, 0.0, 0.0)], &[Vector3::x()], 100.0);
-        let t = m.target(0.5).unwrap().unwrap();
-        assert!((t.points()[0] - Point3::new(1.0, 3.0, 3.0)).norm() < 1e-12);
-        assert!((t.normals().unwrap()[0] - Vector3::y()).norm() < 1e-12);
-        assert!(map(0.5, 20).target(0.2).unwrap().is_none());
-        assert!(
-            LocalMap::new(LocalMapConfig {
-                voxel_size_m: f64::NAN,
-                max_points_per_voxel: 1
-            })
-            .is_err()
-        );
-    }
-
-    #[test]
-    fn normals_asked_for_the_kept_points_only_give_the_same_map() {
-        // Two overlapping frames of a noisy slab: the second lands mostly in voxels the first
-        // filled up.
-        use rand::{RngExt, SeedableRng};
-        let mut rng = rand_pcg::Pcg64::seed_from_u64(9);
-        let frame: Vec<Point3<f64>> = (0..4000)
-            .map(|_| {
-                Point3::new(
-                    rng.random_range(0.0..4.0),
-                    rng.random_range(0.0..4.0),
-                    rng.random_range(0.0..0.3),
-                )
-            })
-            .collect();
-        let normals: Vec<Vector3<f64>> = frame
-            .iter()
-            .map(|p| Vector3::new(p.x, 1.0, p.y).normalize())
-            .collect();
-        let poses = [
-            Isometry3::identity(),
-            Isometry3::from_parts(
-                Translation3::new(0.3, 0.1, 0.0),
-                UnitQuaternion::from_euler_angles(0.0, 0.0, 0.05),
-            ),
-        ];
-        let (mut all, mut lazy) = (map(0.5, 3), map(0.5, 3));
-        let mut asked = Vec::new();
-        for pose in &poses {
-            all.insert(pose, &frame, &normals, 100.0);
-            lazy.insert_with(
-                pose,
-                &frame,
-                |at| {
-                    asked.push(at.to_vec());
-                    at.iter().map(|&i| normals[i as usize]).collect()
-                },
-                100.0,
-            );
-        }
-        assert_eq!(all.len(), lazy.len());
-        let (a, b) = (
-            all.target(0.5).unwrap().unwrap(),
-            lazy.target(0.5).unwrap().unwrap(),
-        );
-        assert_eq!(a.points(), b.points());
-        assert_eq!(a.normals(), b.normals());
-        // Inserting and building the target in one call (normals estimated beside the grid)
-        // gives the same target, frame after frame, with its grid at the distance asked.
-        let mut fused = map(0.5, 3);
-        for pose in &poses {
-            let gather = |at: &[u32]| at.iter().map(|&i| normals[i as usize]).collect();
-            let t = fused
-                .insert_and_target(pose, &frame, gather, 100.0, 0.4)
-                .unwrap()
-                .unwrap();
-            assert_eq!(t.points().len(), fused.len());
-        }
-        // At 0.4 m the voxels are its grid and the target comes in the grid's order; at 0.5 m
-        // (just above the voxel) in slot order: the same points with the same normals.
-        let f = fused.built_target().unwrap();
-        let pairs = |t: &IcpTarget| {
-            let mut v: Vec<[f64; 6]> = (t.points().iter().zip(t.normals().unwrap()))
-                .map(|(p, n)| [p.x, p.y, p.z, n.x, n.y, n.z])
-                .collect();
-            v.sort_by(|a, b| a.partial_cmp(b).unwrap());
-            v
-        };
-        assert_eq!(pairs(f), pairs(a));
-        let probes = [Point3::new(1.0, 1.0, 0.1), Point3::new(3.3, 0.2, 0.25)];
-        let id = Isometry3::identity();
-        assert_eq!(
-            crate::refine::icp::evaluate_registration(&probes, f, &id, 0.4).unwrap(),
-            crate::refine::icp::evaluate_registration(&probes, a, &id, 0.4).unwrap()
-        );
-        // Asked once per frame, in increasing order, for exactly the points kept.
-        assert_eq!(asked.len(), 2);
-        assert!(asked.iter().all(|at| at.windows(2).all(|w| w[0] < w[1])));
-        assert_eq!(asked.iter().map(Vec::len).sum::<usize>(), all.len());
-        assert!(asked[1].len() < frame.len() / 2, "{}", asked[1].len());
+/// A target's correspondence distance \[m\] is finite and positive (checked before the map
+/// changes: a rebuild that fails empties it).
+fn check_distance(max_distance_m: f64) -> Result<()> {
+    if max_distance_m.is_finite() && max_distance_m > 0.0 {
+        Ok(())
+    } else {
+        Err(Error::InvalidInput(format!(
+            "local map target: the distance must be finite and > 0, got {max_distance_m}"
+        )))
     }
 }
+
+/// Merges `a` and `b`, each in increasing `rank`, into `out`.
+fn merge_by_key<K: Ord>(a: &[u32], b: &[u32], rank: impl Fn(&u32) -> K, out: &mut Vec<u32>) {
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() && j < b.len() {
+        if rank(&b[j]) < rank(&a[i]) {
+            out.push(b[j]);
+            j += 1;
+        } else {
+            out.push(a[i]);
+            i += 1;
+        }
+    }
+    out.extend_from_slice(&a[i..]);
+    out.extend_from_slice(&b[j..]);
+}
+
+#[cfg(test)]
+mod tests;

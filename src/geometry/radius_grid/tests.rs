@@ -318,3 +318,78 @@ fn indexing_by_storage_order_answers_the_same_points() {
         assert_eq!(now.map(|(s, d)| (index[s as usize], d)), *was);
     }
 }
+
+/// Over the same voxels, [`RadiusGrid::from_sorted_lattice`] (the points handed over in
+/// storage order) stores the points in the order of [`RadiusGrid::from_lattice`] (given the
+/// voxels in key order, which it sorts), answers every query with the same (position, squared
+/// distance), and agrees with brute force; out-of-order cells and wrong counts are errors.
+#[test]
+fn a_sorted_lattice_gives_the_grid_of_the_unsorted_one() {
+    let mut rng = Pcg64::seed_from_u64(31);
+    // A flat scene (z the short axis) and one long along y (the axes then differ from x, y, z),
+    // with voxels of 1 to 6 points and columns holding cells with gaps along them.
+    for (span, edge) in [([20.0, 12.0, 2.0], 0.5), ([3.0, 25.0, 9.0], 0.7)] {
+        let points: Vec<Point3<f64>> = (0..3000)
+            .map(|_| {
+                Point3::from(std::array::from_fn(|a| {
+                    rng.random_range(0.0..span[a]) - 4.0
+                }))
+            })
+            .collect();
+        let radius = 0.9 * edge;
+        let (mut unsorted, _) = lattice_grid(&points, radius, edge);
+        unsorted.index_by_storage_order();
+        let ordered: Vec<Point3<f64>> = unsorted.points_in_storage_order().collect();
+        // The voxels in the grid's order, with their counts, from the ordered points.
+        let key = |p: &Point3<f64>| [p.x, p.y, p.z].map(|c| crate::geometry::floor_i64(c / edge));
+        let mut cells: Vec<([i64; 3], u32)> = Vec::new();
+        for p in &ordered {
+            match cells.last_mut() {
+                Some((k, n)) if *k == key(p) => *n += 1,
+                _ => cells.push((key(p), 1)),
+            }
+        }
+        let sorted = RadiusGrid::from_sorted_lattice(
+            &ordered,
+            &cells,
+            edge,
+            radius,
+            usize::MAX,
+            Default::default(),
+        )
+        .unwrap()
+        .unwrap();
+        assert!(sorted.points_in_storage_order().eq(ordered.iter().copied()));
+        assert!(
+            sorted
+                .storage_index()
+                .iter()
+                .copied()
+                .eq(0..ordered.len() as u32)
+        );
+        for _ in 0..3000 {
+            let q = ordered[rng.random_range(0..ordered.len())]
+                + nalgebra::Vector3::from_fn(|_, _| rng.random_range(-1.2..1.2) * radius);
+            let found = sorted.nearest_within(&q);
+            assert_eq!(found, unsorted.nearest_within(&q), "{q:?}");
+            assert_eq!(found.map(|(_, d)| d), oracle(&ordered, &q, radius));
+            assert_eq!(sorted.any_within(&q), found.is_some());
+        }
+        // Two cells swapped, a count off by one: errors.
+        let mut swapped = cells.clone();
+        swapped.swap(3, 4);
+        let mut miscounted = cells.clone();
+        miscounted[0].1 += 1;
+        for bad in [swapped, miscounted] {
+            let r = RadiusGrid::from_sorted_lattice(
+                &ordered,
+                &bad,
+                edge,
+                radius,
+                usize::MAX,
+                Default::default(),
+            );
+            assert!(r.is_err());
+        }
+    }
+}
