@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Side-by-side comparison of `mireg pair` with Open3D's feature-matching RANSAC on real data.
+"""Side-by-side comparison of `mireg pair` with Open3D's feature-matching RANSAC (and, when the
+`kiss_matcher` package is installed, KISS-Matcher's global registration) on real data.
 
 Usage (from the repository root, after `bash tools/setup_venv.sh` and `cargo build --release`):
 
@@ -16,6 +17,12 @@ rotation from a normalised Gaussian quaternion, translation uniform in a ball of
 ``--max-translation``, default 1 m) the source points are transformed by P and written once to a
 temporary float64 ``.npy``; the target is written to a float64 ``.npy`` as well, so Open3D and mireg
 get bit-identical inputs. The ground truth for the perturbed source is ``gt · P⁻¹``.
+
+KISS-Matcher (in this process, on the same float64 arrays cast to float32, timed around ``estimate``):
+``KISSMatcherConfig(voxel)`` at the pair's voxel, its other settings at their defaults; a global
+registration without refinement, so its peer rows are Open3D global and ``mireg --no-icp``. It
+refuses voxels below 1 cm: for the bunny (5 mm) both clouds and the voxel are scaled ×10 (all its
+radii and noise bounds are gains times the voxel) and the translation is scaled back.
 
 Open3D (in this process, timed with ``time.perf_counter``, file reading excluded, settings of
 docs/DESIGN.md §3): voxel_down_sample(v); estimate_normals(Hybrid(2v, 30)); compute_fpfh_feature
@@ -92,9 +99,18 @@ from dataclasses import dataclass, field
 import numpy as np
 import open3d as o3d
 
+try:  # KISS-Matcher (Lim et al., ICRA 2025): optional, compared when installed (tools/requirements.txt).
+    import kiss_matcher
+except ImportError:
+    kiss_matcher = None
+
 REG = o3d.pipelines.registration
 REPO = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 ALL_PAIRS = ["3dmatch", "bunny45", "bunny90", "icl", "kitti"]
+# KISS-Matcher's smallest accepted voxel [m] (1.0.2: 5 mm refused, 1 cm accepted), and the voxel a
+# smaller one is scaled up to.
+KISS_MATCHER_MIN_VOXEL = 0.01
+KISS_MATCHER_SCALED_VOXEL = 0.05
 
 
 # --------------------------------------------------------------------------------------------------
@@ -360,6 +376,26 @@ def run_open3d(src: np.ndarray, tgt: np.ndarray, voxel: float, seed: int, icp_fa
     }
 
 
+def run_kiss_matcher(src: np.ndarray, tgt: np.ndarray, voxel: float) -> dict:
+    """KISS-Matcher's global registration at the pair's voxel (its other settings at their defaults),
+    timed in-process around `estimate` (its downsampling, features, matching and solver).
+
+    KISS-Matcher refuses voxels below 1 cm. Its radii and noise bounds are all gains times the voxel,
+    so below that the clouds and the voxel are scaled up together (the bunny: ×10, to 5 cm) and the
+    translation is scaled back: the same registration at another unit."""
+    scale = 1.0 if voxel >= KISS_MATCHER_MIN_VOXEL else KISS_MATCHER_SCALED_VOXEL / voxel
+    matcher = kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(voxel * scale))
+    src32, tgt32 = (scale * src).astype(np.float32), (scale * tgt).astype(np.float32)
+    t0 = time.perf_counter()
+    solution = matcher.estimate(src32, tgt32)
+    t1 = time.perf_counter()
+    T = np.eye(4)
+    T[:3, :3] = np.asarray(solution.rotation, dtype=np.float64)
+    T[:3, 3] = np.asarray(solution.translation, dtype=np.float64).reshape(3) / scale
+    return {"T": T, "time_s": t1 - t0, "valid": bool(solution.valid), "scale": scale,
+            "num_inliers": int(matcher.get_num_final_inliers())}
+
+
 def run_mireg(binary: str, src_path: str, tgt_path: str, voxel: float, seed: int, extra: list[str],
               timeout: float) -> dict:
     """`mireg pair ... --json` in a subprocess; returns the parsed JSON plus wall time, or an error."""
@@ -442,6 +478,27 @@ def summarise(rows: list[dict], pairs: list[Pair], methods: list[str], baselines
     return "\n".join(lines)
 
 
+def kiss_table(rows: list[dict], pairs: list[Pair], labels: list[str]) -> str:
+    """Per pair: KISS-Matcher's recall and median time against each mireg variant's, and the ratio of
+    the median times (> 1: mireg is faster)."""
+    head = "| pair | KISS-Matcher recall, med time (s) | mireg variant | recall, med time (s) | KISS-Matcher / mireg time |"
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    for pair in pairs:
+        def cell(method):
+            rs = [r for r in rows if r["pair"] == pair.name and r["method"] == method]
+            ok = sum(1 for r in rs if r["success"])
+            return rs, ok, median(r["time_s"] for r in rs if r.get("time_s") is not None)
+        krs, kok, kt = cell("kiss-matcher")
+        if not krs:
+            continue
+        for label in labels:
+            mrs, mok, mt = cell(label)
+            if mrs:
+                lines.append(f"| {pair.name} | {kok}/{len(krs)}, {fmt(kt)} | {label} | {mok}/{len(mrs)}, {fmt(mt)} "
+                             f"| {times(kt / mt)} |")
+    return "\n".join(lines)
+
+
 def details(rows: list[dict], pairs: list[Pair], methods: list[str]) -> str:
     """Second table: per-stage times and search statistics (medians)."""
     head = ("| pair | method | features (s) | RANSAC (s) | ICP (s) | hypotheses | best_found_at | prerejected "
@@ -519,6 +576,8 @@ def main() -> int:
                     help="extra `mireg pair` arguments under a label, repeatable, e.g. "
                          "uniform=\"--sampler uniform\" (default: `levy=` and `--no-icp=--no-icp`)")
     ap.add_argument("--skip-mireg", action="store_true", help="run the Open3D side only")
+    ap.add_argument("--skip-kiss-matcher", action="store_true",
+                    help="leave KISS-Matcher out (it is run when the kiss_matcher package is installed)")
     ap.add_argument("--timeout", type=float, default=300.0, help="timeout per mireg run [s]")
     ap.add_argument("--icp-factor", type=float, default=1.0,
                     help="ICP max correspondence distance in voxels for 'open3d global+icp' (default 1.0)")
@@ -530,11 +589,15 @@ def main() -> int:
     variants = [] if args.skip_mireg else parse_variants(args.mireg_variant)
     if variants and not os.path.isfile(args.mireg):
         ap.error(f"mireg binary not found at {args.mireg} (build it or pass --mireg PATH / --skip-mireg)")
-    methods = ["open3d global", "open3d global+icp"] + [label for label, _ in variants]
+    with_kiss = kiss_matcher is not None and not args.skip_kiss_matcher
+    methods = (["open3d global", "open3d global+icp"] + (["kiss-matcher"] if with_kiss else [])
+               + [label for label, _ in variants])
     baselines = {label: "open3d global" if "--no-icp" in extra else "open3d global+icp" for label, extra in variants}
 
     mireg_id = binary_identity(args.mireg) if variants else "not run (--skip-mireg)"
     print(f"# mireg pair vs Open3D RANSAC\n\n{machine_header()}\nmireg: {mireg_id}")
+    print("KISS-Matcher: " + (f"kiss_matcher {getattr(kiss_matcher, '__version__', '?')}" if with_kiss
+                              else "not run" + (" (--skip-kiss-matcher)" if kiss_matcher else " (not installed)")))
     print(f"poses per pair: {args.poses}, seed {args.seed}, random translation ≤ {args.max_translation} m; "
           f"Open3D ICP: distance {args.icp_factor}·voxel on clouds at {args.icp_voxel_factor}·voxel\n")
 
@@ -580,6 +643,12 @@ def main() -> int:
                     rows.append(row)
                 line = [f"  [{name} {trial + 1}/{args.poses}] O3D RE {rows[-2]['re_deg']:.2f}° "
                         f"TE {rows[-2]['te_m']:.3f} m {rows[-2]['time_s']:.2f} s; +ICP RE {rows[-1]['re_deg']:.2f}°"]
+                if with_kiss:
+                    res = run_kiss_matcher(src, pair.target, pair.voxel)
+                    rows.append({**base, "method": "kiss-matcher", **{k: v for k, v in res.items() if k != "T"},
+                                 "T": res["T"].tolist(), **evaluate(pair, res["T"], P)})
+                    line.append(f"KISS-Matcher RE {rows[-1]['re_deg']:.2f}° TE {rows[-1]['te_m']:.3f} m "
+                                f"{rows[-1]['time_s']:.2f} s")
 
                 for label, extra_args in variants:
                     res = run_mireg(args.mireg, src_path, tgt_path, pair.voxel, seed, extra_args, args.timeout)
@@ -609,6 +678,9 @@ def main() -> int:
         return 1
     print("\n## Results\n")
     print(summarise(rows, pairs, methods, baselines))
+    if with_kiss:
+        print("\n## KISS-Matcher side by side (global registration, no refinement)\n")
+        print(kiss_table(rows, pairs, [label for label, _ in variants]))
     print("\n## Details (medians)\n")
     print(details(rows, pairs, methods))
     print("\nRE = angle(R_gtᵀ R_est); TE = ‖t_est − t_gt‖ in the original source frame (estimate composed "

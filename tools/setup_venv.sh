@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Create tools/.venv with the pinned peer tools (Open3D, numpy) used by tools/*.py.
+# Create tools/.venv with the pinned peer tools (Open3D, KISS-Matcher, numpy) used by tools/*.py.
 # Usage: bash tools/setup_venv.sh   (idempotent; re-run after editing requirements.txt)
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
@@ -9,4 +9,4 @@ if ! ldconfig -p | grep -q "libusb-1.0.so.0"; then
 fi
 python3 -m venv "$here/.venv"
 "$here/.venv/bin/python" -m pip install --quiet -r "$here/requirements.txt"
-"$here/.venv/bin/python" -c 'import open3d, numpy; import matplotlib; print("open3d", open3d.__version__, "numpy", numpy.__version__, "matplotlib", matplotlib.__version__)'
+"$here/.venv/bin/python" -c 'import open3d, numpy, matplotlib, kiss_matcher; print("open3d", open3d.__version__, "numpy", numpy.__version__, "matplotlib", matplotlib.__version__, "kiss_matcher imported")'
