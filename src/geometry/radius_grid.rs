@@ -601,6 +601,40 @@ struct Layout {
     max_abs: f64,
 }
 
+/// A grid's tables: see the fields of [`RadiusGrid`].
+struct Tables {
+    columns: Vec<(u32, u32)>,
+    starts: Vec<u32>,
+    xyz: [Vec<f64>; 3],
+    index: Vec<u32>,
+}
+
+impl Layout {
+    /// The grid of this layout with these tables.
+    fn into_grid(self, tables: Tables, scratch: Scratch) -> RadiusGrid {
+        let Tables {
+            columns,
+            starts,
+            xyz,
+            index,
+        } = tables;
+        RadiusGrid {
+            axes: self.axes,
+            min: self.min,
+            edge: self.edge,
+            radius_sq: self.radius_m * self.radius_m,
+            // (p − min) / edge is off by a few ulps of p's magnitude; 1e-6 of the edge on top.
+            slack: 1e-6 * self.edge + 64.0 * f64::EPSILON * self.max_abs,
+            dims: self.dims,
+            columns,
+            starts,
+            xyz,
+            index,
+            scratch: Box::new(scratch),
+        }
+    }
+}
+
 /// The grid whose entry `i` of `storage.cell` is the (column, cell along it) of the points
 /// `points[run(i)]`; `None` when the columns' cells overflow `u32` offsets.
 fn assemble(
@@ -618,14 +652,7 @@ fn assemble(
         mut range,
         mut next,
     } = storage;
-    let Layout {
-        axes,
-        min,
-        edge,
-        radius_m,
-        dims,
-        max_abs,
-    } = layout;
+    let dims = layout.dims;
     // Occupied range of each column.
     let num_columns = dims[0] * dims[1];
     range.clear();
@@ -683,20 +710,13 @@ fn assemble(
             *s += 1;
         }
     }
-    Some(RadiusGrid {
-        axes,
-        min,
-        edge,
-        radius_sq: radius_m * radius_m,
-        // (p − min) / edge is off by a few ulps of p's magnitude; 1e-6 of the edge on top.
-        slack: 1e-6 * edge + 64.0 * f64::EPSILON * max_abs,
-        dims,
+    let tables = Tables {
         columns,
         starts,
         xyz,
         index,
-        scratch: Box::new(Scratch { cell, range, next }),
-    })
+    };
+    Some(layout.into_grid(tables, Scratch { cell, range, next }))
 }
 
 /// [`assemble`] for points already in storage order, `cells` (key, points) in lattice order
@@ -718,14 +738,7 @@ fn assemble_sorted(
         range,
         next,
     } = storage;
-    let Layout {
-        axes,
-        min,
-        edge,
-        radius_m,
-        dims,
-        max_abs,
-    } = layout;
+    let (axes, dims) = (layout.axes, layout.dims);
     let at = |key: &[i64; 3], k: usize| (key[axes[k]] - lo[axes[k]]) as usize;
     let column_of = |key: &[i64; 3]| at(key, 0) * dims[1] + at(key, 1);
     let num_columns = dims[0] * dims[1];
@@ -768,19 +781,13 @@ fn assemble_sorted(
     }
     index.clear();
     index.extend(0..points.len() as u32);
-    Some(RadiusGrid {
-        axes,
-        min,
-        edge,
-        radius_sq: radius_m * radius_m,
-        slack: 1e-6 * edge + 64.0 * f64::EPSILON * max_abs,
-        dims,
+    let tables = Tables {
         columns,
         starts,
         xyz,
         index,
-        scratch: Box::new(Scratch { cell, range, next }),
-    })
+    };
+    Some(layout.into_grid(tables, Scratch { cell, range, next }))
 }
 
 /// Squared distance \[m²\] from `q` to `(x, y, z)`: kiddo's squared Euclidean distance, term by

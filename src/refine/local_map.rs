@@ -130,8 +130,6 @@ pub struct LocalMap {
     /// or failed); its arrays are the map's stored points and normals.
     target: Option<IcpTarget>,
     rebuild: Rebuild,
-    /// Scratch of [`LocalMap::insert_with`]: the kept points' indices.
-    kept: Vec<u32>,
 }
 
 impl LocalMap {
@@ -158,7 +156,6 @@ impl LocalMap {
             points: 0,
             target: None,
             rebuild: Rebuild::default(),
-            kept: Vec::new(),
         })
     }
 
@@ -247,7 +244,7 @@ impl LocalMap {
         max_distance_m: f64,
     ) -> Vec<u32> {
         let cap = self.config.max_points_per_voxel.min(u32::MAX as usize) as u32;
-        self.kept.clear();
+        let mut kept = Vec::new();
         for (i, p) in points.iter().enumerate() {
             let w = world_from_frame * p;
             if !w.coords.iter().all(|c| c.is_finite()) {
@@ -276,7 +273,7 @@ impl LocalMap {
             if voxel.held < cap {
                 voxel.held += 1;
                 self.waiting.push((id, w));
-                self.kept.push(i as u32);
+                kept.push(i as u32);
                 self.points += 1;
             }
         }
@@ -290,7 +287,7 @@ impl LocalMap {
                 self.dropped.push(id as u32);
             }
         }
-        self.kept.clone()
+        kept
     }
 
     /// The normals (the frame's sensor frame) of the points the last
