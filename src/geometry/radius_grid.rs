@@ -59,6 +59,9 @@ pub struct RadiusGrid {
     xyz: [Vec<f64>; 3],
     /// Index in the input cloud of each point.
     index: Vec<u32>,
+    /// Whether `index[s] == s` for every storage position `s` ([`Self::index_by_storage_order`],
+    /// [`Self::from_sorted_lattice`]).
+    index_is_storage_order: bool,
     /// The construction's temporaries, kept for [`RadiusGrid::into_storage`].
     scratch: Box<Scratch>,
 }
@@ -279,6 +282,13 @@ impl RadiusGrid {
     /// equidistant nearest points, the one first in the grid's storage order. A non-finite `q`
     /// has no neighbour.
     pub fn nearest_within(&self, q: &Point3<f64>) -> Option<(u32, f64)> {
+        self.nearest_within_point(q).map(|(i, d, _)| (i, d))
+    }
+
+    /// [`Self::nearest_within`] with the nearest point's coordinates, read from the grid's own
+    /// copy (the scan has just brought them into cache; a caller's array of the cloud would be
+    /// one more memory access per query): the same values as the cloud's point, bit for bit.
+    pub fn nearest_within_point(&self, q: &Point3<f64>) -> Option<(u32, f64, Point3<f64>)> {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU supports AVX2 (checked).
@@ -287,15 +297,16 @@ impl RadiusGrid {
         self.nearest_within_impl(q)
     }
 
-    /// [`Self::nearest_within`] compiled for AVX2: the same operations, 4 points per instruction.
+    /// [`Self::nearest_within_point`] compiled for AVX2: the same operations, 4 points per
+    /// instruction.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    fn nearest_within_avx2(&self, q: &Point3<f64>) -> Option<(u32, f64)> {
+    fn nearest_within_avx2(&self, q: &Point3<f64>) -> Option<(u32, f64, Point3<f64>)> {
         self.nearest_within_impl(q)
     }
 
     #[inline(always)]
-    fn nearest_within_impl(&self, q: &Point3<f64>) -> Option<(u32, f64)> {
+    fn nearest_within_impl(&self, q: &Point3<f64>) -> Option<(u32, f64, Point3<f64>)> {
         let c = self.query_cell(q)?;
         // Lower bounds on the squared distance from `q` to a point of the column before, at and
         // after q's own along each column axis: `q`'s distance to the face between them.
@@ -324,7 +335,17 @@ impl RadiusGrid {
                 }
             }
         }
-        (best.0 < self.radius_sq).then(|| (self.index[best.1], best.0))
+        (best.0 < self.radius_sq).then(|| {
+            let s = best.1;
+            // Indexed by storage order, the answer is the position itself: no read of `index`.
+            let i = if self.index_is_storage_order {
+                s as u32
+            } else {
+                self.index[s]
+            };
+            let [x, y, z] = &self.xyz;
+            (i, best.0, Point3::new(x[s], y[s], z[s]))
+        })
     }
 
     /// Lowers `best` (squared distance, storage position) to the least over the points of `run`.
@@ -502,6 +523,7 @@ impl RadiusGrid {
         for (s, i) in self.index.iter_mut().enumerate() {
             *i = s as u32;
         }
+        self.index_is_storage_order = true;
     }
 
     /// Number of points.
@@ -607,6 +629,7 @@ struct Tables {
     starts: Vec<u32>,
     xyz: [Vec<f64>; 3],
     index: Vec<u32>,
+    index_is_storage_order: bool,
 }
 
 impl Layout {
@@ -617,6 +640,7 @@ impl Layout {
             starts,
             xyz,
             index,
+            index_is_storage_order,
         } = tables;
         RadiusGrid {
             axes: self.axes,
@@ -630,6 +654,7 @@ impl Layout {
             starts,
             xyz,
             index,
+            index_is_storage_order,
             scratch: Box::new(scratch),
         }
     }
@@ -715,6 +740,7 @@ fn assemble(
         starts,
         xyz,
         index,
+        index_is_storage_order: false,
     };
     Some(layout.into_grid(tables, Scratch { cell, range, next }))
 }
@@ -786,6 +812,7 @@ fn assemble_sorted(
         starts,
         xyz,
         index,
+        index_is_storage_order: true,
     };
     Some(layout.into_grid(tables, Scratch { cell, range, next }))
 }

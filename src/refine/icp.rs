@@ -291,11 +291,17 @@ fn correspondence_pass(
             let mut sums = PassSums::zero();
             for s in chunk {
                 let p = target_from_source * s;
+                // The grid hands back the point's coordinates with its index (its own copy, in
+                // cache after the scan): no second read of the target's points.
                 let nearest = match grid {
-                    Some(grid) => grid.nearest_within(&p).map(|(j, d)| (j as usize, d)),
-                    None => target.nearest(&p, max_squared),
+                    Some(grid) => grid
+                        .nearest_within_point(&p)
+                        .map(|(j, d, q)| (j as usize, d, q)),
+                    None => {
+                        (target.nearest(&p, max_squared)).map(|(j, d)| (j, d, target.points[j]))
+                    }
                 };
-                let Some((j, squared)) = nearest else {
+                let Some((j, squared, q)) = nearest else {
                     continue;
                 };
                 // NOTE: strict `<` like Open3D's nanoflann radius search.
@@ -306,7 +312,7 @@ fn correspondence_pass(
                 sums.squared_distance_sum += squared;
                 if let (Some(kernel), Some(normals)) = (kernel, normals) {
                     let n = normals[j];
-                    let residual = (p - target.points[j]).dot(&n);
+                    let residual = (p - q).dot(&n);
                     let w = kernel.weight(residual);
                     if w == 0.0 {
                         continue;

@@ -195,6 +195,12 @@ fn check_cloud(
             // The index returned is a point at exactly that distance.
             let found = grid.nearest_within(&q);
             assert_eq!(found.map(|(_, d)| d), expected, "{q:?}");
+            // With the point: the same answer, and the coordinates of the cloud's point.
+            let with_point = grid.nearest_within_point(&q);
+            assert_eq!(with_point.map(|(j, d, _)| (j, d)), found, "{q:?}");
+            if let Some((j, _, p)) = with_point {
+                assert_eq!(p, points[j as usize], "{q:?}");
+            }
             if let Some((j, d)) = found {
                 let p = points[j as usize];
                 let (dx, dy, dz) = (q.x - p.x, q.y - p.y, q.z - p.z);
@@ -316,6 +322,9 @@ fn indexing_by_storage_order_answers_the_same_points() {
     for (q, was) in queries.iter().zip(&before) {
         let now = grid.nearest_within(q);
         assert_eq!(now.map(|(s, d)| (index[s as usize], d)), *was);
+        if let Some((s, _, p)) = grid.nearest_within_point(q) {
+            assert_eq!(p, ordered[s as usize]);
+        }
     }
 }
 
@@ -372,6 +381,15 @@ fn a_sorted_lattice_gives_the_grid_of_the_unsorted_one() {
                 + nalgebra::Vector3::from_fn(|_, _| rng.random_range(-1.2..1.2) * radius);
             let found = sorted.nearest_within(&q);
             assert_eq!(found, unsorted.nearest_within(&q), "{q:?}");
+            // Both index by storage order (one without reading its index): the same points.
+            assert_eq!(
+                sorted.nearest_within_point(&q),
+                unsorted.nearest_within_point(&q),
+                "{q:?}"
+            );
+            if let Some((s, _, p)) = sorted.nearest_within_point(&q) {
+                assert_eq!(p, ordered[s as usize]);
+            }
             assert_eq!(found.map(|(_, d)| d), oracle(&ordered, &q, radius));
             assert_eq!(sorted.any_within(&q), found.is_some());
         }
