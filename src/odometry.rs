@@ -453,13 +453,8 @@ impl Odometry {
             None => dense_icp,
         };
         let fine_distance = 0.5 * distance;
-        // The frame carries 8 fine points per ICP point (a uniform draw in input order, for the
-        // pairwise stage); every k-th of them is a uniform draw of about the size wanted here.
-        let wanted = (MAP_FINE_POINTS_PER_ICP_POINT * icp_cloud.points().len())
-            .clamp(1, MAP_FINE_MAX_POINTS);
-        let step = frame.fine.len().div_ceil(wanted).max(1);
         let fine: Option<Vec<Point3<f64>>> = (self.config.map_fine && !frame.fine.is_empty())
-            .then(|| frame.fine.iter().step_by(step).copied().collect());
+            .then(|| map_fine_points(frame).copied().collect());
         let fit = |guess, start: &Isometry3<f64>| -> Result<(Isometry3<f64>, MapFit)> {
             let (start, coarse_iterations) = match coarse.as_deref() {
                 Some(points) => {
@@ -566,6 +561,29 @@ impl Odometry {
 fn map_icp_distance(pair: &PairConfig) -> Result<f64> {
     let c = pair.resolved()?;
     Ok(c.icp_max_distance_m.unwrap_or(c.voxel_size_m))
+}
+
+/// The input points of `frame` that the map ICP's fine stage uses
+/// ([`OdometryConfig::map_fine`]): the frame carries [`refine::FINE_POINTS_PER_ICP_POINT`] per
+/// ICP point (a uniform draw in input order, for the pairwise stage); every k-th of them is a
+/// uniform draw of about [`MAP_FINE_POINTS_PER_ICP_POINT`] per ICP point, at most
+/// [`MAP_FINE_MAX_POINTS`]. Keeping only these ([`keep_map_fine_points`]) leaves the same ones.
+///
+/// [`refine::FINE_POINTS_PER_ICP_POINT`]: crate::pipeline::refine::FINE_POINTS_PER_ICP_POINT
+fn map_fine_points(frame: &PreparedFrame) -> impl Iterator<Item = &Point3<f64>> {
+    let icp_points = frame.icp.as_ref().map_or(0, |icp| icp.points().len());
+    let wanted = (MAP_FINE_POINTS_PER_ICP_POINT * icp_points).clamp(1, MAP_FINE_MAX_POINTS);
+    let step = frame.fine.len().div_ceil(wanted).max(1);
+    frame.fine.iter().step_by(step)
+}
+
+/// Drops the input points a prepared frame carries beyond those the map ICP's fine stage uses
+/// ([`map_fine_points`]: the stage then picks the same ones), so that frames waiting between
+/// the preparing and the registering thread hold a few thousand points, not eight per ICP point
+/// (the KITTI replay log: 88k).
+pub fn keep_map_fine_points(frame: &mut PreparedFrame) {
+    let kept: Vec<Point3<f64>> = map_fine_points(frame).copied().collect();
+    frame.fine = kept;
 }
 
 /// Adds an accepted frame's ICP cloud at `world_from_frame` to `map`; voxels farther than the

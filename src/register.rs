@@ -34,7 +34,7 @@ use crate::io::codec::{self, pose_stamped_decoder};
 use crate::io::input_log::InputLog;
 use crate::io::log_order::Reorder;
 use crate::io::mcap_log::{ChannelInfo, OutputLog};
-use crate::odometry::{FrameEstimate, Odometry, OdometryConfig};
+use crate::odometry::{FrameEstimate, Odometry, OdometryConfig, keep_map_fine_points};
 use crate::pipeline::{
     FailureReason, PrepareScratch, PreparedFrame, feature_voxel_for_cloud, prepare_frame,
     prepare_frame_with, voxel_for_cloud, with_feature_voxel,
@@ -476,6 +476,10 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
                         }
                         let prepared =
                             prepare_frame_with(&cloud.points, &config.pair, &mut scratch)
+                                .map(|mut frame| {
+                                    keep_map_fine_points(&mut frame);
+                                    frame
+                                })
                                 .map_err(|e| (FailureReason::InvalidCloud, e.to_string()));
                         spare_points = cloud.points;
                         (cloud.header, prepared)

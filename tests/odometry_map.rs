@@ -226,3 +226,52 @@ fn the_map_fine_stage_tracks_known_motion() {
     let (est, _, _) = run_with(&motion_with_a_drop_and_a_jump(90.0), &off);
     assert!(est[1..].iter().all(|e| e.map.unwrap().fine_iterations == 0));
 }
+
+/// Frames thinned to the input points the map's fine stage uses (`keep_map_fine_points`, as
+/// `mireg register`'s preparing thread does) give the same poses, bit for bit, as frames that
+/// carry all of them; they carry fewer.
+#[test]
+fn frames_thinned_to_the_fine_points_give_the_same_poses() {
+    let config = OdometryConfig {
+        pair: PairConfig {
+            voxel_size_m: 0.1,
+            seed: 4,
+            icp_fine: true,
+            ..Default::default()
+        },
+        map_fine: true,
+        ..Default::default()
+    };
+    let world = scene();
+    let noise = Normal::new(0.0, 0.002).unwrap();
+    let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(11);
+    let (mut whole, mut thinned) = (
+        Odometry::new(config.clone()).unwrap(),
+        Odometry::new(config.clone()).unwrap(),
+    );
+    for w in &motion_with_a_drop_and_a_jump(90.0)[..8] {
+        let pts: Vec<Point3<f64>> = world
+            .iter()
+            .map(|p| w.inverse() * p + Vector3::from_fn(|_, _| noise.sample(&mut rng)))
+            .collect();
+        // Prepared twice: the same frame (preparation is deterministic).
+        let frame = prepare_frame(&pts, &config.pair).unwrap();
+        let mut thin = prepare_frame(&pts, &config.pair).unwrap();
+        mireg::odometry::keep_map_fine_points(&mut thin);
+        assert!(
+            thin.fine.len() < frame.fine.len(),
+            "{} of {}",
+            thin.fine.len(),
+            frame.fine.len()
+        );
+        let cap = mireg::odometry::MAP_FINE_POINTS_PER_ICP_POINT
+            * thin.icp.as_ref().unwrap().points().len();
+        assert!(thin.fine.len() <= cap.min(mireg::odometry::MAP_FINE_MAX_POINTS));
+        let (a, b) = (whole.push(frame).unwrap(), thinned.push(thin).unwrap());
+        assert_eq!(a.world_from_frame, b.world_from_frame);
+        assert!(
+            a.map
+                .is_none_or(|m| m.fine_iterations == b.map.unwrap().fine_iterations)
+        );
+    }
+}
