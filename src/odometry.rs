@@ -49,13 +49,14 @@ pub struct OdometryConfig {
     /// After ICP against the map, a last stage whose source is the frame's own input points
     /// ([`MAP_FINE_POINTS_PER_ICP_POINT`] per ICP-cloud point, at most [`MAP_FINE_MAX_POINTS`],
     /// a seeded uniform draw) at half the map distance, at most [`MAP_FINE_MAX_ITERATIONS`]
-    /// updates. Default `false` (`--map-fine`).
+    /// updates. Default `true` (`--no-map-fine` turns it off).
     ///
-    /// NOTE: off by default, by measurement (docs/ODOMETRY.md): micro211 ATE 1.22 → 1.19 cm and
-    /// KAIST03 2.48 → 2.38 cm, but the fixture 1.19 → 1.21 cm, the KITTI replay log 11 % slower,
-    /// and a static LiDAR at a 0.5 m voxel drifts 5.7 → 10.0 mm: where consecutive frames sample
-    /// the surface alike, the centroids' biases cancel between frame and map, and the input
-    /// points' do not.
+    /// NOTE: on by default since 2026-12-02, by measurement (docs/ODOMETRY.md, median ATE over
+    /// seeds 0–4): micro211 1.215 → 1.190 cm (KISS-ICP 1.202), KAIST03 2.42 → 2.24 cm, its gap
+    /// logs 2.57 → 2.45 and 2.58 → 2.30 cm, the fixture 1.192 → 1.199 cm; the parked car's drift
+    /// 4.9 → 1.4 mm (5.8 → 7.8 mm at a 0.5 m voxel); for about 10 % of the frame rate. Where
+    /// consecutive frames sample the surface alike, the centroids' biases cancel between frame
+    /// and map and the input points' do not: that is the parked car at 0.5 m.
     pub map_fine: bool,
 }
 
@@ -68,9 +69,11 @@ pub struct OdometryConfig {
 pub const MAP_FINE_POINTS_PER_ICP_POINT: usize = 2;
 
 /// At most this many input points in the map ICP's fine stage. What it averages out, the voxel
-/// centroids' bias, needs a number of samples, not a fraction of a dense LiDAR frame: on the
-/// KITTI replay log 2 per ICP point (22 k) cost a fifth of the frame rate (docs/ODOMETRY.md).
-pub const MAP_FINE_MAX_POINTS: usize = 8_000;
+/// centroids' bias, needs a number of samples, not a fraction of a dense LiDAR frame. Median ATE
+/// over seeds 0–4 (docs/ODOMETRY.md): 2 000 against 8 000 gave micro211 1.190 / 1.192 cm, KAIST03
+/// 2.24 / 2.36 cm, its gap logs 2.45 / 2.43 and 2.30 / 2.46 cm, the fixture 1.199 / 1.193 cm, at
+/// about 10 % of the frame rate instead of 15–18 %.
+pub const MAP_FINE_MAX_POINTS: usize = 2_000;
 
 /// Most updates of the map ICP's fine stage: it starts from the converged map ICP.
 pub const MAP_FINE_MAX_ITERATIONS: usize = 2;
@@ -84,7 +87,7 @@ impl Default for OdometryConfig {
             local_map: true,
             map_max_points_per_voxel: 5,
             feature_points: crate::pipeline::DEFAULT_FEATURE_POINTS,
-            map_fine: false,
+            map_fine: true,
         }
     }
 }

@@ -903,3 +903,50 @@ fn corrupt_chunk_that_is_only_copied_fails_cleanly() {
     assert!(!out.exists());
     no_partial_files(dir.path());
 }
+
+/// The map's fine stage runs by default, `--no-map-fine` turns it off (per-frame statistics
+/// `map_fine_icp_iterations`), and `--map-fine` with `--no-map-fine` is a usage error.
+#[test]
+fn cli_map_fine_is_on_by_default_and_can_be_turned_off() {
+    let dir = tempfile::tempdir().unwrap();
+    let fine_iterations = |extra: &[&str]| -> Vec<u64> {
+        let out = dir.path().join("fine.mcap");
+        let run = std::process::Command::new(env!("CARGO_BIN_EXE_mireg"))
+            .args(["register", fixture().to_str().unwrap(), "-o"])
+            .arg(&out)
+            .args(["--force", "--quiet"])
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        let c = contents(&out);
+        (c.messages.iter().filter(|m| m.0 == "/mireg/stats"))
+            .filter_map(|m| {
+                let v: serde_json::Value = serde_json::from_slice(&m.3).unwrap();
+                v["map_fine_icp_iterations"].as_u64()
+            })
+            .collect()
+    };
+    let on = fine_iterations(&[]);
+    assert!(
+        on.iter().filter(|&&n| n > 0).count() > on.len() / 2,
+        "{on:?}"
+    );
+    assert_eq!(fine_iterations(&["--map-fine"]), on);
+    let off = fine_iterations(&["--no-map-fine"]);
+    assert!(!off.is_empty() && off.iter().all(|&n| n == 0), "{off:?}");
+    let both = std::process::Command::new(env!("CARGO_BIN_EXE_mireg"))
+        .args([
+            "register",
+            fixture().to_str().unwrap(),
+            "--map-fine",
+            "--no-map-fine",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(both.status.code(), Some(2));
+}
