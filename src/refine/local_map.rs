@@ -19,9 +19,9 @@
 //! NOTE: two earlier layouts, measured on the KAIST03 keyframes (docs/ODOMETRY.md,
 //! docs/BENCHMARKS.md): a [`BTreeMap`](std::collections::BTreeMap) of per-voxel vectors cost
 //! 15–19 ms a frame (a tree search per inserted point, a pointer chase per voxel); a slab of
-//! `max_points_per_voxel` slots per voxel (at 5 per voxel, 21 MB of points and normals for 87k voxels of 2.5 points on average),
-//! bucketed into a grid by a counting sort every frame, spent its time gathering points and
-//! normals from random slots.
+//! `max_points_per_voxel` slots per voxel (at 5 per voxel, 21 MB of points and normals for 87k
+//! voxels of 2.5 points on average), bucketed into a grid by a counting sort every frame, spent
+//! its time gathering points and normals from random slots.
 
 use std::collections::HashMap;
 
