@@ -202,12 +202,10 @@ fn global_registration_on_a_coarser_cloud_tracks_known_motion() {
     assert_eq!(est[13].map.unwrap().guess, InitialGuess::Global);
 }
 
-/// `map_fine`: the map ICP's last stage with the frames' own input points (prepared with
-/// `icp_fine`, as `mireg register --map-fine` prepares them) runs on every frame and keeps the
-/// known motion, a dropped frame and a 90° jump as well as without it.
-#[test]
-fn the_map_fine_stage_tracks_known_motion() {
-    let config = OdometryConfig {
+/// The map's fine stage on, with frames prepared as `mireg register` prepares them for it
+/// (`icp_fine`: they carry input points).
+fn map_fine_config() -> OdometryConfig {
+    OdometryConfig {
         pair: PairConfig {
             voxel_size_m: 0.1,
             seed: 4,
@@ -216,7 +214,15 @@ fn the_map_fine_stage_tracks_known_motion() {
         },
         map_fine: true,
         ..Default::default()
-    };
+    }
+}
+
+/// `map_fine`: the map ICP's last stage with the frames' own input points (prepared with
+/// `icp_fine`, as `mireg register --map-fine` prepares them) runs on every frame and keeps the
+/// known motion, a dropped frame and a 90° jump as well as without it.
+#[test]
+fn the_map_fine_stage_tracks_known_motion() {
+    let config = map_fine_config();
     tracks_a_drop_and_a_jump(90.0, &config, |map| map.used && map.fine_iterations > 0);
     // Without it, no fine iterations.
     let off = OdometryConfig {
@@ -232,16 +238,7 @@ fn the_map_fine_stage_tracks_known_motion() {
 /// carry all of them; they carry fewer.
 #[test]
 fn frames_thinned_to_the_fine_points_give_the_same_poses() {
-    let config = OdometryConfig {
-        pair: PairConfig {
-            voxel_size_m: 0.1,
-            seed: 4,
-            icp_fine: true,
-            ..Default::default()
-        },
-        map_fine: true,
-        ..Default::default()
-    };
+    let config = map_fine_config();
     let world = scene();
     let noise = Normal::new(0.0, 0.002).unwrap();
     let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(11);

@@ -543,7 +543,8 @@ pub fn cell_edge(radius_m: f64) -> f64 {
     radius_m * (1.0 + 1e-6)
 }
 
-fn check_radius(radius_m: f64) -> Result<()> {
+/// A radius \[m\] is finite and positive.
+pub(crate) fn check_radius(radius_m: f64) -> Result<()> {
     if radius_m.is_finite() && radius_m > 0.0 {
         Ok(())
     } else {

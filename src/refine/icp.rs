@@ -297,9 +297,9 @@ fn correspondence_pass(
                     Some(grid) => grid
                         .nearest_within_point(&p)
                         .map(|(j, d, q)| (j as usize, d, q)),
-                    None => {
-                        (target.nearest(&p, max_squared)).map(|(j, d)| (j, d, target.points[j]))
-                    }
+                    None => target
+                        .nearest(&p, max_squared)
+                        .map(|(j, d)| (j, d, target.points[j])),
                 };
                 let Some((j, squared, q)) = nearest else {
                     continue;

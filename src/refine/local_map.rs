@@ -30,8 +30,8 @@ use nalgebra::{Isometry3, Point3, Vector3};
 use super::icp::IcpTarget;
 use crate::geometry::floor_i64;
 use crate::geometry::radius_grid::{
-    GridStorage, RadiusGrid, cell_edge, default_max_columns, key_bounds, lattice_axes,
-    lattice_order,
+    GridStorage, RadiusGrid, cell_edge, check_radius, default_max_columns, key_bounds,
+    lattice_axes, lattice_order,
 };
 use crate::hash::FastHash;
 use crate::{Error, Result};
@@ -225,7 +225,7 @@ impl LocalMap {
         max_distance_m: f64,
         target_distance_m: f64,
     ) -> Result<Option<&IcpTarget>> {
-        check_distance(target_distance_m)?;
+        check_radius(target_distance_m)?;
         let at = self.place_points(world_from_frame, points, max_distance_m);
         let (normals, built) =
             rayon::join(|| normals_at(&at), || self.target_points(target_distance_m));
@@ -312,7 +312,8 @@ impl LocalMap {
     ///
     /// On an error (a non-finite normal given to an insertion) the map is emptied.
     pub fn target(&mut self, max_distance_m: f64) -> Result<Option<&IcpTarget>> {
-        check_distance(max_distance_m)?;
+        // Checked before the map changes: a rebuild that fails empties it.
+        check_radius(max_distance_m)?;
         let built = self.target_points(max_distance_m);
         self.finish_target(built, max_distance_m)
     }
@@ -501,18 +502,6 @@ impl LocalMap {
     /// empty then or the call failed); the map may have changed since.
     pub fn built_target(&self) -> Option<&IcpTarget> {
         self.target.as_ref()
-    }
-}
-
-/// A target's correspondence distance \[m\] is finite and positive (checked before the map
-/// changes: a rebuild that fails empties it).
-fn check_distance(max_distance_m: f64) -> Result<()> {
-    if max_distance_m.is_finite() && max_distance_m > 0.0 {
-        Ok(())
-    } else {
-        Err(Error::InvalidInput(format!(
-            "local map target: the distance must be finite and > 0, got {max_distance_m}"
-        )))
     }
 }
 
