@@ -364,6 +364,56 @@ pub fn prepare_frame_with(
             timings,
         });
     }
+    // The fine draw reads only the input points and the ICP cloud's size: when that size is
+    // already known it runs beside the features, on the core they leave idle at their ends.
+    let draw_fine = c.icp && c.icp_fine && icp_voxel > 0.0;
+    let icp_len = match &finer_icp_cloud {
+        Some(cloud) => Some(cloud.len()),
+        None => (icp_voxel == c.voxel_size_m).then_some(down.len()),
+    };
+    let early = icp_len.filter(|_| draw_fine);
+    let (described, early_fine) = rayon::join(
+        || {
+            describe(
+                points,
+                &down,
+                finer_icp_cloud,
+                &c,
+                origin,
+                scratch,
+                &mut timings,
+            )
+        },
+        || early.map(|n| fine_sample(points, n, c.seed)),
+    );
+    let (features, icp) = described?;
+    let fine = match (early_fine, &icp) {
+        (Some(fine), _) => fine,
+        (None, Some(t)) if draw_fine => fine_sample(points, t.points().len(), c.seed),
+        _ => Vec::new(),
+    };
+    Ok(PreparedFrame {
+        num_points: points.len(),
+        points: down,
+        features,
+        icp,
+        fine,
+        timings,
+    })
+}
+
+/// The feature cloud's normals and FPFH, and the ICP target (`None` without ICP): the part of
+/// [`prepare_frame_with`] after downsampling. `down` has at least 3 points.
+fn describe(
+    points: &[Point3<f64>],
+    down: &[Point3<f64>],
+    finer_icp_cloud: Option<Vec<Point3<f64>>>,
+    c: &PairConfig,
+    origin: Option<Point3<f64>>,
+    scratch: &mut PrepareScratch,
+    timings: &mut FrameTimings,
+) -> Result<(Vec<Fpfh>, Option<IcpTarget>)> {
+    let icp_voxel = c.icp_voxel_size_m.unwrap();
     let t = Instant::now();
     // NOTE: the kd-tree is built only where a search needs it: the grid answers the
     // neighbourhoods of most clouds, and ICP builds its own tree on first use. Building it for
@@ -375,14 +425,14 @@ pub fn prepare_frame_with(
             // One neighbourhood pass serves both: the normals' neighbourhoods are prefixes of the
             // FPFH ones (timed as features).
             let nbhd = &mut scratch.neighbourhoods;
-            if !grid::self_neighbourhoods_into(&down, feature_radius, c.feature_max_nn, nbhd)? {
-                let built = tree.insert(KdTree::new(&down)?);
-                built.hybrid_neighbourhoods_into(&down, feature_radius, c.feature_max_nn, nbhd);
+            if !grid::self_neighbourhoods_into(down, feature_radius, c.feature_max_nn, nbhd)? {
+                let built = tree.insert(KdTree::new(down)?);
+                built.hybrid_neighbourhoods_into(down, feature_radius, c.feature_max_nn, nbhd);
             }
             timings.features = t.elapsed().as_secs_f64();
             let t = Instant::now();
             let normals = estimate_normals_from_neighbourhoods(
-                &down,
+                down,
                 nbhd,
                 normal_radius,
                 c.normal_max_nn,
@@ -390,17 +440,17 @@ pub fn prepare_frame_with(
             )?;
             timings.normals = t.elapsed().as_secs_f64();
             let t = Instant::now();
-            let features = compute_fpfh_from_neighbourhoods(&down, &normals, nbhd)?;
+            let features = compute_fpfh_from_neighbourhoods(down, &normals, nbhd)?;
             timings.features += t.elapsed().as_secs_f64();
             (normals, features)
         } else {
-            let tree = tree.insert(KdTree::new(&down)?);
+            let tree = tree.insert(KdTree::new(down)?);
             let normals =
-                estimate_normals_with_tree(&down, tree, normal_radius, c.normal_max_nn, origin)?;
+                estimate_normals_with_tree(down, tree, normal_radius, c.normal_max_nn, origin)?;
             timings.normals = t.elapsed().as_secs_f64();
             let t = Instant::now();
             let features =
-                compute_fpfh_with_tree(&down, &normals, tree, feature_radius, c.feature_max_nn)?;
+                compute_fpfh_with_tree(down, &normals, tree, feature_radius, c.feature_max_nn)?;
             timings.features = t.elapsed().as_secs_f64();
             (normals, features)
         };
@@ -443,22 +493,11 @@ pub fn prepare_frame_with(
         )?;
         Some(IcpTarget::with_deferred_normals(cloud, estimate)?)
     } else if let Some(tree) = tree {
-        Some(IcpTarget::with_tree(&down, &normals, tree)?)
+        Some(IcpTarget::with_tree(down, &normals, tree)?)
     } else {
-        Some(IcpTarget::new(&down, &normals)?)
+        Some(IcpTarget::new(down, &normals)?)
     };
-    let fine = match &icp {
-        Some(t) if c.icp_fine && icp_voxel > 0.0 => fine_sample(points, t.points().len(), c.seed),
-        _ => Vec::new(),
-    };
-    Ok(PreparedFrame {
-        num_points: points.len(),
-        points: down,
-        features,
-        icp,
-        fine,
-        timings,
-    })
+    Ok((features, icp))
 }
 
 /// Wall-clock seconds per stage of one registration.
