@@ -109,6 +109,11 @@ pub struct IcpConfig {
     /// `.1` \[rad\] (KISS-ICP's criterion, on the update itself). Default: `None` (Open3D's
     /// criteria only).
     pub min_update: Option<(f64, f64)>,
+    /// Whether the correspondence pass after an update below [`Self::min_update`] still runs.
+    /// That pass only measures the final pose; without it the result's fitness and RMSE are
+    /// those of the pose before the last (small) update, and the pose is the same. For callers
+    /// that measure the final pose themselves (the fine stage). Default: `true`.
+    pub evaluate_after_min_update: bool,
 }
 
 impl IcpConfig {
@@ -121,6 +126,7 @@ impl IcpConfig {
             relative_rmse: DEFAULT_RELATIVE_RMSE_M,
             robust_kernel: RobustKernel::L2,
             min_update: None,
+            evaluate_after_min_update: true,
         }
     }
 
@@ -149,6 +155,13 @@ impl IcpConfig {
     #[must_use]
     pub fn min_update(mut self, translation_m: f64, rotation_rad: f64) -> Self {
         self.min_update = Some((translation_m, rotation_rad));
+        self
+    }
+
+    /// Sets [`Self::evaluate_after_min_update`]. Default: `true`.
+    #[must_use]
+    pub fn evaluate_after_min_update(mut self, evaluate: bool) -> Self {
+        self.evaluate_after_min_update = evaluate;
         self
     }
 
@@ -489,11 +502,15 @@ pub fn registration_icp_point_to_plane(
         target_from_source = update_from_vector(&x) * target_from_source;
         target_from_source.rotation.renormalize();
         iterations += 1;
-        sums = pass(&target_from_source);
-        let next = sums.evaluation(source.len());
         let small_update = config.min_update.is_some_and(|(t, r)| {
             x.fixed_rows::<3>(3).norm() < t && x.fixed_rows::<3>(0).norm() < r
         });
+        if small_update && !config.evaluate_after_min_update {
+            converged = true;
+            break;
+        }
+        sums = pass(&target_from_source);
+        let next = sums.evaluation(source.len());
         let small_change = small_update
             || ((next.fitness - evaluation.fitness).abs() < config.relative_fitness
                 && (next.inlier_rmse_m - evaluation.inlier_rmse_m).abs() < config.relative_rmse);

@@ -340,6 +340,38 @@ fn a_minimum_update_stops_early_and_bad_values_are_rejected() {
 }
 
 #[test]
+fn skipping_the_pass_after_a_small_update_keeps_the_pose_and_measures_the_pose_before_it() {
+    let (scene, scene_normals) = corner_and_sphere();
+    let target = IcpTarget::new(&scene, &scene_normals).unwrap();
+    let mut rng = Pcg64Mcg::seed_from_u64(9);
+    let source: Vec<_> = scene.iter().map(|p| ground_truth().inverse() * p).collect();
+    let init = ground_truth() * perturbation(&mut rng, 3.0, 0.05);
+    let measured = IcpConfig::new(0.4).min_update(1e-3, 1e-3);
+    let with = registration_icp_point_to_plane(&source, &target, &init, &measured).unwrap();
+    let skipped = measured.evaluate_after_min_update(false);
+    let without = registration_icp_point_to_plane(&source, &target, &init, &skipped).unwrap();
+    assert!(with.iterations >= 2 && with.converged, "{with:?}");
+    assert_eq!(without.target_from_source, with.target_from_source);
+    assert_eq!(
+        (without.iterations, without.converged),
+        (with.iterations, true)
+    );
+    // Oracle: the same run stopped one update earlier, measured by `evaluate_registration`.
+    let earlier = IcpConfig::new(0.4).max_iterations(with.iterations - 1);
+    let before = registration_icp_point_to_plane(&source, &target, &init, &earlier).unwrap();
+    let e = evaluate_registration(&source, &target, &before.target_from_source, 0.4).unwrap();
+    assert!(
+        (without.fitness - e.fitness).abs() < 1e-12,
+        "{without:?} {e:?}"
+    );
+    assert!(
+        (without.inlier_rmse_m - e.inlier_rmse_m).abs() < 1e-12,
+        "{without:?} {e:?}"
+    );
+    assert_ne!(without.inlier_rmse_m, with.inlier_rmse_m);
+}
+
+#[test]
 fn a_target_rebuilt_in_its_storage_answers_as_a_new_one() {
     let (scene, scene_normals) = corner_and_sphere();
     let mut rng = Pcg64Mcg::seed_from_u64(12);
