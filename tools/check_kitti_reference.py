@@ -3,7 +3,7 @@
 
 Usage (from the repository root, after ``bash tools/setup_venv.sh``):
 
-    tools/.venv/bin/python tools/check_kitti_reference.py [DATA_DIR]
+    tools/.venv/bin/python tools/check_kitti_reference.py [DATA_DIR] [--compare-json FILE]
 
 DATA_DIR defaults to ../shared/data/kitti_pair (000000.bin, 000001.bin). The pair has no ground
 truth; compare_open3d.py uses dense point-to-plane ICP of the full clouds (target normals radius
@@ -11,9 +11,18 @@ truth; compare_open3d.py uses dense point-to-plane ICP of the full clouds (targe
 with other reasonable settings (normal radius 0.5 m; last distance 0.1, 0.3 or 0.5 m; one more
 stage at 0.1 m) and prints each result's rotation and translation error against the reference:
 the reference cannot resolve errors smaller than that spread.
+
+With ``--compare-json FILE`` (the ``--json-out`` of tools/compare_open3d.py, with the kitti pair),
+it also scores every method of that run against every variant: the median RE and TE of its
+trials, each estimate composed with its random pose as compare_open3d.py does. A method that is
+closer than another against one reasonable reference and farther against the next is not
+resolved by this pair.
 """
+import argparse
+import json
 import math
 import os
+import statistics
 import sys
 
 import numpy as np
@@ -38,11 +47,39 @@ def errors(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
     return angle, float(np.linalg.norm(a[:3, 3] - b[:3, 3]))
 
 
+def score_runs(path: str, results: dict) -> None:
+    """Median RE/TE of each method's kitti trials in a compare_open3d.py JSON, per variant."""
+    with open(path) as f:
+        run = json.load(f)
+    trials: dict[str, list[np.ndarray]] = {}
+    for row in run["rows"]:
+        if row["pair"] == "kitti" and row.get("success"):
+            # The estimate maps the posed source P·x; composed with P it maps the original source.
+            trials.setdefault(row["method"], []).append(np.array(row["T"]) @ np.array(row["P"]))
+    if not trials:
+        sys.exit(f"{path} has no successful kitti trials")
+    methods = sorted(trials)
+    print()
+    print("median RE [deg] / TE [mm] of each method's trials against each reference variant")
+    print("normal radius [m] | ICP distances [m] | " + " | ".join(methods))
+    for (radius, schedule), reference in results.items():
+        cells = []
+        for m in methods:
+            errs = [errors(reference, t) for t in trials[m]]
+            re = statistics.median(e[0] for e in errs)
+            te = statistics.median(e[1] for e in errs)
+            cells.append(f"{re:.4f} / {1000 * te:.2f}")
+        print(f"{radius} | {' → '.join(map(str, schedule))} | " + " | ".join(cells))
+
+
 def main() -> None:
-    data = sys.argv[1] if len(sys.argv) > 1 else os.path.join("..", "shared", "data", "kitti_pair")
-    paths = [os.path.join(data, f) for f in ("000001.bin", "000000.bin")]
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("data", nargs="?", default=os.path.join("..", "shared", "data", "kitti_pair"))
+    ap.add_argument("--compare-json", help="a compare_open3d.py --json-out file to score per variant")
+    args = ap.parse_args()
+    paths = [os.path.join(args.data, f) for f in ("000001.bin", "000000.bin")]
     if not all(os.path.exists(p) for p in paths):
-        sys.exit(f"skipped: {data} has no 000000.bin / 000001.bin")
+        sys.exit(f"skipped: {args.data} has no 000000.bin / 000001.bin")
     src, tgt = (cloud(load(p)) for p in paths)
     results = {}
     for radius in (1.0, 0.5):
@@ -58,6 +95,8 @@ def main() -> None:
     for (radius, schedule), t in results.items():
         re, te = errors(reference, t)
         print(f"{radius} | {' → '.join(map(str, schedule))} | {re:.4f} | {1000 * te:.2f}")
+    if args.compare_json:
+        score_runs(args.compare_json, results)
 
 
 if __name__ == "__main__":
