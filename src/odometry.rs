@@ -18,7 +18,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::Result;
 use crate::geometry::radius_grid::cell_edge;
-use crate::pipeline::refine::fine_stage;
+use crate::pipeline::refine::{FineInputs, fine_stage};
 use crate::pipeline::{
     FailureReason, PairConfig, PairResult, PreparedFrame, refine_prepared, register_prepared_coarse,
 };
@@ -67,6 +67,17 @@ pub struct OdometryConfig {
 /// (docs/ODOMETRY.md): 8 per point with up to 30 updates took 50–64 % longer per log; 2 per point
 /// with two updates gave the same ATE for 8–20 %.
 pub const MAP_FINE_POINTS_PER_ICP_POINT: usize = 2;
+
+/// Input points per ICP point that `mireg register`'s frames draw
+/// ([`PairConfig::icp_fine_points_per_icp_point`]), of which the map's fine stage keeps
+/// [`MAP_FINE_POINTS_PER_ICP_POINT`] ([`keep_map_fine_points`]).
+///
+/// NOTE: 8, the pairwise stage's draw when the map's fine stage was measured (docs/ODOMETRY.md);
+/// the pairwise default moved to 6 with its new target, and a different draw would pick other
+/// points and change the trajectories those figures describe.
+///
+/// [`PairConfig::icp_fine_points_per_icp_point`]: crate::pipeline::PairConfig::icp_fine_points_per_icp_point
+pub const MAP_FINE_DRAW_PER_ICP_POINT: usize = 8;
 
 /// At most this many input points in the map ICP's fine stage. What it averages out, the voxel
 /// centroids' bias, needs a number of samples, not a fraction of a dense LiDAR frame. Median ATE
@@ -470,15 +481,13 @@ impl Odometry {
                 registration_icp_point_to_plane(icp_cloud.points(), target, &start, &finish_icp)?;
             let mut fine_iterations = 0;
             if let Some(points) = fine.as_deref() {
-                let f = fine_stage(
+                let inputs = FineInputs {
                     points,
-                    icp_cloud.points(),
                     target,
-                    &r,
-                    distance,
-                    fine_distance,
-                    MAP_FINE_MAX_ITERATIONS,
-                )?;
+                    distance_m: fine_distance,
+                    max_iterations: MAP_FINE_MAX_ITERATIONS,
+                };
+                let f = fine_stage(&inputs, icp_cloud.points(), target, &r, distance)?;
                 if let Some(f) = f {
                     r.target_from_source = f.target_from_source;
                     r.fitness = f.fitness;
@@ -567,12 +576,10 @@ fn map_icp_distance(pair: &PairConfig) -> Result<f64> {
 }
 
 /// The input points of `frame` that the map ICP's fine stage uses
-/// ([`OdometryConfig::map_fine`]): the frame carries [`refine::FINE_POINTS_PER_ICP_POINT`] per
-/// ICP point (a uniform draw in input order, for the pairwise stage); every k-th of them is a
+/// ([`OdometryConfig::map_fine`]): the frame carries [`MAP_FINE_DRAW_PER_ICP_POINT`] per
+/// ICP point (a uniform draw in input order); every k-th of them is a
 /// uniform draw of about [`MAP_FINE_POINTS_PER_ICP_POINT`] per ICP point, at most
 /// [`MAP_FINE_MAX_POINTS`]. Keeping only these ([`keep_map_fine_points`]) leaves the same ones.
-///
-/// [`refine::FINE_POINTS_PER_ICP_POINT`]: crate::pipeline::refine::FINE_POINTS_PER_ICP_POINT
 fn map_fine_points(frame: &PreparedFrame) -> impl Iterator<Item = &Point3<f64>> {
     let icp_points = frame.icp.as_ref().map_or(0, |icp| icp.points().len());
     let wanted = (MAP_FINE_POINTS_PER_ICP_POINT * icp_points).clamp(1, MAP_FINE_MAX_POINTS);
@@ -586,7 +593,7 @@ fn map_fine_points(frame: &PreparedFrame) -> impl Iterator<Item = &Point3<f64>> 
 /// (the KITTI replay log: 88k).
 pub fn keep_map_fine_points(frame: &mut PreparedFrame) {
     let kept: Vec<Point3<f64>> = map_fine_points(frame).copied().collect();
-    frame.fine = kept;
+    frame.keep_fine(kept);
 }
 
 /// Adds an accepted frame's ICP cloud at `world_from_frame` to `map`; voxels farther than the

@@ -20,7 +20,7 @@ use crate::geometry::normals::{
     NormalEstimate, estimate_normals_from_neighbourhoods, estimate_normals_with_tree,
 };
 use crate::geometry::radius_grid::default_max_columns;
-use crate::geometry::voxel::voxel_downsample;
+use crate::geometry::voxel::{voxel_downsample, voxel_downsample_indexed};
 use crate::ransac::consensus::{Consensus, ConsensusConfig, Scoring, Termination};
 use crate::ransac::levy::{DEFAULT_SCALE, DEFAULT_WINDOW};
 use crate::ransac::{
@@ -163,10 +163,14 @@ pub struct PairConfig {
     /// ICP iterations (of each stage). Default 30.
     pub icp_max_iterations: usize,
     /// After ICP of the ICP clouds, a fine stage: the source's finite input points (a seeded
-    /// draw of [`refine::FINE_POINTS_PER_ICP_POINT`] per ICP-cloud point) against the target's
-    /// ICP cloud, at [`Self::icp_fine_distance_m`]. Default true. `mireg register` refines
-    /// against its local map instead and ignores it.
+    /// draw of [`Self::icp_fine_points_per_icp_point`] per ICP-cloud point) against the
+    /// target's, drawn alike, each with the plane of the drawn points around its nearest ICP
+    /// point, at [`Self::icp_fine_distance_m`]. Default true. `mireg register` refines against
+    /// its local map instead and ignores it.
     pub icp_fine: bool,
+    /// Input points per ICP-cloud point that the fine stage draws from each cloud (at least 1).
+    /// Default [`refine::FINE_POINTS_PER_ICP_POINT`] (6).
+    pub icp_fine_points_per_icp_point: usize,
     /// The fine stage's max correspondence distance \[m\]. Default 0.5 · `icp_max_distance_m`.
     pub icp_fine_distance_m: Option<f64>,
     /// Orient normals towards this point (the sensor origin in the cloud's frame) when known.
@@ -222,6 +226,7 @@ impl Default for PairConfig {
             icp_max_distance_m: None,
             icp_max_iterations: crate::refine::icp::DEFAULT_MAX_ITERATIONS,
             icp_fine: true,
+            icp_fine_points_per_icp_point: refine::FINE_POINTS_PER_ICP_POINT,
             icp_fine_distance_m: None,
             sensor_origin: None,
             orient_to_centroid: true,
@@ -250,6 +255,11 @@ impl PairConfig {
                 "edge_similarity must be in [0, 1], got {}",
                 self.edge_similarity
             )));
+        }
+        if self.icp_fine_points_per_icp_point == 0 {
+            return Err(Error::InvalidInput(
+                "icp_fine_points_per_icp_point must be at least 1, got 0".into(),
+            ));
         }
         let mut r = self.clone();
         r.normal_radius_m.get_or_insert(2.0 * v);
@@ -301,10 +311,43 @@ pub struct PreparedFrame {
     pub features: Vec<Fpfh>,
     /// The ICP cloud with normals and its kd-tree (as target); its points serve as ICP source.
     pub icp: Option<IcpTarget>,
-    /// Input points for the fine ICP stage as source ([`PairConfig::icp_fine`]); empty without.
+    /// Input points drawn for the fine ICP stage ([`PairConfig::icp_fine`]); empty without.
     pub fine: Vec<Point3<f64>>,
+    /// The voxel of the ICP cloud of each point of `fine` (its index there).
+    fine_voxels: Vec<u32>,
+    /// The fine stage's target made from `fine`, built when the frame first serves as a target
+    /// ([`PreparedFrame::fine_target`]).
+    fine_target: std::sync::OnceLock<Option<IcpTarget>>,
     /// Time spent.
     pub timings: FrameTimings,
+}
+
+impl PreparedFrame {
+    /// The fine stage's target when this frame is the target ([`refine::fine_target`] of its
+    /// drawn points and its ICP cloud), built on the first call. `None` without drawn points
+    /// or ICP cloud.
+    pub(crate) fn fine_target(&self) -> Result<Option<&IcpTarget>> {
+        if let Some(built) = self.fine_target.get() {
+            return Ok(built.as_ref());
+        }
+        let built = match &self.icp {
+            Some(icp) if self.fine_voxels.len() == self.fine.len() => {
+                refine::fine_target(&self.fine, &self.fine_voxels, icp)?
+            }
+            _ => None,
+        };
+        // Another thread may have built it meanwhile: both are the same.
+        let _ = self.fine_target.set(built);
+        Ok(self.fine_target.get().expect("just set").as_ref())
+    }
+
+    /// Replaces the drawn points by `kept` (a subset, for a caller that uses them only as a
+    /// source); their voxels are dropped, so the frame no longer makes a fine target.
+    pub(crate) fn keep_fine(&mut self, kept: Vec<Point3<f64>>) {
+        self.fine = kept;
+        self.fine_voxels = Vec::new();
+        self.fine_target = Default::default();
+    }
 }
 
 /// Storage that [`prepare_frame_with`] reuses from one frame to the next: a stream of similar
@@ -345,12 +388,30 @@ pub fn prepare_frame_with(
     // frame), the feature cloud is downsampled from the ICP cloud, not from the input: a tenth
     // of the points to bucket (the KITTI scans: 124k input, 11k ICP points); its centroids are
     // means of centroids, which global registration does not notice.
-    let finer_icp_cloud = if c.icp && icp_voxel > 0.0 && icp_voxel < c.voxel_size_m {
-        Some(voxel_downsample(points, icp_voxel)?)
-    } else {
-        None
+    // The fine stage's draw keeps each drawn point's voxel of the ICP cloud (for the planes of
+    // `refine::fine_target`); the downsampling that makes the ICP cloud records them.
+    let draw_fine = c.icp && c.icp_fine && icp_voxel > 0.0;
+    let downsample = |cloud: &[Point3<f64>], voxel: f64, indexed: bool| {
+        if indexed {
+            voxel_downsample_indexed(cloud, voxel).map(|(down, ids)| (down, Some(ids)))
+        } else {
+            voxel_downsample(cloud, voxel).map(|down| (down, None))
+        }
     };
-    let down = voxel_downsample(finer_icp_cloud.as_deref().unwrap_or(points), c.voxel_size_m)?;
+    let (finer_icp_cloud, finer_ids) = if c.icp && icp_voxel > 0.0 && icp_voxel < c.voxel_size_m {
+        let (cloud, ids) = downsample(points, icp_voxel, draw_fine)?;
+        (Some(cloud), ids)
+    } else {
+        (None, None)
+    };
+    let (down, down_ids) = match &finer_icp_cloud {
+        Some(finer) => (voxel_downsample(finer, c.voxel_size_m)?, None),
+        None => downsample(
+            points,
+            c.voxel_size_m,
+            draw_fine && icp_voxel == c.voxel_size_m,
+        )?,
+    };
     timings.downsample = t.elapsed().as_secs_f64();
     let origin =
         origin.or_else(|| (c.orient_to_centroid && !down.is_empty()).then(|| centroid(&down)));
@@ -361,17 +422,19 @@ pub fn prepare_frame_with(
             features: Vec::new(),
             icp: None,
             fine: Vec::new(),
+            fine_voxels: Vec::new(),
+            fine_target: Default::default(),
             timings,
         });
     }
-    // The fine draw reads only the input points and the ICP cloud's size: when that size is
-    // already known it runs beside the features, on the core they leave idle at their ends.
-    let draw_fine = c.icp && c.icp_fine && icp_voxel > 0.0;
+    // The fine draw reads only the input points and the ICP cloud's size and voxels: when those
+    // are already known it runs beside the features, on the core they leave idle at their ends.
     let icp_len = match &finer_icp_cloud {
         Some(cloud) => Some(cloud.len()),
         None => (icp_voxel == c.voxel_size_m).then_some(down.len()),
     };
-    let early = icp_len.filter(|_| draw_fine);
+    let early = icp_len.zip(finer_ids.or(down_ids)).filter(|_| draw_fine);
+    let per_icp_point = c.icp_fine_points_per_icp_point;
     let (described, early_fine) = rayon::join(
         || {
             describe(
@@ -384,13 +447,20 @@ pub fn prepare_frame_with(
                 &mut timings,
             )
         },
-        || early.map(|n| fine_sample(points, n, c.seed)),
+        || early.map(|(n, ids)| fine_sample(points, Some(&ids), n, per_icp_point, c.seed)),
     );
-    let (features, icp) = described?;
-    let fine = match (early_fine, &icp) {
-        (Some(fine), _) => fine,
-        (None, Some(t)) if draw_fine => fine_sample(points, t.points().len(), c.seed),
-        _ => Vec::new(),
+    let Described {
+        features,
+        icp,
+        icp_voxels: late_ids,
+    } = described?;
+    let (fine, fine_voxels) = match (early_fine, &icp) {
+        (Some(drawn), _) => drawn,
+        (None, Some(t)) if draw_fine => {
+            let n = t.points().len();
+            fine_sample(points, late_ids.as_deref(), n, per_icp_point, c.seed)
+        }
+        _ => (Vec::new(), Vec::new()),
     };
     Ok(PreparedFrame {
         num_points: points.len(),
@@ -398,11 +468,23 @@ pub fn prepare_frame_with(
         features,
         icp,
         fine,
+        fine_voxels,
+        fine_target: Default::default(),
         timings,
     })
 }
 
-/// The feature cloud's normals and FPFH, and the ICP target (`None` without ICP): the part of
+/// What [`describe`] makes of a downsampled frame.
+struct Described {
+    features: Vec<Fpfh>,
+    icp: Option<IcpTarget>,
+    /// Each input point's voxel of the ICP cloud, when the fine stage draws and the ICP cloud
+    /// was made by [`describe`].
+    icp_voxels: Option<Vec<u32>>,
+}
+
+/// The feature cloud's normals and FPFH, the ICP target (`None` without ICP) and, when the
+/// fine stage draws and the ICP cloud is made here, each input point's voxel of it: the part of
 /// [`prepare_frame_with`] after downsampling. `down` has at least 3 points.
 fn describe(
     points: &[Point3<f64>],
@@ -412,8 +494,9 @@ fn describe(
     origin: Option<Point3<f64>>,
     scratch: &mut PrepareScratch,
     timings: &mut FrameTimings,
-) -> Result<(Vec<Fpfh>, Option<IcpTarget>)> {
+) -> Result<Described> {
     let icp_voxel = c.icp_voxel_size_m.unwrap();
+    let mut icp_ids = None;
     let t = Instant::now();
     // NOTE: the kd-tree is built only where a search needs it: the grid answers the
     // neighbourhoods of most clouds, and ICP builds its own tree on first use. Building it for
@@ -470,6 +553,11 @@ fn describe(
         } else {
             let cloud = match finer_icp_cloud {
                 Some(cloud) => cloud,
+                None if c.icp_fine => {
+                    let (cloud, ids) = voxel_downsample_indexed(points, icp_voxel)?;
+                    icp_ids = Some(ids);
+                    cloud
+                }
                 None => voxel_downsample(points, icp_voxel)?,
             };
             (cloud, normal_radius * icp_voxel / c.voxel_size_m)
@@ -497,7 +585,11 @@ fn describe(
     } else {
         Some(IcpTarget::new(down, &normals)?)
     };
-    Ok((features, icp))
+    Ok(Described {
+        features,
+        icp,
+        icp_voxels: icp_ids,
+    })
 }
 
 /// Wall-clock seconds per stage of one registration.
@@ -716,21 +808,32 @@ fn register_prepared_with(
         return Ok(finish(out));
     }
 
-    let t = Instant::now();
     let count_radius = match c.ranking {
         RankingConfig::NeighbourCount { radius, .. } => Some(radius),
         _ => None,
     };
-    let matches = match_features_with(
-        &source.features,
-        &target.features,
-        &MatchConfig {
-            mutual: c.mutual_filter,
-            count_radius,
-            ..Default::default()
+    // The fine stage's target is built (once per frame) beside the matching: its one pass over
+    // the drawn points fills the gaps of the matching's parallel loops.
+    let build_fine = refined && c.icp && c.icp_fine && !source.fine.is_empty();
+    let (matched, fine_target) = rayon::join(
+        || {
+            let t = Instant::now();
+            let matches = match_features_with(
+                &source.features,
+                &target.features,
+                &MatchConfig {
+                    mutual: c.mutual_filter,
+                    count_radius,
+                    ..Default::default()
+                },
+            );
+            (matches, t.elapsed().as_secs_f64())
         },
+        || build_fine.then(|| target.fine_target()),
     );
-    out.timings_s.matching = t.elapsed().as_secs_f64();
+    let (matches, matching_s) = matched;
+    fine_target.transpose()?;
+    out.timings_s.matching = matching_s;
     out.num_correspondences = matches.len();
     if matches.len() < 3 {
         out.failure = Some(FailureReason::TooFewCorrespondences);
@@ -804,14 +907,9 @@ pub fn register_pair(
     config: &PairConfig,
 ) -> Result<PairResult> {
     let start = Instant::now();
-    // The fine stage moves the source's input points: the target's draw would go unread.
-    let target_config = PairConfig {
-        icp_fine: false,
-        ..config.clone()
-    };
     let (s, t) = rayon::join(
         || prepare_frame(source, config),
-        || prepare_frame(target, &target_config),
+        || prepare_frame(target, config),
     );
     let mut result = register_prepared(&s?, &t?, config)?;
     result.timings_s.total = start.elapsed().as_secs_f64();

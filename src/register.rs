@@ -335,6 +335,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     // Frames carry input points for the map ICP's fine stage, not for the pairwise one, which
     // the local map replaces (`Odometry::new` turns that off).
     config.pair.icp_fine = config.map_fine;
+    config.pair.icp_fine_points_per_icp_point = crate::odometry::MAP_FINE_DRAW_PER_ICP_POINT;
     let mut odometry = Odometry::new(config.clone())?;
     // A log registered before keeps its mireg topics; this run's go to the next namespace
     // (`/mireg_2/…`), so that no topic mixes two runs.

@@ -14,7 +14,7 @@ pub use normals::{
     estimate_normals_with_grid, estimate_normals_with_tree,
 };
 pub use radius_grid::RadiusGrid;
-pub use voxel::voxel_downsample;
+pub use voxel::{voxel_downsample, voxel_downsample_indexed};
 
 /// `x.floor() as i64`, exactly (also saturating the same way beyond ±2⁶³), without the libm
 /// call that `f64::floor` costs on a target without SSE4.1: the voxel and grid keys of every

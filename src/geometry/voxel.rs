@@ -26,6 +26,30 @@ use crate::{Error, Result};
 /// Errors: [`Error::InvalidInput`] when `voxel_size_m` is not finite and positive, or so small that
 /// a voxel index would overflow `i32` (Open3D's "voxel_size is too small").
 pub fn voxel_downsample(points: &[Point3<f64>], voxel_size_m: f64) -> Result<Vec<Point3<f64>>> {
+    downsample(points, voxel_size_m, None)
+}
+
+/// [`voxel_downsample`], and for each input point the index of its voxel's centroid in the
+/// output (`u32::MAX` for a non-finite point).
+pub fn voxel_downsample_indexed(
+    points: &[Point3<f64>],
+    voxel_size_m: f64,
+) -> Result<(Vec<Point3<f64>>, Vec<u32>)> {
+    let mut voxel_of = Vec::new();
+    let centroids = downsample(points, voxel_size_m, Some(&mut voxel_of))?;
+    Ok((centroids, voxel_of))
+}
+
+/// [`voxel_downsample`], filling `voxel_of` (when given) as [`voxel_downsample_indexed`] does.
+fn downsample(
+    points: &[Point3<f64>],
+    voxel_size_m: f64,
+    mut voxel_of: Option<&mut Vec<u32>>,
+) -> Result<Vec<Point3<f64>>> {
+    if let Some(v) = voxel_of.as_deref_mut() {
+        v.clear();
+        v.resize(points.len(), u32::MAX);
+    }
     if !(voxel_size_m.is_finite() && voxel_size_m > 0.0) {
         return Err(Error::InvalidInput(format!(
             "voxel_size_m must be finite and > 0, got {voxel_size_m}"
@@ -85,10 +109,10 @@ pub fn voxel_downsample(points: &[Point3<f64>], voxel_size_m: f64) -> Result<Vec
     Ok(match packed_bound {
         Some(bound) if bound <= u64::from(u32::MAX) => {
             // Keys below the bound fit 32 bits.
-            centroids_radix(points, bound, move |p| packed(p) as u32)
+            centroids_radix(points, bound, move |p| packed(p) as u32, voxel_of)
         }
-        Some(_) => centroids_hashed(points, packed),
-        None => centroids(points, index),
+        Some(_) => centroids_hashed(points, packed, voxel_of),
+        None => centroids(points, index, voxel_of),
     })
 }
 
@@ -98,8 +122,14 @@ const RADIX_BITS: u32 = 11;
 /// The finite points' (key, input index) pairs sorted by key with a stable LSD radix sort (so
 /// input order within a voxel), then one pass summing each run of equal keys in that order (as
 /// Open3D): the same centroids, in the same order, as [`centroids_hashed`], without a hash
-/// table. Keys must be below `key_bound` (at most `u32::MAX + 1`).
-fn centroids_radix<F>(points: &[Point3<f64>], key_bound: u64, key: F) -> Vec<Point3<f64>>
+/// table. Keys must be below `key_bound` (at most `u32::MAX + 1`). Fills `voxel_of` (sized
+/// to `points`) with each point's voxel when given.
+fn centroids_radix<F>(
+    points: &[Point3<f64>],
+    key_bound: u64,
+    key: F,
+    mut voxel_of: Option<&mut Vec<u32>>,
+) -> Vec<Point3<f64>>
 where
     F: Fn(&Point3<f64>) -> u32,
 {
@@ -137,6 +167,11 @@ where
         for &(_, i) in &run[..end] {
             sum += points[i as usize].coords;
         }
+        if let Some(v) = voxel_of.as_deref_mut() {
+            for &(_, i) in &run[..end] {
+                v[i as usize] = out.len() as u32;
+            }
+        }
         out.push(Point3::from(sum / f64::from(end as u32)));
         run = &run[end..];
     }
@@ -144,17 +179,22 @@ where
 }
 
 /// One pass over the finite points accumulating per-voxel sums in input order (as Open3D), then
-/// the occupied voxels sorted by key: O(n) hashing plus a sort of the (few) voxels.
-fn centroids_hashed<F>(points: &[Point3<f64>], key: F) -> Vec<Point3<f64>>
+/// the occupied voxels sorted by key: O(n) hashing plus a sort of the (few) voxels. Fills
+/// `voxel_of` (sized to `points`) with each point's voxel when given.
+fn centroids_hashed<F>(
+    points: &[Point3<f64>],
+    key: F,
+    mut voxel_of: Option<&mut Vec<u32>>,
+) -> Vec<Point3<f64>>
 where
     F: Fn(&Point3<f64>) -> u64,
 {
     let mut slot_of: HashMap<u64, u32, FastHash> = HashMap::default();
     let mut voxels: Vec<(u64, Vector3<f64>, u32)> = Vec::new();
-    for p in points
-        .iter()
-        .filter(|p| p.coords.iter().all(|c| c.is_finite()))
-    {
+    for (i, p) in points.iter().enumerate() {
+        if !p.coords.iter().all(|c| c.is_finite()) {
+            continue;
+        }
         let k = key(p);
         let slot = *slot_of.entry(k).or_insert_with(|| {
             voxels.push((k, Vector3::zeros(), 0));
@@ -163,17 +203,39 @@ where
         let v = &mut voxels[slot as usize];
         v.1 += p.coords;
         v.2 += 1;
+        if let Some(of) = voxel_of.as_deref_mut() {
+            of[i] = slot;
+        }
     }
-    voxels.sort_unstable_by_key(|v| v.0);
-    voxels
+    // Keys are distinct: the order is total.
+    let mut order: Vec<u32> = (0..voxels.len() as u32).collect();
+    order.sort_unstable_by_key(|&slot| voxels[slot as usize].0);
+    if let Some(of) = voxel_of {
+        let mut rank = vec![0u32; voxels.len()];
+        for (r, &slot) in order.iter().enumerate() {
+            rank[slot as usize] = r as u32;
+        }
+        for v in of.iter_mut().filter(|v| **v != u32::MAX) {
+            *v = rank[*v as usize];
+        }
+    }
+    order
         .into_iter()
-        .map(|(_, sum, n)| Point3::from(sum / f64::from(n)))
+        .map(|slot| {
+            let (_, sum, n) = voxels[slot as usize];
+            Point3::from(sum / f64::from(n))
+        })
         .collect()
 }
 
 /// Sorts finite points by (voxel key, input index) and averages each run of equal keys. The index
 /// makes entries unique, so the unstable sort is deterministic and keeps input order in a voxel.
-fn centroids<K, F>(points: &[Point3<f64>], key: F) -> Vec<Point3<f64>>
+/// Fills `voxel_of` (sized to `points`) with each point's voxel when given.
+fn centroids<K, F>(
+    points: &[Point3<f64>],
+    key: F,
+    mut voxel_of: Option<&mut Vec<u32>>,
+) -> Vec<Point3<f64>>
 where
     K: Ord + Copy + Send,
     F: Fn(&Point3<f64>) -> K + Sync,
@@ -194,6 +256,9 @@ where
         let mut end = start;
         while end < keyed.len() && keyed[end].0 == k {
             sum += points[keyed[end].1 as usize].coords;
+            if let Some(v) = voxel_of.as_deref_mut() {
+                v[keyed[end].1 as usize] = out.len() as u32;
+            }
             end += 1;
         }
         out.push(Point3::from(sum / (end - start) as f64));
@@ -330,15 +395,62 @@ mod tests {
             let [x, y, z] = index(p);
             (x * ny + y) * nz + z
         };
-        let radix = centroids_radix(&points, nx * ny * nz, |p| packed(p) as u32);
-        let hashed = centroids_hashed(&points, packed);
-        let sorted = centroids(&points, index);
+        let of = || Some(vec![u32::MAX; points.len()]);
+        let (mut radix_of, mut hashed_of, mut sorted_of) = (of(), of(), of());
+        let radix = centroids_radix(
+            &points,
+            nx * ny * nz,
+            |p| packed(p) as u32,
+            radix_of.as_mut(),
+        );
+        let hashed = centroids_hashed(&points, packed, hashed_of.as_mut());
+        let sorted = centroids(&points, index, sorted_of.as_mut());
         assert!(radix.len() > 1000, "{} voxels", radix.len());
         assert_eq!(radix, hashed);
         assert_eq!(radix, sorted);
+        assert_eq!(radix_of, hashed_of);
+        assert_eq!(radix_of, sorted_of);
         // One voxel only: no radix pass at all.
-        let one = centroids_radix(&points[..3], 1, |_| 0);
-        assert_eq!(one, centroids_hashed(&points[..3], |_| 0));
+        let one = centroids_radix(&points[..3], 1, |_| 0, None);
+        assert_eq!(one, centroids_hashed(&points[..3], |_| 0, None));
+    }
+
+    #[test]
+    fn each_point_is_indexed_to_the_centroid_of_its_voxel() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(22);
+        let mut points: Vec<Point3<f64>> = (0..3000)
+            .map(|_| Point3::from(std::array::from_fn(|_| rng.random_range(-1.0..1.0))))
+            .collect();
+        points[5] = Point3::new(0.0, f64::NAN, 0.0);
+        let voxel = 0.2;
+        let (centroids, voxel_of) = voxel_downsample_indexed(&points, voxel).unwrap();
+        assert_eq!(centroids, voxel_downsample(&points, voxel).unwrap());
+        assert_eq!(voxel_of[5], u32::MAX);
+        // Oracle: the voxel of each point by direct arithmetic (Open3D's grid, anchored half a
+        // voxel below the minimum); points sharing a voxel share an index, whose centroid is
+        // their mean.
+        let finite: Vec<usize> = (0..points.len()).filter(|&i| i != 5).collect();
+        let min = finite
+            .iter()
+            .fold(Point3::from([f64::INFINITY; 3]), |m, &i| m.inf(&points[i]));
+        let cell = |p: &Point3<f64>| -> [i64; 3] {
+            std::array::from_fn(|k| ((p[k] - (min[k] - voxel / 2.0)) / voxel).floor() as i64)
+        };
+        let mut members: std::collections::BTreeMap<[i64; 3], Vec<usize>> = Default::default();
+        for &i in &finite {
+            members.entry(cell(&points[i])).or_default().push(i);
+        }
+        assert_eq!(members.len(), centroids.len());
+        for group in members.values() {
+            let j = voxel_of[group[0]];
+            assert!(group.iter().all(|&i| voxel_of[i] == j));
+            let mean = group
+                .iter()
+                .fold(Vector3::zeros(), |s, &i| s + points[i].coords)
+                / group.len() as f64;
+            assert!((centroids[j as usize].coords - mean).norm() < 1e-12);
+        }
     }
 
     #[test]
