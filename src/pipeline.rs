@@ -812,10 +812,24 @@ fn register_prepared_with(
         RankingConfig::NeighbourCount { radius, .. } => Some(radius),
         _ => None,
     };
-    // The fine stage's target is built (once per frame) beside the matching: its one pass over
-    // the drawn points fills the gaps of the matching's parallel loops.
+    // The ICP stages' targets and their correspondence grids are built (once per frame) beside
+    // the matching: single passes that fill the gaps of the matching's parallel loops.
     let build_fine = refined && c.icp && c.icp_fine && !source.fine.is_empty();
-    let (matched, fine_target) = rayon::join(
+    let prepare_targets = || -> Result<()> {
+        let Some(icp) = target.icp.as_ref().filter(|_| refined && c.icp) else {
+            return Ok(());
+        };
+        icp.prepare_for_distance(c.icp_max_distance_m.unwrap())?;
+        if let Some(fine) = build_fine
+            .then(|| target.fine_target())
+            .transpose()?
+            .flatten()
+        {
+            fine.prepare_for_distance(c.icp_fine_distance_m.unwrap())?;
+        }
+        Ok(())
+    };
+    let (matched, prepared) = rayon::join(
         || {
             let t = Instant::now();
             let matches = match_features_with(
@@ -829,10 +843,10 @@ fn register_prepared_with(
             );
             (matches, t.elapsed().as_secs_f64())
         },
-        || build_fine.then(|| target.fine_target()),
+        prepare_targets,
     );
     let (matches, matching_s) = matched;
-    fine_target.transpose()?;
+    prepared?;
     out.timings_s.matching = matching_s;
     out.num_correspondences = matches.len();
     if matches.len() < 3 {
