@@ -9,7 +9,9 @@ use std::time::Instant;
 use nalgebra::{Isometry3, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::correspondence::matching::{MatchConfig, match_features_with};
+use crate::correspondence::matching::{
+    MatchConfig, MatchTarget, match_features_against, match_features_with,
+};
 use crate::correspondence::ranking::{
     CountOrder, Ranking, rank_by_distance, rank_by_neighbour_count, rank_by_ratio,
 };
@@ -315,6 +317,9 @@ pub struct PreparedFrame {
     pub fine: Vec<Point3<f64>>,
     /// The voxel of the ICP cloud of each point of `fine` (its index there).
     fine_voxels: Vec<u32>,
+    /// The search structures over `features` when the frame is a matching target, built on
+    /// first use ([`PreparedFrame::match_target`]).
+    match_target: std::sync::OnceLock<Option<MatchTarget>>,
     /// The fine stage's target made from `fine`, built when the frame first serves as a target
     /// ([`PreparedFrame::fine_target`]).
     fine_target: std::sync::OnceLock<Option<IcpTarget>>,
@@ -323,6 +328,14 @@ pub struct PreparedFrame {
 }
 
 impl PreparedFrame {
+    /// The search structures over this frame's descriptors as a matching target
+    /// ([`MatchTarget`]), built on the first call; `None` without descriptors.
+    pub fn match_target(&self) -> Option<&MatchTarget> {
+        self.match_target
+            .get_or_init(|| MatchTarget::new(&self.features))
+            .as_ref()
+    }
+
     /// The fine stage's target when this frame is the target ([`refine::fine_target`] of its
     /// drawn points and its ICP cloud), built on the first call. `None` without drawn points
     /// or ICP cloud.
@@ -423,6 +436,7 @@ pub fn prepare_frame_with(
             icp: None,
             fine: Vec::new(),
             fine_voxels: Vec::new(),
+            match_target: Default::default(),
             fine_target: Default::default(),
             timings,
         });
@@ -469,6 +483,7 @@ pub fn prepare_frame_with(
         icp,
         fine,
         fine_voxels,
+        match_target: Default::default(),
         fine_target: Default::default(),
         timings,
     })
@@ -832,15 +847,16 @@ fn register_prepared_with(
     let (matched, prepared) = rayon::join(
         || {
             let t = Instant::now();
-            let matches = match_features_with(
-                &source.features,
-                &target.features,
-                &MatchConfig {
-                    mutual: c.mutual_filter,
-                    count_radius,
-                    ..Default::default()
-                },
-            );
+            let config = MatchConfig {
+                mutual: c.mutual_filter,
+                count_radius,
+                ..Default::default()
+            };
+            let (s, t_features) = (&source.features, &target.features);
+            let matches = match target.match_target() {
+                Some(prepared) => match_features_against(s, t_features, prepared, &config),
+                None => match_features_with(s, t_features, &config),
+            };
             (matches, t.elapsed().as_secs_f64())
         },
         prepare_targets,

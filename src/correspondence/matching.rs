@@ -99,6 +99,66 @@ pub fn match_features(source: &[Fpfh], target: &[Fpfh], mutual: bool) -> Matches
 
 /// [`match_features`] with all options (neighbour count in the same pass, search method).
 pub fn match_features_with(source: &[Fpfh], target: &[Fpfh], config: &MatchConfig) -> Matches {
+    match_prepared(source, target, None, config)
+}
+
+/// The target side of a brute-force search without a count radius (the default
+/// [`MatchConfig`]'s), built once per target cloud: its distinct descriptors and their search
+/// database. [`match_features_against`] reuses it for every source matched against that target.
+pub struct MatchTarget {
+    groups: Option<Unique>,
+    db: Database,
+    len: usize,
+}
+
+impl std::fmt::Debug for MatchTarget {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("MatchTarget")
+            .field("len", &self.len)
+            .finish()
+    }
+}
+
+impl MatchTarget {
+    /// The search structures over `target` (finite descriptors); `None` when it is empty.
+    pub fn new(target: &[Fpfh]) -> Option<Self> {
+        if target.is_empty() {
+            return None;
+        }
+        let groups = Unique::of(target);
+        let db = match &groups {
+            None => Database::new(target),
+            Some(g) => Database::new(&g.descriptors(target)),
+        };
+        Some(MatchTarget {
+            groups,
+            db,
+            len: target.len(),
+        })
+    }
+}
+
+/// [`match_features_with`] against `target` with its search structures `prepared` once
+/// ([`MatchTarget::new`] of the same `target`): the same matches. Configurations the prepared
+/// structures do not serve (a count radius, the kd-tree) build their own.
+///
+/// Panics if `prepared` was made from a target of another length.
+pub fn match_features_against(
+    source: &[Fpfh],
+    target: &[Fpfh],
+    prepared: &MatchTarget,
+    config: &MatchConfig,
+) -> Matches {
+    assert_eq!(prepared.len, target.len(), "MatchTarget of another target");
+    match_prepared(source, target, Some(prepared), config)
+}
+
+fn match_prepared(
+    source: &[Fpfh],
+    target: &[Fpfh],
+    prepared: Option<&MatchTarget>,
+    config: &MatchConfig,
+) -> Matches {
     assert!(
         source.len() <= u32::MAX as usize && target.len() <= u32::MAX as usize,
         "descriptor indices must fit in u32"
@@ -107,7 +167,11 @@ pub fn match_features_with(source: &[Fpfh], target: &[Fpfh], config: &MatchConfi
         return Matches::default();
     }
     let count_radius_sq = config.count_radius.map(|r| r * r);
-    let scans = search(config.method, source, target, count_radius_sq);
+    let serves = config.method == MatchMethod::BruteForce && count_radius_sq.is_none();
+    let scans = match prepared.filter(|_| serves) {
+        Some(prepared) => scan_prepared(source, prepared),
+        None => search(config.method, source, target, count_radius_sq),
+    };
     if !config.mutual {
         return collect(scans, config, |_, _| true);
     }
@@ -142,11 +206,33 @@ fn search(
 /// descriptors. A group's representative is its lowest index, which the scan's tie-break would
 /// pick among the equal distances; a group of two or more is its own second nearest.
 fn scan_distinct(queries: &[Fpfh], database: &[Fpfh], radius_sq: Option<f32>) -> Vec<Scan> {
-    let db_groups = if radius_sq.is_none() {
-        Unique::of(database)
-    } else {
-        None
-    };
+    match radius_sq {
+        None => scan_prepared(queries, &MatchTarget::new(database).expect("non-empty")),
+        Some(_) => per_distinct_query(queries, |qs| {
+            scan_all(qs, &Database::new(database), radius_sq)
+        }),
+    }
+}
+
+/// [`scan_distinct`] without a radius, against a database built before.
+fn scan_prepared(queries: &[Fpfh], target: &MatchTarget) -> Vec<Scan> {
+    per_distinct_query(queries, |qs| {
+        let mut scans = scan_all(qs, &target.db, None);
+        if let Some(g) = &target.groups {
+            for s in &mut scans {
+                let group = s.best_index as usize;
+                if g.size[group] >= 2 {
+                    s.second_sq = s.best_sq;
+                }
+                s.best_index = g.first[group];
+            }
+        }
+        scans
+    })
+}
+
+/// `scan` of each distinct query once, handed back for every query.
+fn per_distinct_query(queries: &[Fpfh], scan: impl FnOnce(&[Fpfh]) -> Vec<Scan>) -> Vec<Scan> {
     let query_groups = Unique::of(queries);
     let distinct_queries;
     let qs = match &query_groups {
@@ -156,20 +242,7 @@ fn scan_distinct(queries: &[Fpfh], database: &[Fpfh], radius_sq: Option<f32>) ->
         }
         None => queries,
     };
-    let scans = match &db_groups {
-        None => scan_all(qs, &Database::new(database), radius_sq),
-        Some(g) => {
-            let mut scans = scan_all(qs, &Database::new(&g.descriptors(database)), None);
-            for s in &mut scans {
-                let group = s.best_index as usize;
-                if g.size[group] >= 2 {
-                    s.second_sq = s.best_sq;
-                }
-                s.best_index = g.first[group];
-            }
-            scans
-        }
-    };
+    let scans = scan(qs);
     match query_groups {
         None => scans,
         Some(u) => u.group.iter().map(|&g| scans[g as usize]).collect(),

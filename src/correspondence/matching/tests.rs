@@ -358,3 +358,43 @@ fn degenerate_sizes() {
     assert!(match_features(&[], &one, false).is_empty());
     assert_eq!(count_within(&one, &[], 12.0), vec![0]);
 }
+
+#[test]
+fn a_prepared_target_gives_the_oracles_matches_for_every_source() {
+    let mut rng = Pcg64Mcg::seed_from_u64(31);
+    // Repeated descriptors on both sides exercise the distinct-descriptor groups.
+    let mut target = integer_descriptors(&mut rng, 300, 3);
+    target.extend(target[..40].to_vec());
+    let prepared = MatchTarget::new(&target).unwrap();
+    for n in [1, 57, 400] {
+        let source = integer_descriptors(&mut rng, n, 3);
+        for mutual in [false, true] {
+            let config = MatchConfig {
+                mutual,
+                ..Default::default()
+            };
+            let got = match_features_against(&source, &target, &prepared, &config);
+            assert_eq!(got, match_features_with(&source, &target, &config));
+            if !mutual {
+                // Oracle: every source's nearest target, ties to the lowest index.
+                assert_eq!(got.len(), n);
+                for (k, q) in source.iter().enumerate() {
+                    let (best, best_sq, second_sq) = oracle_nearest(q, &target);
+                    assert_eq!(got.target_index[k], best);
+                    assert_eq!(got.distance[k], (best_sq as f32).sqrt());
+                    assert_eq!(got.second_distance[k], (second_sq as f32).sqrt());
+                }
+            }
+        }
+        // A count radius is not what the structures serve: the search builds its own.
+        let counting = MatchConfig {
+            count_radius: Some(4.0),
+            ..Default::default()
+        };
+        assert_eq!(
+            match_features_against(&source, &target, &prepared, &counting),
+            match_features_with(&source, &target, &counting)
+        );
+    }
+    assert!(MatchTarget::new(&[]).is_none());
+}
