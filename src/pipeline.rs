@@ -323,6 +323,10 @@ pub struct PreparedFrame {
     /// The fine stage's target made from `fine`, built when the frame first serves as a target
     /// ([`PreparedFrame::fine_target`]).
     fine_target: std::sync::OnceLock<Option<IcpTarget>>,
+    /// The seed of the draw `fine`, which also seeds [`PreparedFrame::fine_source`]'s.
+    fine_seed: u64,
+    /// The fine stage's source made from `fine`, built when the frame first serves as a source.
+    fine_source: std::sync::OnceLock<Vec<Point3<f64>>>,
     /// Time spent.
     pub timings: FrameTimings,
 }
@@ -354,12 +358,26 @@ impl PreparedFrame {
         Ok(self.fine_target.get().expect("just set").as_ref())
     }
 
+    /// The fine stage's source when this frame is the source: a uniform draw of
+    /// [`refine::FINE_SOURCE_POINTS_PER_ICP_POINT`] per ICP point from the drawn points (all of
+    /// them when there are no more), seeded by the frame's own draw, built on the first call.
+    pub(crate) fn fine_source(&self) -> &[Point3<f64>] {
+        self.fine_source.get_or_init(|| {
+            let icp_points = self.icp.as_ref().map_or(0, |icp| icp.points().len());
+            let per_point = refine::FINE_SOURCE_POINTS_PER_ICP_POINT;
+            // A seed of its own: the same seed would start the same random sequence.
+            let seed = self.fine_seed ^ 0x9e37_79b9_7f4a_7c15;
+            refine::fine_sample(&self.fine, None, icp_points, per_point, seed).0
+        })
+    }
+
     /// Replaces the drawn points by `kept` (a subset, for a caller that uses them only as a
     /// source); their voxels are dropped, so the frame no longer makes a fine target.
     pub(crate) fn keep_fine(&mut self, kept: Vec<Point3<f64>>) {
         self.fine = kept;
         self.fine_voxels = Vec::new();
         self.fine_target = Default::default();
+        self.fine_source = Default::default();
     }
 }
 
@@ -438,6 +456,8 @@ pub fn prepare_frame_with(
             fine_voxels: Vec::new(),
             match_target: Default::default(),
             fine_target: Default::default(),
+            fine_seed: c.seed,
+            fine_source: Default::default(),
             timings,
         });
     }
@@ -485,6 +505,8 @@ pub fn prepare_frame_with(
         fine_voxels,
         match_target: Default::default(),
         fine_target: Default::default(),
+        fine_seed: c.seed,
+        fine_source: Default::default(),
         timings,
     })
 }
@@ -827,13 +849,16 @@ fn register_prepared_with(
         RankingConfig::NeighbourCount { radius, .. } => Some(radius),
         _ => None,
     };
-    // The ICP stages' targets and their correspondence grids are built (once per frame) beside
-    // the matching: single passes that fill the gaps of the matching's parallel loops.
+    // The ICP stages' sources, targets and correspondence grids are built (once per frame)
+    // beside the matching: single passes that fill the gaps of the matching's parallel loops.
     let build_fine = refined && c.icp && c.icp_fine && !source.fine.is_empty();
     let prepare_targets = || -> Result<()> {
         let Some(icp) = target.icp.as_ref().filter(|_| refined && c.icp) else {
             return Ok(());
         };
+        if build_fine {
+            source.fine_source();
+        }
         icp.prepare_for_distance(c.icp_max_distance_m.unwrap())?;
         if let Some(fine) = build_fine
             .then(|| target.fine_target())
