@@ -164,11 +164,12 @@ pub struct PairConfig {
     pub icp_max_distance_m: Option<f64>,
     /// ICP iterations (of each stage). Default 30.
     pub icp_max_iterations: usize,
-    /// After ICP of the ICP clouds, a fine stage: the source's finite input points (a seeded
-    /// draw of [`Self::icp_fine_points_per_icp_point`] per ICP-cloud point) against the
-    /// target's, drawn alike, each with the plane of the drawn points around its nearest ICP
-    /// point, at [`Self::icp_fine_distance_m`]. Default true. `mireg register` refines against
-    /// its local map instead and ignores it.
+    /// After ICP of the ICP clouds, a fine stage: point-to-plane ICP of the source's input
+    /// points against the target's, at [`Self::icp_fine_distance_m`]. Each cloud draws
+    /// [`Self::icp_fine_points_per_icp_point`] input points per ICP-cloud point (seeded); the
+    /// target uses all of them, each on the plane fitted to the drawn points of its voxel, the
+    /// source [`refine::FINE_SOURCE_POINTS_PER_ICP_POINT`] of them. Default true.
+    /// `mireg register` refines against its local map instead and ignores it.
     pub icp_fine: bool,
     /// Input points per ICP-cloud point that the fine stage draws from each cloud (at least 1).
     /// Default [`refine::FINE_POINTS_PER_ICP_POINT`] (6).
