@@ -423,13 +423,6 @@ pub fn prepare_frame_with(
     // The fine stage's draw keeps each drawn point's voxel of the ICP cloud (for the planes of
     // `refine::fine_target`); the downsampling that makes the ICP cloud records them.
     let draw_fine = c.icp && c.icp_fine && icp_voxel > 0.0;
-    let downsample = |cloud: &[Point3<f64>], voxel: f64, indexed: bool| {
-        if indexed {
-            voxel_downsample_indexed(cloud, voxel).map(|(down, ids)| (down, Some(ids)))
-        } else {
-            voxel_downsample(cloud, voxel).map(|down| (down, None))
-        }
-    };
     let (finer_icp_cloud, finer_ids) = if c.icp && icp_voxel > 0.0 && icp_voxel < c.voxel_size_m {
         let (cloud, ids) = downsample(points, icp_voxel, draw_fine)?;
         (Some(cloud), ids)
@@ -512,6 +505,19 @@ pub fn prepare_frame_with(
     })
 }
 
+/// A downsampled cloud and, when asked for, each input point's voxel in it.
+type Downsampled = (Vec<Point3<f64>>, Option<Vec<u32>>);
+
+/// [`voxel_downsample`] of `cloud`, with each point's voxel ([`voxel_downsample_indexed`]) when
+/// `indexed`.
+fn downsample(cloud: &[Point3<f64>], voxel_m: f64, indexed: bool) -> Result<Downsampled> {
+    if indexed {
+        voxel_downsample_indexed(cloud, voxel_m).map(|(down, ids)| (down, Some(ids)))
+    } else {
+        voxel_downsample(cloud, voxel_m).map(|down| (down, None))
+    }
+}
+
 /// What [`describe`] makes of a downsampled frame.
 struct Described {
     features: Vec<Fpfh>,
@@ -591,12 +597,11 @@ fn describe(
         } else {
             let cloud = match finer_icp_cloud {
                 Some(cloud) => cloud,
-                None if c.icp_fine => {
-                    let (cloud, ids) = voxel_downsample_indexed(points, icp_voxel)?;
-                    icp_ids = Some(ids);
+                None => {
+                    let (cloud, ids) = downsample(points, icp_voxel, c.icp_fine)?;
+                    icp_ids = ids;
                     cloud
                 }
-                None => voxel_downsample(points, icp_voxel)?,
             };
             (cloud, normal_radius * icp_voxel / c.voxel_size_m)
         };
@@ -879,7 +884,10 @@ fn register_prepared_with(
                 ..Default::default()
             };
             let (s, t_features) = (&source.features, &target.features);
-            let matches = match target.match_target() {
+            // The prepared structures serve the search without a count radius only: the
+            // other builds its own.
+            let prepared = count_radius.is_none().then(|| target.match_target());
+            let matches = match prepared.flatten() {
                 Some(prepared) => match_features_against(s, t_features, prepared, &config),
                 None => match_features_with(s, t_features, &config),
             };
