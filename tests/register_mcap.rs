@@ -24,6 +24,25 @@ fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/icl_livingroom1.mcap")
 }
 
+/// `mireg ARGS`, run to completion: its output, whatever its exit status.
+fn mireg(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_mireg"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+/// [`mireg`], which must succeed (its stderr is the failure's message).
+fn mireg_ok(args: &[&str]) -> std::process::Output {
+    let run = mireg(args);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    run
+}
+
 fn options(input: &Path, output: &Path, voxel: f64) -> RegisterOptions {
     let config = OdometryConfig {
         pair: PairConfig {
@@ -352,35 +371,20 @@ fn real_rosbag2_log_passes_through_untouched() {
 fn cli_register_json_summary() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("o.mcap");
-    let run = std::process::Command::new(env!("CARGO_BIN_EXE_mireg"))
-        .args([
-            "register",
-            fixture().to_str().unwrap(),
-            "-o",
-            out.to_str().unwrap(),
-            "--json",
-            "--quiet",
-        ])
-        .output()
-        .unwrap();
+    let (input, output) = (fixture(), out.to_str().unwrap().to_string());
     // --quiet suppresses the summary unless --json asks for it.
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    let run = mireg_ok(&[
+        "register",
+        input.to_str().unwrap(),
+        "-o",
+        &output,
+        "--json",
+        "--quiet",
+    ]);
     let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
     assert_eq!(v["frames"], 71);
     assert!(out.exists());
-    let again = std::process::Command::new(env!("CARGO_BIN_EXE_mireg"))
-        .args([
-            "register",
-            fixture().to_str().unwrap(),
-            "-o",
-            out.to_str().unwrap(),
-        ])
-        .output()
-        .unwrap();
+    let again = mireg(&["register", input.to_str().unwrap(), "-o", &output]);
     assert_eq!(again.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&again.stderr).contains("exists"));
 }
@@ -911,18 +915,11 @@ fn cli_map_fine_is_on_by_default_and_can_be_turned_off() {
     let dir = tempfile::tempdir().unwrap();
     let fine_iterations = |extra: &[&str]| -> Vec<u64> {
         let out = dir.path().join("fine.mcap");
-        let run = std::process::Command::new(env!("CARGO_BIN_EXE_mireg"))
-            .args(["register", fixture().to_str().unwrap(), "-o"])
-            .arg(&out)
-            .args(["--force", "--quiet"])
-            .args(extra)
-            .output()
-            .unwrap();
-        assert!(
-            run.status.success(),
-            "{}",
-            String::from_utf8_lossy(&run.stderr)
-        );
+        let (input, output) = (fixture(), out.to_str().unwrap().to_string());
+        let mut args = vec!["register", input.to_str().unwrap(), "-o", &output];
+        args.extend(["--force", "--quiet"]);
+        args.extend(extra);
+        mireg_ok(&args);
         let c = contents(&out);
         (c.messages.iter().filter(|m| m.0 == "/mireg/stats"))
             .filter_map(|m| {
@@ -939,14 +936,12 @@ fn cli_map_fine_is_on_by_default_and_can_be_turned_off() {
     assert_eq!(fine_iterations(&["--map-fine"]), on);
     let off = fine_iterations(&["--no-map-fine"]);
     assert!(!off.is_empty() && off.iter().all(|&n| n == 0), "{off:?}");
-    let both = std::process::Command::new(env!("CARGO_BIN_EXE_mireg"))
-        .args([
-            "register",
-            fixture().to_str().unwrap(),
-            "--map-fine",
-            "--no-map-fine",
-        ])
-        .output()
-        .unwrap();
+    let input = fixture();
+    let both = mireg(&[
+        "register",
+        input.to_str().unwrap(),
+        "--map-fine",
+        "--no-map-fine",
+    ]);
     assert_eq!(both.status.code(), Some(2));
 }
