@@ -48,7 +48,7 @@ fn main() {
     std::fs::write(&path, &logs[2].1).expect("seed log");
     let mut topics = std::collections::BTreeMap::new();
     let mut seen = std::collections::BTreeSet::new();
-    mireg::io::mcap_read::for_each_record(&path, |r| {
+    mireg::io::mcap::read::for_each_record(&path, |r| {
         match r {
             Record::Channel(c) => {
                 topics.insert(c.id, c.topic);

@@ -11,7 +11,7 @@ use std::path::Path;
 
 use mireg::io::cloud_file::read_points;
 use mireg::io::codec::{Header, Time, cdr};
-use mireg::io::mcap_log::OutputLog;
+use mireg::io::mcap::log::OutputLog;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

@@ -9,7 +9,7 @@ use std::path::Path;
 
 use mireg::io::cloud_file::read_points;
 use mireg::io::codec::{Header, Time, cdr};
-use mireg::io::mcap_log::OutputLog;
+use mireg::io::mcap::log::OutputLog;
 use nalgebra::{Point3, Vector3};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};

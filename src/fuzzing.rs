@@ -80,7 +80,7 @@ pub fn ros1_messages(data: &[u8]) {
 pub fn ros1_bag(data: &[u8]) {
     let path = scratch("in.bag");
     write(&path, data);
-    if let Ok(bag) = crate::io::ros1_bag::Bag::open(&path) {
+    if let Ok(bag) = crate::io::bag::ros1::Bag::open(&path) {
         let _ = bag.catalog();
         let _ = bag.for_each_message(|_, _, _| Ok(std::ops::ControlFlow::Continue(())));
     }
@@ -90,7 +90,7 @@ pub fn ros1_bag(data: &[u8]) {
 /// The `metadata.yaml` of a ROS 2 bag directory.
 pub fn rosbag2_metadata(data: &[u8]) {
     if let Ok(text) = std::str::from_utf8(data) {
-        let _ = crate::io::rosbag2::parse_metadata(text);
+        let _ = crate::io::bag::rosbag2::parse_metadata(text);
     }
 }
 
@@ -112,8 +112,8 @@ fn write(path: &Path, data: &[u8]) {
 pub fn mcap_records(data: &[u8]) {
     let path = scratch("in.mcap");
     write(&path, data);
-    let _ = crate::io::mcap_log::list_channels(&path);
-    let _ = crate::io::mcap_read::for_each_record(&path, |_| Ok(()));
+    let _ = crate::io::mcap::log::list_channels(&path);
+    let _ = crate::io::mcap::read::for_each_record(&path, |_| Ok(()));
     let _ = crate::trajectory::read_mcap_pose_topic(&path, "/mireg/pose");
     let _ = crate::trajectory::read_frame_flags(&path, "/mireg/stats");
 }

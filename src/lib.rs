@@ -21,9 +21,6 @@ pub mod simulate;
 pub mod sweep;
 
 pub use error::{Error, Result};
-pub mod cli_eval;
-pub mod cli_log;
-pub mod cli_sweep;
 pub mod evaluate;
 pub mod odometry;
 pub mod pipeline;

@@ -33,7 +33,7 @@ use crate::io::atomic_file::same_file;
 use crate::io::codec::{self, pose_stamped_decoder};
 use crate::io::input_log::InputLog;
 use crate::io::log_order::Reorder;
-use crate::io::mcap_log::{ChannelInfo, OutputLog};
+use crate::io::mcap::log::{ChannelInfo, OutputLog};
 use crate::odometry::{FrameEstimate, Odometry, OdometryConfig, keep_map_fine_points};
 use crate::pipeline::{
     FailureReason, PrepareScratch, PreparedFrame, feature_voxel_for_cloud, prepare_frame,

@@ -22,7 +22,7 @@ use crate::evaluate::{
     Drift, aligned_position_errors, ate_rmse, path_distances, path_drift, relative_pose_errors,
 };
 use crate::io::codec::{PoseStampedDecoder, cdr, pose_stamped_decoder, ros1};
-use crate::io::mcap_log::{ChannelInfo, for_each_record, list_channels};
+use crate::io::mcap::log::{ChannelInfo, for_each_record, list_channels};
 use crate::io::{format_err, pose_file, read_text};
 use crate::{Error, Result};
 

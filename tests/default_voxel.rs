@@ -91,7 +91,7 @@ fn register_without_voxel_derives_it_from_the_first_cloud() {
     assert_eq!(s["voxel_source"], "first_cloud");
     // The seed log's first cloud, decoded by the library, gives the same voxel.
     let mut first = None;
-    mireg::io::mcap_read::for_each_record(&input, |r| {
+    mireg::io::mcap::read::for_each_record(&input, |r| {
         if let mcap::records::Record::Message { data, .. } = r
             && first.is_none()
             && let Ok(c) = mireg::io::codec::cdr::decode_point_cloud2(&data)

@@ -262,7 +262,7 @@ fn register_deskews_from_the_fourth_frame_and_says_so() {
         register_log(&opts).unwrap();
         let mut v = Vec::new();
         let mut stats_channel = None;
-        mireg::io::mcap_read::for_each_record(&output, |r| {
+        mireg::io::mcap::read::for_each_record(&output, |r| {
             match r {
                 mcap::records::Record::Channel(c) if c.topic == "/mireg/stats" => {
                     stats_channel = Some(c.id)

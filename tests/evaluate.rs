@@ -4,9 +4,9 @@
 use std::path::Path;
 use std::process::Command;
 
-use mireg::cli_eval::{EvaluateArgs, TrajectoryFormat, evaluate_log};
+use mireg::cli::{EvaluateArgs, TrajectoryFormat, evaluate_log};
 use mireg::io::codec::{Header, Time, cdr};
-use mireg::io::mcap_log::OutputLog;
+use mireg::io::mcap::log::OutputLog;
 use mireg::trajectory::{self, Trajectory};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 

@@ -12,7 +12,7 @@ use std::process::{Command, Output};
 
 use mcap::records::{MessageHeader, Record};
 use mireg::fuzzing::small_log;
-use mireg::io::mcap_read::for_each_record;
+use mireg::io::mcap::read::for_each_record;
 use mireg::odometry::OdometryConfig;
 use mireg::pipeline::PairConfig;
 use mireg::register::{RegisterOptions, register_log};
@@ -237,7 +237,7 @@ fn record_length_past_the_end_is_an_error_not_an_abort() {
     std::fs::write(&cut, &bytes).unwrap();
     let (results, largest) = largest_allocation(|| {
         [
-            mireg::io::mcap_log::list_channels(&cut).map(|_| ()),
+            mireg::io::mcap::log::list_channels(&cut).map(|_| ()),
             for_each_record(&cut, |_| Ok(())),
         ]
     });
@@ -284,7 +284,7 @@ fn a_string_longer_than_its_record_is_refused_before_allocation() {
     log[at + 9 + 4..at + 9 + 8].copy_from_slice(&u32::MAX.to_le_bytes());
     let path = dir.path().join("summary.mcap");
     std::fs::write(&path, &log).unwrap();
-    let (channels, largest) = largest_allocation(|| mireg::io::mcap_log::list_channels(&path));
+    let (channels, largest) = largest_allocation(|| mireg::io::mcap::log::list_channels(&path));
     assert!(largest < MODEST, "allocated {largest} bytes at once");
     let topics: Vec<String> = channels.unwrap().into_iter().map(|c| c.topic).collect();
     assert_eq!(topics, ["/points", "/ground_truth/pose", "/notes"]);
@@ -576,7 +576,7 @@ fn decompression_bomb_is_refused() {
     );
     let bomb = dir.path().join("bomb.mcap");
     let out = dir.path().join("out.mcap");
-    let claim = mireg::io::mcap_read::MAX_CHUNK_BYTES + 1;
+    let claim = mireg::io::MAX_CHUNK_BYTES + 1;
     std::fs::write(
         &bomb,
         mireg::fuzzing::with_first_chunk(&base, &mireg::fuzzing::zstd_zero_chunk(1 << 20, claim)),

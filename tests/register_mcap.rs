@@ -13,7 +13,7 @@ mod log_contents;
 use log_contents::{Contents, assert_superset, contents};
 #[path = "common/synthetic_log.rs"]
 mod synthetic_log;
-use mireg::io::mcap_log::for_each_record;
+use mireg::io::mcap::log::for_each_record;
 use mireg::odometry::OdometryConfig;
 use mireg::pipeline::{PairConfig, pose_error};
 use mireg::register::{RegisterOptions, register_log};
@@ -319,7 +319,7 @@ fn real_rosbag2_log_passes_through_untouched() {
         dir.path().join("out.mcap"),
     );
     {
-        let mut log = mireg::io::mcap_log::OutputLog::create(&input, false, "ros2").unwrap();
+        let mut log = mireg::io::mcap::log::OutputLog::create(&input, false, "ros2").unwrap();
         let mut first = None;
         for_each_record(&nav2, |r| {
             if let Record::Message { header, .. } = &r {

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use mcap::records::Record;
 use mireg::io::codec::ros1;
-use mireg::io::mcap_log::for_each_record;
+use mireg::io::mcap::log::for_each_record;
 use mireg::odometry::OdometryConfig;
 use mireg::register::{RegisterOptions, register_log};
 

@@ -9,7 +9,7 @@
 
 use std::collections::HashMap;
 
-use super::matching::{FPFH_DIM, Fpfh};
+use crate::features::fpfh::{FPFH_BINS as FPFH_DIM, Fpfh};
 use crate::hash::FastHash;
 
 /// Fewest duplicates for which [`Unique::of`] groups the descriptors; below, grouping costs more

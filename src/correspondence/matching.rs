@@ -24,11 +24,8 @@ use super::duplicates::Unique;
 use rayon::prelude::*;
 use std::num::NonZeroUsize;
 
-/// Length of an FPFH descriptor.
-pub const FPFH_DIM: usize = 33;
-
-/// An FPFH descriptor: 3 histograms of 11 bins, Open3D scale (each histogram sums to 200).
-pub type Fpfh = [f32; FPFH_DIM];
+/// Length of an FPFH descriptor (the features' own [`FPFH_BINS`]).
+pub use crate::features::fpfh::{FPFH_BINS as FPFH_DIM, Fpfh};
 
 /// Which exact nearest-neighbour search [`match_features_with`] uses.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

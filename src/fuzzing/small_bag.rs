@@ -193,7 +193,7 @@ pub fn small_bag(
 }
 
 fn ros1_bag_magic() -> &'static [u8] {
-    crate::io::ros1_bag::MAGIC
+    crate::io::bag::ros1::MAGIC
 }
 
 /// Adds `shift` to the `chunk_pos` field of a chunk info record.

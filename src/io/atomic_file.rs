@@ -14,7 +14,7 @@
 use std::fs::File;
 use std::path::{Path, PathBuf};
 
-use super::mcap_read::io_err;
+use super::io_err;
 use crate::{Error, Result};
 
 /// An output file being written; [`commit`](Self::commit) puts it at its target.

@@ -14,11 +14,11 @@ use std::path::{Path, PathBuf};
 
 use mcap::records::{MessageHeader, Record};
 
+use super::bag::ros1::{self, Bag};
+use super::bag::rosbag2::{Rosbag2, Storage};
 use super::log_order::ChunkTimes;
-use super::mcap_log::{InputCatalog, OutputLog, pass_through};
-use super::mcap_read::for_each_record_until;
-use super::ros1_bag::{self, Bag};
-use super::rosbag2::{Rosbag2, Storage};
+use super::mcap::log::{InputCatalog, OutputLog, pass_through};
+use super::mcap::read::for_each_record_until;
 use crate::{Error, Result};
 
 /// What `register` accepts, for messages.
@@ -92,7 +92,7 @@ impl InputLog {
                 super::file_kind(&meta)
             )));
         }
-        if starts_with(path, &ros1_bag::MAGIC[..9])? {
+        if starts_with(path, &ros1::MAGIC[..9])? {
             let bag = Bag::open(path)?;
             let catalog = bag.catalog();
             return Ok((InputLog::Bag(bag), catalog));
@@ -211,6 +211,6 @@ fn starts_with(path: &Path, prefix: &[u8]) -> Result<bool> {
     };
     let mut f = std::fs::File::open(path).map_err(io)?;
     let mut b = vec![0u8; prefix.len()];
-    let got = ros1_bag::read_up_to(&mut f, &mut b).map_err(io)?;
+    let got = ros1::read_up_to(&mut f, &mut b).map_err(io)?;
     Ok(got == b.len() && b == prefix)
 }

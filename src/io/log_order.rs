@@ -72,7 +72,7 @@ impl ChunkTimes {
 /// The chunk indexes of the summary section of `path`; `None` when the file has no readable
 /// summary (e.g. a log cut short while recording).
 fn read_chunk_indexes(path: &Path) -> Result<Option<Vec<ChunkIndex>>> {
-    Ok(super::mcap_read::read_summary(path)?.map(|s| s.chunk_indexes))
+    Ok(super::mcap::read::read_summary(path)?.map(|s| s.chunk_indexes))
 }
 
 /// Items keyed by log time, handed on in (log time, arrival) order once no earlier item can

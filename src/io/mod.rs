@@ -5,24 +5,35 @@
 //! they can be tested without files; the `read_*` functions add the file system on top.
 
 pub mod atomic_file;
+pub mod bag;
 pub mod cloud_file;
 pub mod codec;
 pub mod input_log;
 pub mod log_order;
-pub mod mcap_chunk;
-pub mod mcap_log;
-pub mod mcap_read;
-pub mod mcap_record;
-pub mod mcap_write;
+pub mod mcap;
 pub mod point_time;
 pub mod pose_file;
-pub mod ros1_bag;
-pub mod rosbag2;
 mod scalar;
 
 use std::path::Path;
 
 use crate::{Error, Result};
+
+/// Largest uncompressed chunk accepted, in bytes: 1 GiB. A chunk's declared uncompressed size is
+/// checked against it before any buffer is allocated, and decompression never writes past the
+/// declared size, so a decompression bomb (a few kilobytes claiming gigabytes of zeros) is an error
+/// instead of an allocation. Recorders write chunks of a few megabytes (MCAP's default is 768 KiB,
+/// rosbag2's 4 MiB); one chunk holds at least one whole message, so the limit is also the largest
+/// message a chunked log may carry.
+pub const MAX_CHUNK_BYTES: u64 = 1 << 30;
+
+/// Builds an [`Error::Io`] for `path`.
+pub(crate) fn io_err(path: &Path, source: std::io::Error) -> Error {
+    Error::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
 
 /// Builds an [`Error::Format`] for `path`.
 pub(crate) fn format_err(path: &Path, detail: impl Into<String>) -> Error {

@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use crate::io::codec::{self, cdr, foxglove, ros1};
-use crate::io::mcap_log::ChannelInfo;
+use crate::io::mcap::log::ChannelInfo;
 use crate::{Error, Result};
 
 /// The point cloud message types `register` reads.

@@ -8,8 +8,8 @@ use serde_json::json;
 use super::{CloudKind, FrameOut};
 use crate::Result;
 use crate::io::codec::{self, cdr, foxglove, ros1};
-use crate::io::mcap_log::ChannelInfo;
-use crate::io::mcap_log::OutputLog;
+use crate::io::mcap::log::ChannelInfo;
+use crate::io::mcap::log::OutputLog;
 use crate::trajectory::free_mireg_namespace;
 
 /// The `callerid` of our channels in a ROS 1 log.

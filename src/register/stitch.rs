@@ -22,7 +22,7 @@ use super::output::{Outputs, StampedPose, Topics, write_pose};
 use super::{CloudKind, choose_topic};
 use crate::io::codec::{Time, cdr, pose_stamped_decoder, ros1};
 use crate::io::input_log::InputLog;
-use crate::io::mcap_log::{OutputLog, for_each_record};
+use crate::io::mcap::log::{OutputLog, for_each_record};
 use crate::io::{atomic_file::same_file, format_err};
 use crate::{Error, Result};
 

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use mcap::records::Record;
-use mireg::io::mcap_log::for_each_record;
+use mireg::io::mcap::log::for_each_record;
 
 /// Everything a log holds, by kind: messages as (topic, log_time, publish_time, data), metadata,
 /// attachments.

@@ -22,10 +22,10 @@ use std::path::{Path, PathBuf};
 use mcap::records::{Channel, MessageHeader, Record};
 use rusqlite::{Connection as Db, OpenFlags};
 
-use super::codec::cdr;
-use super::mcap_log::InputCatalog;
-use super::mcap_read::for_each_record_until;
-use super::mcap_write::SchemaRecord;
+use crate::io::codec::cdr;
+use crate::io::mcap::log::InputCatalog;
+use crate::io::mcap::read::for_each_record_until;
+use crate::io::mcap::write::SchemaRecord;
 use crate::{Error, Result};
 
 /// The storage of a bag's files.
@@ -51,7 +51,7 @@ pub struct Rosbag2 {
 }
 
 fn format_err(path: &Path, detail: impl Into<String>) -> Error {
-    super::format_err(path, detail)
+    crate::io::format_err(path, detail)
 }
 
 fn sql_err(path: &Path, what: &str, e: rusqlite::Error) -> Error {
@@ -123,7 +123,7 @@ impl Rosbag2 {
     /// or a compressed bag, or names a file that is missing.
     pub fn open(dir: &Path) -> Result<Self> {
         let meta_path = dir.join("metadata.yaml");
-        let text = super::read_text(&meta_path)?;
+        let text = crate::io::read_text(&meta_path)?;
         let meta = parse_metadata(&text);
         if !meta.compression_mode.is_empty() && meta.compression_mode != "none" {
             return Err(format_err(

@@ -17,10 +17,11 @@ use std::sync::mpsc::{Sender, channel};
 
 use mcap::records::{Channel, MessageHeader, Metadata, Record};
 
-use super::atomic_file::PendingFile;
-pub use super::mcap_read::for_each_record;
-use super::mcap_read::{io_err, mcap_err, read_summary};
-use super::mcap_write::{McapWriter, SchemaRecord};
+pub use super::read::for_each_record;
+use super::read::{mcap_err, read_summary};
+use super::write::{McapWriter, SchemaRecord};
+use crate::io::atomic_file::PendingFile;
+use crate::io::io_err;
 use crate::{Error, Result};
 
 /// A channel of an MCAP file, with its schema's name and encoding.

@@ -1,10 +1,9 @@
-//! `mireg info` and `mireg stitch`: clap arguments → [`crate::io::input_log`] and
-//! [`crate::register::stitch`] calls.
-
-use std::path::PathBuf;
+//! `mireg info`: a log's channels, message counts and the cloud topic `register` reads
+//! ([`crate::io::input_log`]).
 
 use anyhow::Result;
 use clap::Args;
+use std::path::PathBuf;
 
 use crate::io::input_log::InputLog;
 
@@ -18,28 +17,8 @@ pub struct InfoArgs {
     pub json: bool,
 }
 
-/// Arguments of `mireg stitch`.
-#[derive(Debug, Args)]
-pub struct StitchArgs {
-    /// The log the segments were registered from (copied into the output as `register` does).
-    pub log: PathBuf,
-    /// Outputs of `mireg register LOG --start … --end …`, in log order, each sharing at least
-    /// one frame with the next.
-    #[arg(required = true)]
-    pub segments: Vec<PathBuf>,
-    /// Output MCAP.
-    #[arg(short, long)]
-    pub output: PathBuf,
-    /// Replace an existing output.
-    #[arg(long)]
-    pub force: bool,
-    /// Print the summary as JSON.
-    #[arg(long)]
-    pub json: bool,
-}
-
 /// `mireg info`.
-pub fn run_info(args: &InfoArgs) -> Result<()> {
+pub(super) fn run_info(args: &InfoArgs) -> Result<()> {
     let (log, catalog) = InputLog::open(&args.input)?;
     let kind = match log {
         InputLog::Mcap(_) => "mcap",
@@ -86,35 +65,6 @@ pub fn run_info(args: &InfoArgs) -> Result<()> {
     match (&cloud, cloud_messages) {
         (Some(t), Some(n)) => println!("point clouds: {t}, {n} messages"),
         _ => println!("point clouds: none that register reads without --topic"),
-    }
-    Ok(())
-}
-
-/// `mireg stitch`.
-pub fn run_stitch(args: &StitchArgs) -> Result<()> {
-    let s = crate::register::stitch(
-        &args.log,
-        &args.segments,
-        &args.output,
-        args.force,
-        &crate::cli::command_line(),
-    )?;
-    if args.json {
-        println!("{}", serde_json::to_string_pretty(&s)?);
-    } else {
-        println!(
-            "stitched {} frames from {} segments -> {} ({} input messages copied)",
-            s.frames,
-            s.segments,
-            s.output.display(),
-            s.messages_copied
-        );
-        for seam in &s.seams {
-            println!(
-                "  seam {}: {} shared frames, after alignment max {:.4} m / {:.3} deg",
-                seam.segment, seam.shared_frames, seam.max_translation_m, seam.max_rotation_deg
-            );
-        }
     }
     Ok(())
 }

@@ -5,7 +5,7 @@
 //! [`Source`] reads top-level records of the data section; [`for_each_record`] walks them and the
 //! records inside chunks (the streaming read of `mireg evaluate`/`export`, and the catalogue of a
 //! log without a summary); [`read_summary`] reads the summary section with the same bounds. The
-//! pass-through of `mireg register` (`mcap_log`) reads with [`Source`] too, so every input path
+//! pass-through of `mireg register` ([`super::log`]) reads with [`Source`] too, so every input path
 //! shares one set of checks.
 
 use std::fs::File;
@@ -16,24 +16,10 @@ use binrw::BinRead;
 use mcap::records::{ChunkHeader, Record, op};
 use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader, SummaryReaderOptions};
 
-use super::mcap_chunk::{self, ChunkDecoder};
-use super::mcap_record::{check_lengths, parse_record};
+use super::chunk::{self, ChunkDecoder};
+use super::record::{check_lengths, parse_record};
+use crate::io::{MAX_CHUNK_BYTES, io_err};
 use crate::{Error, Result};
-
-/// Largest uncompressed chunk accepted, in bytes: 1 GiB. A chunk's declared uncompressed size is
-/// checked against it before any buffer is allocated, and decompression never writes past the
-/// declared size, so a decompression bomb (a few kilobytes claiming gigabytes of zeros) is an error
-/// instead of an allocation. Recorders write chunks of a few megabytes (MCAP's default is 768 KiB,
-/// rosbag2's 4 MiB); one chunk holds at least one whole message, so the limit is also the largest
-/// message a chunked log may carry.
-pub const MAX_CHUNK_BYTES: u64 = 1 << 30;
-
-pub(crate) fn io_err(path: &Path, source: std::io::Error) -> Error {
-    Error::Io {
-        path: path.to_path_buf(),
-        source,
-    }
-}
 
 pub(crate) fn mcap_err(path: &Path, what: &str, e: impl std::fmt::Display) -> Error {
     Error::Format {
@@ -215,7 +201,7 @@ pub(crate) fn not_a_regular_file(path: &Path, meta: &std::fs::Metadata) -> Error
     Error::InvalidInput(format!(
         "{}: is {}, not a regular file",
         path.display(),
-        super::file_kind(meta)
+        crate::io::file_kind(meta)
     ))
 }
 
@@ -262,9 +248,9 @@ pub fn for_each_record_until(
                 src.append(opcode, len - head.len() as u64, &mut body)?;
                 let in_chunk = |e: String| mcap_err(path, &format!("chunk at offset {offset}"), e);
                 let (_, records) = decoder.decode(&body).map_err(in_chunk)?;
-                for r in mcap_chunk::records(records) {
+                for r in chunk::records(records) {
                     let (_, opcode, b) = r.map_err(in_chunk)?;
-                    mcap_chunk::check_chunk_opcode(opcode).map_err(in_chunk)?;
+                    chunk::check_chunk_opcode(opcode).map_err(in_chunk)?;
                     let record = parse_record(opcode, b).map_err(in_chunk)?;
                     if let Break(()) = f(record)? {
                         return Ok(());

@@ -24,10 +24,10 @@ use std::path::{Path, PathBuf};
 
 use mcap::records::Channel;
 
-use super::codec::ros1;
-use super::mcap_log::InputCatalog;
-use super::mcap_read::{MAX_CHUNK_BYTES, io_err};
-use super::mcap_write::SchemaRecord;
+use crate::io::codec::ros1;
+use crate::io::mcap::log::InputCatalog;
+use crate::io::mcap::write::SchemaRecord;
+use crate::io::{MAX_CHUNK_BYTES, io_err};
 use crate::{Error, Result};
 
 /// The first bytes of every bag of format 2.0.

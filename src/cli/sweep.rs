@@ -175,7 +175,7 @@ fn pairs_from_file(
 }
 
 /// `mireg sweep`.
-pub fn run_sweep(args: &SweepArgs) -> Result<()> {
+pub(super) fn run_sweep(args: &SweepArgs) -> Result<()> {
     let (clouds, pairs) = match &args.gt_log {
         Some(gt) => pairs_from_file(&args.input, gt, args.gt_info.as_deref())?,
         None => log_pairs(args)?,

@@ -9,9 +9,9 @@ use std::io::Read;
 
 use mcap::records::{Channel, ChunkHeader, MessageHeader, MessageIndex, Record, op};
 
-use super::mcap_read::MAX_CHUNK_BYTES;
-use super::mcap_record::parse_record;
-use super::mcap_write::SchemaRecord;
+use super::record::parse_record;
+use super::write::SchemaRecord;
+use crate::io::MAX_CHUNK_BYTES;
 
 /// Decompresses chunks into a buffer reused from one chunk to the next.
 pub struct ChunkDecoder {

@@ -9,10 +9,10 @@ use std::sync::mpsc::{Receiver, Sender, SyncSender, TrySendError, channel, sync_
 use mcap::records::{MessageHeader, MessageIndex, Record, op};
 
 use super::OutputLog;
-use crate::io::mcap_chunk::{self, ChunkContents, ChunkDecoder};
-use crate::io::mcap_read::{Source, mcap_err};
-use crate::io::mcap_record::parse_record;
-use crate::io::mcap_write::SchemaRecord;
+use crate::io::mcap::chunk::{self, ChunkContents, ChunkDecoder};
+use crate::io::mcap::read::{Source, mcap_err};
+use crate::io::mcap::record::parse_record;
+use crate::io::mcap::write::SchemaRecord;
 use crate::{Error, Result};
 
 /// Copied chunks waiting for validation at most (each holds its chunk in memory; when the queue
@@ -210,12 +210,12 @@ impl PassThrough<'_> {
         log.w().copied_crc(at.crc_id, crc);
         let (_, records) = self.decoder.decode(&body).map_err(in_chunk)?;
         let mut contents = ChunkContents::default();
-        for r in mcap_chunk::records(records) {
+        for r in chunk::records(records) {
             let (at_offset, opcode, record) = r.map_err(in_chunk)?;
             if let Some(id) = contents.add(at_offset, opcode, record).map_err(in_chunk)?
                 && self.wanted.contains(&id)
             {
-                let (header, data) = mcap_chunk::message(record).map_err(in_chunk)?;
+                let (header, data) = chunk::message(record).map_err(in_chunk)?;
                 on_message(log, &header, data)?;
             }
         }

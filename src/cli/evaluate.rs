@@ -1,4 +1,4 @@
-//! `mireg evaluate` and `mireg export`: clap arguments → [`crate::trajectory`] calls.
+//! `mireg evaluate`: clap arguments → [`crate::trajectory`] calls.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -6,11 +6,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 
-use crate::io::atomic_file::{PendingFile, same_file};
-use crate::io::mcap_log::list_channels;
-use crate::trajectory::{
-    self, DEFAULT_GROUND_TRUTH_TOPIC, DEFAULT_STATS_TOPIC, Evaluation, Trajectory,
-};
+use crate::io::mcap::log::list_channels;
+use crate::trajectory::{self, DEFAULT_GROUND_TRUTH_TOPIC, DEFAULT_STATS_TOPIC, Evaluation};
 
 /// Format of a reference trajectory file (`--gt-format`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -21,15 +18,6 @@ pub enum TrajectoryFormat {
     Kitti,
     /// Redwood/ICL-NUIM `trajectory.log` (`world_from_camera` per record); associated by index.
     Redwood,
-}
-
-/// Output format of `mireg export`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum ExportFormat {
-    /// TUM (`evo_ape tum`): stamps in seconds with nine decimals.
-    Tum,
-    /// KITTI (`evo_ape kitti`): 12 numbers per line, no stamps.
-    Kitti,
 }
 
 /// Arguments of `mireg evaluate`.
@@ -62,23 +50,6 @@ pub struct EvaluateArgs {
     pub json: bool,
 }
 
-/// Arguments of `mireg export`.
-#[derive(Debug, Args)]
-pub struct ExportArgs {
-    /// MCAP written by `mireg register` (or any log with a PoseStamped topic).
-    pub input: PathBuf,
-    /// Output format.
-    #[arg(long, value_enum)]
-    pub format: ExportFormat,
-    /// Output file (replaced if it exists) [default: stdout].
-    #[arg(short, long, value_name = "FILE")]
-    pub output: Option<PathBuf>,
-    /// PoseStamped topic to export [default: the newest run's, /mireg/pose, or /mireg_N/pose
-    /// for a log registered N times].
-    #[arg(long, value_name = "TOPIC")]
-    pub topic: Option<String>,
-}
-
 /// CSV header of `mireg evaluate --csv`.
 pub const EVALUATE_CSV_HEADER: &str = "frame,stamp_ns,success,rpe_trans_m,rpe_rot_deg,ate_err_m";
 
@@ -107,8 +78,8 @@ fn reference_name(args: &EvaluateArgs, topic: Option<&str>) -> String {
 
 /// The estimate and statistics topics of a log: `est_topic` when given (its run's statistics
 /// when it is a mireg topic), else the newest mireg run's.
-fn run_topics(
-    channels: &[crate::io::mcap_log::ChannelInfo],
+pub(super) fn run_topics(
+    channels: &[crate::io::mcap::log::ChannelInfo],
     est_topic: Option<&str>,
 ) -> (String, String) {
     let ns = match est_topic {
@@ -297,7 +268,7 @@ fn write_text(
 }
 
 /// A closed stdout (`mireg export … | head`) ends the output quietly, like other Unix tools.
-fn ignore_broken_pipe(r: Result<()>) -> Result<()> {
+pub(super) fn ignore_broken_pipe(r: Result<()>) -> Result<()> {
     match r {
         Err(e)
             if e.chain().any(|c| {
@@ -312,7 +283,7 @@ fn ignore_broken_pipe(r: Result<()>) -> Result<()> {
 }
 
 /// Runs `mireg evaluate`.
-pub fn run_evaluate(args: &EvaluateArgs) -> Result<()> {
+pub(super) fn run_evaluate(args: &EvaluateArgs) -> Result<()> {
     ignore_broken_pipe(evaluate_to_stdout(args))
 }
 
@@ -328,66 +299,6 @@ fn evaluate_to_stdout(args: &EvaluateArgs) -> Result<()> {
         writeln!(out, "{}", serde_json::to_string_pretty(&v)?)?;
     } else {
         write_text(&mut out, &ev, &args.input, &estimate, &reference)?;
-    }
-    Ok(())
-}
-
-fn write_trajectory(t: &Trajectory, format: ExportFormat, out: &mut impl Write) -> Result<()> {
-    match format {
-        ExportFormat::Tum => trajectory::write_tum(t, out)?,
-        ExportFormat::Kitti => trajectory::write_kitti(t, out)?,
-    }
-    Ok(())
-}
-
-/// Runs `mireg export`.
-pub fn run_export(args: &ExportArgs) -> Result<()> {
-    let (topic, _) = run_topics(&list_channels(&args.input)?, args.topic.as_deref());
-    let t = trajectory::read_mcap_pose_topic(&args.input, &topic)?;
-    if t.is_empty() {
-        bail!("{}: topic {topic} has no messages", args.input.display());
-    }
-    match &args.output {
-        Some(path) => {
-            if same_file(&args.input, path) {
-                bail!(
-                    "output {} is the input; mireg never writes over its input",
-                    path.display()
-                );
-            }
-            // Written beside the target and moved into place when complete: a full disk or an
-            // interruption never leaves a truncated file there.
-            let (file, pending) = PendingFile::create(path, true)?;
-            let mut w = std::io::BufWriter::new(file);
-            let named = |e: crate::Error| match e {
-                crate::Error::Io { path: p, source }
-                    if p == Path::new(trajectory::OUTPUT_STREAM) =>
-                {
-                    crate::Error::Io {
-                        path: path.clone(),
-                        source,
-                    }
-                }
-                e => e,
-            };
-            write_trajectory(&t, args.format, &mut w).map_err(|e| match e.downcast() {
-                Ok(e) => anyhow::Error::from(named(e)),
-                Err(e) => e,
-            })?;
-            let file = w.into_inner().map_err(|e| crate::Error::Io {
-                path: path.clone(),
-                source: e.into_error(),
-            })?;
-            pending.commit(file)?;
-        }
-        None => {
-            let stdout = std::io::stdout();
-            let mut w = std::io::BufWriter::new(stdout.lock());
-            ignore_broken_pipe(
-                write_trajectory(&t, args.format, &mut w)
-                    .and_then(|()| w.flush().context("writing stdout")),
-            )?;
-        }
     }
     Ok(())
 }

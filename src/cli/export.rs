@@ -1,0 +1,99 @@
+//! `mireg export`: the estimated trajectory of a `register` output as TUM or KITTI text.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use clap::{Args, ValueEnum};
+
+use crate::io::atomic_file::{PendingFile, same_file};
+use crate::io::mcap::log::list_channels;
+use crate::trajectory::{self, Trajectory};
+
+use super::evaluate::{ignore_broken_pipe, run_topics};
+
+/// Output format of `mireg export`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ExportFormat {
+    /// TUM (`evo_ape tum`): stamps in seconds with nine decimals.
+    Tum,
+    /// KITTI (`evo_ape kitti`): 12 numbers per line, no stamps.
+    Kitti,
+}
+
+/// Arguments of `mireg export`.
+#[derive(Debug, Args)]
+pub struct ExportArgs {
+    /// MCAP written by `mireg register` (or any log with a PoseStamped topic).
+    pub input: PathBuf,
+    /// Output format.
+    #[arg(long, value_enum)]
+    pub format: ExportFormat,
+    /// Output file (replaced if it exists) [default: stdout].
+    #[arg(short, long, value_name = "FILE")]
+    pub output: Option<PathBuf>,
+    /// PoseStamped topic to export [default: the newest run's, /mireg/pose, or /mireg_N/pose
+    /// for a log registered N times].
+    #[arg(long, value_name = "TOPIC")]
+    pub topic: Option<String>,
+}
+
+fn write_trajectory(t: &Trajectory, format: ExportFormat, out: &mut impl Write) -> Result<()> {
+    match format {
+        ExportFormat::Tum => trajectory::write_tum(t, out)?,
+        ExportFormat::Kitti => trajectory::write_kitti(t, out)?,
+    }
+    Ok(())
+}
+
+/// Runs `mireg export`.
+pub(super) fn run_export(args: &ExportArgs) -> Result<()> {
+    let (topic, _) = run_topics(&list_channels(&args.input)?, args.topic.as_deref());
+    let t = trajectory::read_mcap_pose_topic(&args.input, &topic)?;
+    if t.is_empty() {
+        bail!("{}: topic {topic} has no messages", args.input.display());
+    }
+    match &args.output {
+        Some(path) => {
+            if same_file(&args.input, path) {
+                bail!(
+                    "output {} is the input; mireg never writes over its input",
+                    path.display()
+                );
+            }
+            // Written beside the target and moved into place when complete: a full disk or an
+            // interruption never leaves a truncated file there.
+            let (file, pending) = PendingFile::create(path, true)?;
+            let mut w = std::io::BufWriter::new(file);
+            let named = |e: crate::Error| match e {
+                crate::Error::Io { path: p, source }
+                    if p == Path::new(trajectory::OUTPUT_STREAM) =>
+                {
+                    crate::Error::Io {
+                        path: path.clone(),
+                        source,
+                    }
+                }
+                e => e,
+            };
+            write_trajectory(&t, args.format, &mut w).map_err(|e| match e.downcast() {
+                Ok(e) => anyhow::Error::from(named(e)),
+                Err(e) => e,
+            })?;
+            let file = w.into_inner().map_err(|e| crate::Error::Io {
+                path: path.clone(),
+                source: e.into_error(),
+            })?;
+            pending.commit(file)?;
+        }
+        None => {
+            let stdout = std::io::stdout();
+            let mut w = std::io::BufWriter::new(stdout.lock());
+            ignore_broken_pipe(
+                write_trajectory(&t, args.format, &mut w)
+                    .and_then(|()| w.flush().context("writing stdout")),
+            )?;
+        }
+    }
+    Ok(())
+}

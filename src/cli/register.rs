@@ -1,0 +1,220 @@
+//! `mireg register` and `mireg` with no arguments (the embedded fixture).
+
+use super::flags::RegistrationFlags;
+use anyhow::{Context, Result};
+use clap::Args;
+
+use std::path::{Path, PathBuf};
+
+use crate::odometry::OdometryConfig;
+use crate::register::{RegisterOptions, RegisterSummary, default_output, register_log};
+
+/// Arguments of `mireg register`.
+#[derive(Debug, Args)]
+pub struct RegisterArgs {
+    /// Input MCAP log (never modified).
+    pub input: PathBuf,
+    /// Output MCAP [default: INPUT's name with .mireg.mcap, next to it].
+    #[arg(short, long)]
+    pub output: Option<PathBuf>,
+    /// Point cloud topic [default: the only sensor_msgs/msg/PointCloud2 topic].
+    #[arg(long)]
+    pub topic: Option<String>,
+    /// Registration settings.
+    #[command(flatten)]
+    pub flags: RegistrationFlags,
+    /// A registration with fewer RANSAC inliers is flagged as failed.
+    #[arg(long, default_value_t = OdometryConfig::default().min_inliers)]
+    pub min_inliers: usize,
+    /// A registration with lower ICP fitness is flagged as failed.
+    #[arg(long, default_value_t = OdometryConfig::default().min_fitness, value_parser = parse_fraction)]
+    pub min_fitness: f64,
+    /// Register each frame to the previous one only: no refinement against a local map of
+    /// recent frames (chains frame-to-frame estimates; drifts more on long logs).
+    #[arg(long)]
+    pub no_local_map: bool,
+    /// Skip the map ICP's last stage on each frame's own input points (on by default:
+    /// docs/ODOMETRY.md has what it gains, 0.1–0.3 cm of ATE on the KAIST03 and ICL-NUIM logs,
+    /// and costs, about 10 % of the frame rate).
+    #[arg(long, conflicts_with = "map_fine")]
+    pub no_map_fine: bool,
+    /// The map ICP's last stage on each frame's own input points: the default (kept so that
+    /// scripts written when it was opt-in still run).
+    #[arg(long)]
+    pub map_fine: bool,
+    /// Motion-compensate clouds with per-point times (Ouster t, Velodyne time, Hesai timestamp,
+    /// Livox offset_time, time_stamp): auto when the field is present, on (required), off.
+    #[arg(long, value_enum, default_value_t = crate::register::DeskewMode::Auto)]
+    pub deskew: crate::register::DeskewMode,
+    /// Message family of our /tf and pose channels: auto (the clouds' own: ROS 2, ROS 1 or
+    /// foxglove), or one of them. Rerun decodes ROS 2 and foxglove messages, not ROS 1: pass
+    /// foxglove for a ROS 1 log you open in Rerun.
+    #[arg(long, value_enum, default_value_t = crate::register::OutputMessages::Auto)]
+    pub output_messages: crate::register::OutputMessages,
+    /// Register only the clouds from this one on: a cloud index (120, 0-based in log-time
+    /// order), or a log time in seconds (1700000012.5s) or nanoseconds (…ns). The segment's
+    /// first frame is its world.
+    #[arg(long, value_name = "BOUND")]
+    pub start: Option<crate::register::WindowBound>,
+    /// Register only the clouds before this one (exclusive), same forms as --start.
+    #[arg(long, value_name = "BOUND")]
+    pub end: Option<crate::register::WindowBound>,
+    /// Copy only the input messages whose log time lies in the --start/--end segment, instead
+    /// of the whole log.
+    #[arg(long)]
+    pub copy_window: bool,
+    /// Points kept per voxel of the local map (its voxel is the ICP voxel).
+    #[arg(long, value_name = "N", default_value_t = OdometryConfig::default().map_max_points_per_voxel)]
+    pub map_points_per_voxel: usize,
+    /// Global registration (descriptors, matching, RANSAC) runs on a coarser cloud of at most
+    /// N points when the first frame's voxel cloud has more; ICP and the local map keep the
+    /// voxel cloud. 0: everything on the voxel cloud.
+    #[arg(long, value_name = "N", default_value_t = OdometryConfig::default().feature_points)]
+    pub feature_points: usize,
+    /// Name of the world frame (the first cloud's sensor frame) in /tf and /mireg/pose.
+    #[arg(long, default_value = "world")]
+    pub world_frame: String,
+    /// A cloud with more points is flagged (too_many_points) instead of registered.
+    #[arg(long, value_name = "N", default_value_t = crate::register::DEFAULT_MAX_POINTS_PER_CLOUD)]
+    pub max_points: usize,
+    /// Clouds held at most to restore log-time order in a log whose chunk index does not prove
+    /// its order; a cloud later out of order than this is an error.
+    #[arg(long, value_name = "N", default_value_t = crate::register::REORDER_WINDOW)]
+    pub reorder_window: usize,
+    /// Replace an existing output file.
+    #[arg(long)]
+    pub force: bool,
+    /// No progress bar, no summary.
+    #[arg(short, long)]
+    pub quiet: bool,
+    /// Print the summary as JSON on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// A number in [0, 1] (NaN is refused: it would disable the check it sets).
+fn parse_fraction(s: &str) -> std::result::Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|e| format!("{s:?}: {e}"))?;
+    if (0.0..=1.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("{s:?} is not a fraction in [0, 1]"))
+    }
+}
+
+pub(super) fn run_register(args: &RegisterArgs) -> Result<()> {
+    crate::heap::release_large_blocks_promptly();
+    let config = OdometryConfig {
+        pair: args.flags.config()?,
+        min_inliers: args.min_inliers,
+        min_fitness: args.min_fitness,
+        local_map: !args.no_local_map,
+        map_fine: !args.no_map_fine,
+        map_max_points_per_voxel: args.map_points_per_voxel,
+        feature_points: args.feature_points,
+    };
+    let opts = RegisterOptions {
+        input: args.input.clone(),
+        output: args
+            .output
+            .clone()
+            .unwrap_or_else(|| default_output(&args.input)),
+        topic: args.topic.clone(),
+        config,
+        force: args.force,
+        world_frame: args.world_frame.clone(),
+        command_line: super::process::command_line(),
+        progress: !args.quiet,
+        max_points_per_cloud: args.max_points,
+        reorder_window: args.reorder_window,
+        derive_voxel: !args.flags.voxel_configured()?,
+        deskew: args.deskew,
+        output_messages: args.output_messages,
+        start: args.start,
+        end: args.end,
+        copy_window_only: args.copy_window,
+    };
+    if opts.copy_window_only && opts.start.is_none() && opts.end.is_none() {
+        return Err(crate::Error::InvalidInput(
+            "--copy-window needs a segment: --start and/or --end".into(),
+        )
+        .into());
+    }
+    let summary = register_log(&opts)?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    } else if !args.quiet {
+        print_summary(&summary);
+    }
+    Ok(())
+}
+
+/// The embedded default fixture: ICL-NUIM livingroom1 as a ROS 2 MCAP (CC BY 3.0).
+pub const DEFAULT_FIXTURE: &str = "fixtures/icl_livingroom1.mcap";
+
+/// `mireg` with no arguments: registers the embedded fixture into a temporary directory and
+/// prints a summary.
+pub(super) fn run_default() -> Result<()> {
+    crate::heap::release_large_blocks_promptly();
+    let local = PathBuf::from(DEFAULT_FIXTURE);
+    let input = if local.is_file() {
+        local
+    } else {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join(DEFAULT_FIXTURE)
+    };
+    let dir = tempfile::tempdir().context("creating a temporary directory")?;
+    let output = dir.path().join("icl_livingroom1.mireg.mcap");
+    eprintln!(
+        "mireg: no arguments: registering the embedded fixture {} (see `mireg --help`)",
+        input.display()
+    );
+    let opts = RegisterOptions {
+        command_line: super::process::command_line(),
+        progress: true,
+        derive_voxel: true,
+        ..RegisterOptions::new(&input, &output, OdometryConfig::default())
+    };
+    let summary = register_log(&opts)?;
+    print_summary(&summary);
+    println!(
+        "(output was written to a temporary directory and removed; run `mireg register {DEFAULT_FIXTURE}` to keep it)"
+    );
+    Ok(())
+}
+
+fn print_summary(s: &RegisterSummary) {
+    println!(
+        "registered {} frames of {} -> {}",
+        s.frames,
+        s.topic,
+        s.output.display()
+    );
+    let source = match s.voxel_source {
+        "first_cloud" => "from the first cloud's median range; --voxel sets it",
+        _ => "configured",
+    };
+    println!("voxel {:.3} m ({source})", s.voxel_m);
+    if s.feature_voxel_m != s.voxel_m {
+        println!(
+            "global registration on a {:.3} m voxel cloud (at most {} points in the first frame; --feature-points sets it)",
+            s.feature_voxel_m, s.feature_points
+        );
+    }
+    println!(
+        "failed frames {} ({:.1} %), mean inliers {:.1}, {:.2} frames/s ({:.2} s), {} input messages copied, poses on {} and {}",
+        s.failed_frames,
+        100.0 * s.failed_frames as f64 / s.frames.max(1) as f64,
+        s.mean_inliers,
+        s.frames_per_s,
+        s.elapsed_s,
+        s.messages_copied,
+        s.tf_topic,
+        s.pose_topic
+    );
+    if let Some(r) = &s.reference {
+        println!(
+            "vs {} ({} frames): ATE RMSE {:.4} m, RPE mean {:.4} m / {:.3} deg per frame",
+            r.topic, r.frames, r.ate_rmse_m, r.rpe_trans_mean_m, r.rpe_rot_mean_deg
+        );
+    }
+}
