@@ -18,8 +18,9 @@ use std::path::{Path, PathBuf};
 use mcap::records::Record;
 use nalgebra::Isometry3;
 
+use super::CloudKind;
+use super::clouds::choose_topic;
 use super::output::{Outputs, StampedPose, Topics, write_pose};
-use super::{CloudKind, choose_topic};
 use crate::io::codec::{Time, cdr, pose_stamped_decoder, ros1};
 use crate::io::input_log::InputLog;
 use crate::io::mcap::log::{OutputLog, for_each_record};

@@ -1,0 +1,157 @@
+//! The first stage of `mireg register`: open the input, choose the cloud topic, size the voxels
+//! and settle everything the later stages share, before any output exists.
+
+use std::collections::BTreeSet;
+
+use crate::Result;
+use crate::io::codec::{PoseStampedDecoder, pose_stamped_decoder};
+use crate::io::input_log::InputLog;
+use crate::io::log_order::ChunkTimes;
+use crate::io::mcap::log::{ChannelInfo, InputCatalog};
+use crate::odometry::OdometryConfig;
+use crate::pipeline::{feature_voxel_for_cloud, voxel_for_cloud, with_feature_voxel};
+
+use super::clouds::{CloudKind, choose_topic};
+use super::output::Topics;
+use super::window::LogWindow;
+use super::{DEFAULT_REFERENCE_TOPIC, RegisterOptions};
+
+/// What a run reads and how it registers it, settled from the input and the options.
+pub(super) struct Plan {
+    pub(super) input_log: InputLog,
+    pub(super) catalog: InputCatalog,
+    /// The cloud topic and its message family.
+    pub(super) topic: String,
+    pub(super) kind: CloudKind,
+    /// The registration settings with the voxels sized.
+    pub(super) config: OdometryConfig,
+    /// `"configured"` or `"first_cloud"` ([`super::RegisterSummary::voxel_source`]).
+    pub(super) voxel_source: &'static str,
+    /// The ICP voxel \[m\] (before the feature voxel replaced it in `config.pair`).
+    pub(super) voxel_m: f64,
+    /// This run's output topics.
+    pub(super) topics: Topics,
+    /// The reference pose topic and its decoder, when the log has one.
+    pub(super) reference: Option<(String, PoseStampedDecoder)>,
+    pub(super) chunk_times: Option<ChunkTimes>,
+    /// Clouds on the topic, from the summary (0 when the log has none): the progress bar's length.
+    pub(super) total_frames: u64,
+    pub(super) cloud_channels: Vec<u16>,
+    pub(super) reference_channels: Vec<u16>,
+    /// The clouds registered (`--start`/`--end`).
+    pub(super) segment: LogWindow,
+}
+
+impl Plan {
+    pub(super) fn new(opts: &RegisterOptions) -> Result<Self> {
+        let input = &opts.input;
+        let (input_log, catalog) = InputLog::open(input)?;
+        let channels = catalog.channel_infos();
+        let (topic, kind) = choose_topic(input, &channels, opts.topic.as_deref())?;
+        let mut config = opts.config.clone();
+        let mut voxel_source = "configured";
+        // The first cloud sizes the voxel (unless configured) and the feature voxel (unless
+        // --feature-points 0); without either, it is not read twice.
+        let first = if opts.derive_voxel || config.feature_points > 0 {
+            first_usable_cloud(&input_log, &channels, &topic, kind)?
+        } else {
+            None
+        };
+        if opts.derive_voxel
+            && let Some(v) = first.as_deref().and_then(voxel_for_cloud)
+        {
+            config.pair.voxel_size_m = v;
+            voxel_source = "first_cloud";
+        }
+        let voxel_m = config.pair.voxel_size_m;
+        if let Some(points) = &first {
+            let fv = feature_voxel_for_cloud(points, voxel_m, config.feature_points)?;
+            config.pair = with_feature_voxel(&config.pair, fv);
+        }
+        drop(first);
+        // Frames carry input points for the map ICP's fine stage, not for the pairwise one, which
+        // the local map replaces (`Odometry::new` turns that off).
+        config.pair.icp_fine = config.map_fine;
+        config.pair.icp_fine_points_per_icp_point = crate::odometry::MAP_FINE_DRAW_PER_ICP_POINT;
+        // A log registered before keeps its mireg topics; this run's go to the next namespace
+        // (`/mireg_2/…`), so that no topic mixes two runs.
+        let topics = Topics::for_input(&channels);
+        let reference = channels
+            .iter()
+            .filter(|c| c.topic == DEFAULT_REFERENCE_TOPIC)
+            .find_map(|c| pose_stamped_decoder(&c.schema_name, &c.message_encoding))
+            .map(|decode| (DEFAULT_REFERENCE_TOPIC.to_string(), decode));
+        let chunk_times = input_log.chunk_times()?;
+        let total_frames = channels
+            .iter()
+            .filter(|c| c.topic == topic)
+            .filter_map(|c| c.message_count)
+            .sum::<u64>();
+        let ids_of = |t: Option<&str>| -> Vec<u16> {
+            channels
+                .iter()
+                .filter(|c| Some(c.topic.as_str()) == t)
+                .map(|c| c.id)
+                .collect()
+        };
+        let cloud_channels = ids_of(Some(&topic));
+        let reference_channels = ids_of(reference.as_ref().map(|r| r.0.as_str()));
+        let segment = LogWindow::resolve(&input_log, &cloud_channels, opts.start, opts.end)?;
+        Ok(Self {
+            input_log,
+            catalog,
+            topic,
+            kind,
+            config,
+            voxel_source,
+            voxel_m,
+            topics,
+            reference,
+            chunk_times,
+            total_frames,
+            cloud_channels,
+            reference_channels,
+            segment,
+        })
+    }
+
+    /// The channels whose messages the reader hands on: clouds and reference poses.
+    pub(super) fn wanted_channels(&self) -> BTreeSet<u16> {
+        self.cloud_channels
+            .iter()
+            .chain(&self.reference_channels)
+            .copied()
+            .collect()
+    }
+}
+
+/// The first cloud on `topic` that decodes to at least 3 finite, non-zero points (one that
+/// [`voxel_for_cloud`] can size); `None` when none does.
+fn first_usable_cloud(
+    input: &InputLog,
+    channels: &[ChannelInfo],
+    topic: &str,
+    kind: CloudKind,
+) -> Result<Option<Vec<nalgebra::Point3<f64>>>> {
+    use std::ops::ControlFlow::{Break, Continue};
+    let ids: Vec<u16> = channels
+        .iter()
+        .filter(|c| c.topic == topic)
+        .map(|c| c.id)
+        .collect();
+    let mut first = None;
+    input.for_each_message_until(|header, data| {
+        if ids.contains(&header.channel_id)
+            && let Ok(cloud) = kind.decode(data)
+            && voxel_for_cloud(&cloud.points).is_some()
+        {
+            first = Some(cloud.points);
+        }
+        Ok(if first.is_some() {
+            Break(())
+        } else {
+            Continue(())
+        })
+    })?;
+    Ok(first)
+}

@@ -1,0 +1,196 @@
+//! The *prepare* stage of `mireg register`, on its own thread: decode each cloud message, deskew
+//! it by an earlier frame's motion, and prepare it for registration (downsampling, normals,
+//! features: [`prepare_frame_with`]). A cloud that cannot be used becomes an empty, flagged frame.
+
+use std::path::Path;
+use std::sync::mpsc::{Receiver, Sender, SyncSender};
+use std::time::Instant;
+
+use nalgebra::{Isometry3, Point3};
+
+use crate::geometry::deskew::deskew;
+use crate::io::codec;
+use crate::odometry::keep_map_fine_points;
+use crate::pipeline::{
+    FailureReason, PrepareScratch, PreparedFrame, prepare_frame, prepare_frame_with,
+};
+use crate::{Error, Result};
+
+use super::DeskewMode;
+use super::motions::Motions;
+use super::plan::Plan;
+use super::reader::CloudMsg;
+
+/// One cloud, decoded and prepared.
+pub(super) struct PreparedMsg {
+    /// Why the cloud could not be decoded or prepared (the frame is then empty and flagged).
+    pub(super) invalid: Option<(FailureReason, String)>,
+    /// The cloud's time field, and whether its points were deskewed by it.
+    pub(super) time_field: Option<String>,
+    pub(super) deskewed: bool,
+    /// Points dropped by the decoder: non-finite, and zero returns of an organised cloud.
+    pub(super) dropped: Dropped,
+    pub(super) log_time: u64,
+    pub(super) publish_time: u64,
+    pub(super) header: codec::Header,
+    pub(super) decode_s: f64,
+    pub(super) frame: PreparedFrame,
+}
+
+/// Points the decoder dropped from one cloud.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct Dropped {
+    pub(super) non_finite: usize,
+    pub(super) zero: usize,
+}
+
+/// The prepare stage's settings.
+pub(super) struct Prepare<'a> {
+    pub(super) plan: &'a Plan,
+    /// The input, named in errors.
+    pub(super) input: &'a Path,
+    /// [`super::RegisterOptions::max_points_per_cloud`].
+    pub(super) max_points: usize,
+    pub(super) deskew_mode: DeskewMode,
+}
+
+/// What the prepare stage carries from one cloud to the next.
+#[derive(Default)]
+struct Carry {
+    scratch: PrepareScratch,
+    /// The frame id of a cloud that cannot be decoded: the previous cloud's.
+    last_frame_id: String,
+    /// The previous cloud's points, once prepared: their buffer takes the next cloud's (a LiDAR
+    /// frame's few megabytes are allocated and faulted in once, not per cloud).
+    spare_points: Vec<Point3<f64>>,
+}
+
+impl Prepare<'_> {
+    /// Prepares the clouds of `clouds` in order into `prepared`, until the clouds end, the
+    /// receiver hangs up or a fatal error (sent on) stops the run. Each message buffer goes back
+    /// on `recycle` once decoded; frame motions for deskewing come on `motions`.
+    pub(super) fn run(
+        &self,
+        clouds: Receiver<CloudMsg>,
+        prepared: SyncSender<Result<PreparedMsg>>,
+        motions: Receiver<(usize, Isometry3<f64>, f64)>,
+        recycle: Sender<Vec<u8>>,
+    ) {
+        let mut carry = Carry::default();
+        let mut motions = Motions::new(motions);
+        for (frame_index, msg) in clouds.into_iter().enumerate() {
+            let r = self.prepare(frame_index, msg, &mut carry, &mut motions, &recycle);
+            let failed = r.is_err();
+            if prepared.send(r).is_err() || failed {
+                break;
+            }
+        }
+    }
+
+    /// Decodes, deskews and prepares one cloud. `Err` only for what stops the run (`--deskew
+    /// on` without a time field); a bad cloud is a flagged frame.
+    fn prepare(
+        &self,
+        frame_index: usize,
+        msg: CloudMsg,
+        carry: &mut Carry,
+        motions: &mut Motions,
+        recycle: &Sender<Vec<u8>>,
+    ) -> Result<PreparedMsg> {
+        let (kind, config, topic) = (self.plan.kind, &self.plan.config, self.plan.topic.as_str());
+        let t = Instant::now();
+        let decoded = kind.decode_reusing(&msg.data, std::mem::take(&mut carry.spare_points));
+        let (mut time_field, mut deskewed, mut fatal) = (None, false, None);
+        let dropped = decoded.as_ref().map_or(Dropped::default(), |c| Dropped {
+            non_finite: c.num_dropped_non_finite,
+            zero: c.num_dropped_zero,
+        });
+        // The message bytes are not needed past decoding: don't hold them through prepare.
+        let _ = recycle.send(msg.data);
+        let decode_s = t.elapsed().as_secs_f64();
+        // A cloud that cannot be decoded, is too large, or that the pipeline cannot take (e.g. a
+        // glitch at 1e38 m) is one bad frame: flag it, keep going.
+        let max_points = self.max_points;
+        let (header, prepared) = match decoded {
+            Err(e) => {
+                let detail = decode_detail(topic, msg.log_time, &e);
+                let header = codec::Header {
+                    stamp: stamp_of_log_time(msg.log_time),
+                    frame_id: carry.last_frame_id.clone(),
+                };
+                (header, Err((FailureReason::InvalidCloud, detail)))
+            }
+            Ok(cloud) if cloud.points.len() > max_points => {
+                let detail = format!(
+                    "{} points, more than the bound of {max_points} (--max-points)",
+                    cloud.points.len()
+                );
+                (cloud.header, Err((FailureReason::TooManyPoints, detail)))
+            }
+            Ok(mut cloud) => {
+                if let Some(times) = &cloud.times {
+                    time_field = Some(times.field.clone());
+                    if self.deskew_mode != DeskewMode::Off
+                        && let Some((motion, dt)) = motions.of(frame_index.checked_sub(2))
+                    {
+                        deskew(&mut cloud.points, &times.seconds, &motion, dt);
+                        deskewed = true;
+                    }
+                } else if self.deskew_mode == DeskewMode::On {
+                    let detail = format!(
+                        "--deskew on: no per-point time field (one of {})",
+                        crate::io::point_time::TIME_FIELDS.join(", ")
+                    );
+                    fatal = Some(Error::InvalidInput(format!(
+                        "{}: cloud on {topic} at log time {} ns: {detail}",
+                        self.input.display(),
+                        msg.log_time
+                    )));
+                }
+                let prepared = prepare_frame_with(&cloud.points, &config.pair, &mut carry.scratch)
+                    .map(|mut frame| {
+                        keep_map_fine_points(&mut frame);
+                        frame
+                    })
+                    .map_err(|e| (FailureReason::InvalidCloud, e.to_string()));
+                carry.spare_points = cloud.points;
+                (cloud.header, prepared)
+            }
+        };
+        if let Some(e) = fatal {
+            return Err(e);
+        }
+        carry.last_frame_id.clone_from(&header.frame_id);
+        match prepared {
+            Ok(f) => Ok((f, None)),
+            Err(invalid) => prepare_frame(&[], &config.pair).map(|f| (f, Some(invalid))),
+        }
+        .map(|(frame, invalid)| PreparedMsg {
+            invalid,
+            time_field,
+            deskewed,
+            dropped,
+            log_time: msg.log_time,
+            publish_time: msg.publish_time,
+            header,
+            decode_s,
+            frame,
+        })
+    }
+}
+
+/// Why a cloud message could not be decoded, naming topic, log time and field.
+fn decode_detail(topic: &str, log_time: u64, e: &codec::DecodeError) -> String {
+    format!(
+        "message on {topic} at log time {log_time} ns: field {}: {}",
+        e.field, e.detail
+    )
+}
+
+/// The header stamp given to a cloud that could not be decoded: its log time.
+fn stamp_of_log_time(log_time: u64) -> codec::Time {
+    i64::try_from(log_time)
+        .ok()
+        .and_then(codec::Time::from_ns)
+        .unwrap_or_default()
+}

@@ -1,0 +1,94 @@
+//! The *register* stage of `mireg register`, on its own thread: each prepared frame in turn
+//! against the local map ([`Odometry::push`]: MI-RANSAC, ICP, then the map update).
+
+use std::sync::mpsc::{Receiver, Sender};
+use std::time::Instant;
+
+use nalgebra::Isometry3;
+
+use crate::Result;
+use crate::io::codec;
+use crate::odometry::{FrameEstimate, Odometry};
+use crate::pipeline::{FailureReason, FrameTimings};
+
+use super::prepare::{Dropped, PreparedMsg};
+
+/// Frames between two returns of the allocator's free memory to the system
+/// ([`crate::heap::trim`]), which keeps the peak RSS of a long log within a few percent of a short
+/// one's (docs/BENCHMARKS.md).
+const TRIM_EVERY_FRAMES: usize = 8;
+
+/// One frame registered: what the writer puts out.
+pub(super) struct FrameOut {
+    pub(super) invalid: Option<(FailureReason, String)>,
+    pub(super) time_field: Option<String>,
+    pub(super) deskewed: bool,
+    pub(super) dropped: Dropped,
+    pub(super) log_time: u64,
+    pub(super) publish_time: u64,
+    pub(super) header: codec::Header,
+    pub(super) decode_s: f64,
+    pub(super) prep: FrameTimings,
+    pub(super) register_s: f64,
+    pub(super) est: FrameEstimate,
+}
+
+/// Runs `f` on a worker of rayon's global pool, the calling thread waiting (`rayon::scope` from
+/// outside the pool). Registering a frame is many short parallel loops (an ICP iteration each);
+/// called from the registering thread, each loop was injected into the pool and woke the caller
+/// when done, where from a worker the loops split among the workers directly. On the KAIST03
+/// keyframes: 1 800–2 100 → 940–1 150 context switches per run (docs/BENCHMARKS.md).
+///
+/// NOTE: not for preparing frames: on the workers, that stage's buffers shared their malloc
+/// arenas with registration's, and the peak RSS of 200 KITTI-size frames rose to 1.11–1.12 × that
+/// of 20 (issue 11's bound: 1.10); preparing on its own thread, 1.067.
+fn on_pool<R: Send>(f: impl FnOnce() -> R + Send) -> R {
+    rayon::scope(|_| f())
+}
+
+/// Registers the frames of `prepared` in order, sending each result on `out` and each frame's
+/// motion (`prev_from_curr` and its seconds) on `motions` for deskewing a later frame. Stops at
+/// the first error (sent on) or when the writer hangs up.
+pub(super) fn run(
+    odometry: &mut Odometry,
+    prepared: Receiver<Result<PreparedMsg>>,
+    out: Sender<Result<FrameOut>>,
+    motions: Sender<(usize, Isometry3<f64>, f64)>,
+) {
+    let mut previous_stamp: Option<i64> = None;
+    for (k, msg) in prepared.into_iter().enumerate() {
+        if k % TRIM_EVERY_FRAMES == TRIM_EVERY_FRAMES - 1 {
+            crate::heap::trim();
+        }
+        let r = msg.and_then(|m| {
+            let prep = m.frame.timings;
+            let t = Instant::now();
+            let mut est = on_pool(|| odometry.push(m.frame))?;
+            if let Some((reason, _)) = &m.invalid {
+                est.failure = Some(*reason);
+            }
+            // The motion and its duration, for deskewing a later frame.
+            let stamp = m.header.stamp.to_ns();
+            let dt = previous_stamp.map_or(f64::NAN, |p| (stamp - p) as f64 * 1e-9);
+            previous_stamp = Some(stamp);
+            let _ = motions.send((k, est.prev_from_curr, dt));
+            Ok(FrameOut {
+                invalid: m.invalid,
+                time_field: m.time_field,
+                deskewed: m.deskewed,
+                dropped: m.dropped,
+                log_time: m.log_time,
+                publish_time: m.publish_time,
+                header: m.header,
+                decode_s: m.decode_s,
+                prep,
+                register_s: t.elapsed().as_secs_f64(),
+                est,
+            })
+        });
+        let failed = r.is_err();
+        if out.send(r).is_err() || failed {
+            break;
+        }
+    }
+}

@@ -1,0 +1,223 @@
+//! The *writer* stage of `mireg register`, on the calling thread: each registered frame's pose,
+//! transform and statistics into the output, then the run's metadata and its summary.
+
+use std::collections::BTreeMap;
+use std::sync::mpsc::Receiver;
+use std::time::Instant;
+
+use nalgebra::Isometry3;
+
+use crate::Result;
+use crate::io::mcap::log::OutputLog;
+use crate::trajectory::{Trajectory, evaluate};
+
+use super::output::{Outputs, write_frame};
+use super::plan::Plan;
+use super::registrar::FrameOut;
+use super::window::LogWindow;
+use super::{ReferenceErrors, RegisterOptions, RegisterSummary};
+
+/// One frame's estimate as the summary needs it.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Estimate {
+    /// The cloud's header stamp \[ns\].
+    pub(super) stamp_ns: i64,
+    pub(super) world_from_frame: Isometry3<f64>,
+    pub(super) success: bool,
+    pub(super) inliers: usize,
+}
+
+/// Writes the frames as they come and keeps what the summary needs.
+pub(super) struct Writer<'a> {
+    outputs: Outputs,
+    world_frame: &'a str,
+    progress: Option<indicatif::ProgressBar>,
+    pub(super) estimates: Vec<Estimate>,
+    /// The reference poses read (stamp \[ns\], pose).
+    reference: Vec<(i64, Isometry3<f64>)>,
+}
+
+impl<'a> Writer<'a> {
+    /// A writer of `outputs`' channels; draws a progress bar of `total_frames` when `progress`
+    /// and stderr is a terminal.
+    pub(super) fn new(
+        outputs: Outputs,
+        world_frame: &'a str,
+        progress: bool,
+        total_frames: u64,
+    ) -> Self {
+        let progress =
+            (progress && std::io::IsTerminal::is_terminal(&std::io::stderr())).then(|| {
+                let bar = indicatif::ProgressBar::new(total_frames);
+                bar.set_style(
+                    indicatif::ProgressStyle::with_template(
+                        "{bar:40} {pos}/{len} frames  {per_sec}  ETA {eta}",
+                    )
+                    .expect("valid template"),
+                );
+                bar
+            });
+        Self {
+            outputs,
+            world_frame,
+            progress,
+            estimates: Vec::new(),
+            reference: Vec::new(),
+        }
+    }
+
+    /// Writes one registered frame (or passes on the error that stopped the run).
+    pub(super) fn frame(&mut self, log: &mut OutputLog, r: Result<FrameOut>) -> Result<()> {
+        let out = r?;
+        write_frame(log, &self.outputs, self.world_frame, &out)?;
+        self.estimates.push(Estimate {
+            stamp_ns: out.header.stamp.to_ns(),
+            world_from_frame: out.est.world_from_frame,
+            success: out.est.success,
+            inliers: out.est.pair.as_ref().map_or(0, |p| p.num_inliers),
+        });
+        if let Some(bar) = &self.progress {
+            bar.inc(1);
+        }
+        Ok(())
+    }
+
+    /// Keeps a reference pose for the summary's errors.
+    pub(super) fn reference_pose(&mut self, stamp_ns: i64, pose: Isometry3<f64>) {
+        self.reference.push((stamp_ns, pose));
+    }
+
+    /// Writes the frames still to come on `registered` once the reader is done (`read`: its
+    /// outcome). A worker's error is the root cause of any later failure to hand it work:
+    /// reported first.
+    pub(super) fn drain(
+        &mut self,
+        log: &mut OutputLog,
+        registered: Receiver<Result<FrameOut>>,
+        read: Result<u64>,
+    ) -> Result<u64> {
+        let mut result = read;
+        let mut worker_error = None;
+        for r in registered.iter() {
+            match r {
+                Err(e) => worker_error = worker_error.or(Some(e)),
+                Ok(out) if result.is_ok() => {
+                    if let Err(e) = self.frame(log, Ok(out)) {
+                        result = Err(e);
+                    }
+                }
+                Ok(_) => {}
+            }
+        }
+        match worker_error {
+            Some(e) => Err(e),
+            None => result,
+        }
+    }
+
+    /// Writes the run's metadata, closes the output and sums the run up.
+    pub(super) fn finish(
+        mut self,
+        mut log: OutputLog,
+        plan: Plan,
+        opts: &RegisterOptions,
+        copied: u64,
+        start: Instant,
+    ) -> Result<RegisterSummary> {
+        if let Some(bar) = &self.progress {
+            bar.finish_and_clear();
+        }
+        log.write_metadata("mireg", metadata(&plan, opts))?;
+        log.finish()?;
+
+        let estimates = &self.estimates;
+        let frames = estimates.len();
+        let failed_frames = estimates.iter().filter(|e| !e.success).count();
+        let registered: Vec<usize> = estimates
+            .iter()
+            .skip(1)
+            .filter(|e| e.success)
+            .map(|e| e.inliers)
+            .collect();
+        let mean_inliers = if registered.is_empty() {
+            0.0
+        } else {
+            registered.iter().sum::<usize>() as f64 / registered.len() as f64
+        };
+        let reference = plan
+            .reference
+            .as_ref()
+            .and_then(|(t, _)| reference_errors(t, estimates, std::mem::take(&mut self.reference)));
+        let elapsed_s = start.elapsed().as_secs_f64();
+        Ok(RegisterSummary {
+            output: opts.output.clone(),
+            topic: plan.topic,
+            tf_topic: plan.topics.tf,
+            pose_topic: plan.topics.pose,
+            frames,
+            failed_frames,
+            mean_inliers,
+            messages_copied: copied,
+            voxel_m: plan.voxel_m,
+            voxel_source: plan.voxel_source,
+            feature_voxel_m: plan.config.pair.voxel_size_m,
+            feature_points: plan.config.feature_points,
+            elapsed_s,
+            frames_per_s: frames as f64 / elapsed_s.max(1e-9),
+            reference,
+        })
+    }
+}
+
+/// The output's `mireg` metadata record: version, settings, input and topics.
+fn metadata(plan: &Plan, opts: &RegisterOptions) -> BTreeMap<String, String> {
+    let config = &plan.config;
+    let mut meta = BTreeMap::new();
+    meta.insert("version".to_string(), env!("CARGO_PKG_VERSION").to_string());
+    meta.insert(
+        "config".to_string(),
+        serde_json::to_string(config).expect("config JSON"),
+    );
+    meta.insert("voxel_source".to_string(), plan.voxel_source.to_string());
+    meta.insert("voxel_m".to_string(), plan.voxel_m.to_string());
+    meta.insert(
+        "feature_voxel_m".to_string(),
+        config.pair.voxel_size_m.to_string(),
+    );
+    meta.insert("seed".to_string(), config.pair.seed.to_string());
+    meta.insert("command_line".to_string(), opts.command_line.clone());
+    meta.insert("input".to_string(), opts.input.display().to_string());
+    meta.insert("topic".to_string(), plan.topic.clone());
+    meta.insert("pose_topic".to_string(), plan.topics.pose.clone());
+    meta.insert("stats_topic".to_string(), plan.topics.stats.clone());
+    meta.insert("tf_topic".to_string(), plan.topics.tf.clone());
+    if plan.segment != LogWindow::ALL {
+        meta.insert(
+            "segment".to_string(),
+            serde_json::to_string(&plan.segment).expect("segment JSON"),
+        );
+    }
+    meta
+}
+
+/// The run's trajectory against the reference poses at the same stamps
+/// ([`crate::trajectory::evaluate`] with exact stamp association); `None` with fewer than 2 pairs.
+fn reference_errors(
+    topic: &str,
+    estimates: &[Estimate],
+    reference: Vec<(i64, Isometry3<f64>)>,
+) -> Option<ReferenceErrors> {
+    let estimate = Trajectory::stamped(
+        estimates.iter().map(|e| e.stamp_ns).collect(),
+        estimates.iter().map(|e| e.world_from_frame).collect(),
+    );
+    let (stamps, poses) = reference.into_iter().unzip();
+    let e = evaluate(&estimate, &Trajectory::stamped(stamps, poses), None, 0).ok()?;
+    Some(ReferenceErrors {
+        topic: topic.to_string(),
+        frames: e.rows.len(),
+        ate_rmse_m: e.ate_rmse_m,
+        rpe_trans_mean_m: e.rpe_trans_mean_m,
+        rpe_rot_mean_deg: e.rpe_rot_mean_deg,
+    })
+}
