@@ -1,3 +1,4 @@
+use super::brute_force::*;
 use super::*;
 use rand::{RngExt, SeedableRng};
 use rand_pcg::Pcg64Mcg;
