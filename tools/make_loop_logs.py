@@ -12,9 +12,11 @@ Kinds (``--kind``):
   scans (never the same frame twice), so a loop detector has real revisits and no trivial
   self-matches.
 * ``gap``: the out-and-back with the messages ``--gap-start .. --gap-start + --gap-len - 1``
-  (indices in the out-and-back sequence, default: ``--gap-len`` 3 centred on the middle of the log,
-  i.e. at the turn) dropped, stamps of the others unchanged, so odometry must bridge a time gap and
-  a jump in space.
+  (indices in the out-and-back sequence; default: ``--gap-len`` 2 from a quarter of the log, i.e.
+  midway along the way out) dropped, stamps of the others unchanged, so odometry must bridge a time
+  gap and a jump in space (2 dropped messages = 3 x 2 source frames between the kept neighbours;
+  not at the turn, where the frames on both sides of a gap are source neighbours: a time gap with
+  no jump in space).
 * ``--repeat N`` (either kind): the out-and-back played N times in a row, stamps continuing, e.g.
   ``--repeat 10`` for a 10x longer log (memory-bound measurements). With ``gap`` the gap is cut
   from the whole repeated sequence.
@@ -79,7 +81,7 @@ def sequence(frames, kind, repeat, gap_start, gap_len):
     seq = list(enumerate(out_and_back(frames) * repeat))
     if kind == "gap":
         if gap_start is None:
-            gap_start = (len(seq) - gap_len) // 2
+            gap_start = len(seq) // 4
         if not (0 < gap_start and gap_start + gap_len < len(seq) and gap_len > 0):
             raise SystemExit(f"gap {gap_start}+{gap_len} must lie inside the {len(seq)} messages, not at an end")
         seq = seq[:gap_start] + seq[gap_start + gap_len:]
@@ -256,8 +258,8 @@ def main(argv):
     ap.add_argument("--out-dir", default="/tmp", help="folder for --all (default /tmp)")
     ap.add_argument("--data", help="source folder (default: the builder's default under ../shared/data)")
     ap.add_argument("--repeat", type=int, default=1, help="play the out-and-back N times (default 1)")
-    ap.add_argument("--gap-start", type=int, help="kind gap: first dropped message (default: centred)")
-    ap.add_argument("--gap-len", type=int, default=3, help="kind gap: messages dropped (default 3)")
+    ap.add_argument("--gap-start", type=int, help="kind gap: first dropped message (default: a quarter of the log)")
+    ap.add_argument("--gap-len", type=int, default=2, help="kind gap: messages dropped (default 2)")
     ap.add_argument("--period-ms", type=float, help="stamp step [ms] (default: the source's frame period)")
     ap.add_argument("--start-sec", type=int, default=1_700_000_000, help="stamp of the first message [s]")
     # micro211 options, as tools/make_fixture_mcap.py names them
