@@ -309,6 +309,14 @@ def command_line(args):
     )
 
 
+def frame_points(data, k, pixel_stride):
+    """Back-projected points [(x, y, z), ...] of depth frame k of the micro211 folder `data`
+    (every `pixel_stride`-th pixel in u and v with nonzero depth); also used by
+    tools/make_loop_logs.py, so its logs hold the same clouds as the fixture."""
+    _w, _h, rows, _filters = icl.read_png_gray16(os.path.join(data, "depth", f"{k:05d}.png"))
+    return icl.depth_to_points(rows, pixel_stride)
+
+
 # --- write and verify --------------------------------------------------------------------------------
 
 
@@ -329,9 +337,7 @@ def build(args):
         cloud_schema = writer.register_msgdef("sensor_msgs/msg/PointCloud2", POINT_CLOUD2_SCHEMA)
         pose_schema = writer.register_msgdef("geometry_msgs/msg/PoseStamped", POSE_STAMPED_SCHEMA)
         for seq, k in enumerate(frames):
-            png = os.path.join(args.data, "depth", f"{k:05d}.png")
-            _w, _h, rows, _filters = icl.read_png_gray16(png)
-            points = icl.depth_to_points(rows, args.pixel_stride)
+            points = frame_points(args.data, k, args.pixel_stride)
             t_ns = stamp_ns(args.start_sec, k)
             first_from_cam = mat_mul(first_inv, poses[k])
             cloud = cloud_message(t_ns, points)

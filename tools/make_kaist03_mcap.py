@@ -81,6 +81,39 @@ def read_pcd_xyzi(path):
     return n, data
 
 
+def scan_path(data, k):
+    return os.path.join(data, "Scans", f"{k:06d}.pcd")
+
+
+def read_times(data):
+    """UNIX time [s] of each scan (times.txt)."""
+    with open(os.path.join(data, "times.txt")) as f:
+        return [float(x) for x in f.read().split()]
+
+
+def cloud_message(t_ns, n, data, ouster_time=False):
+    """The PointCloud2 message of one scan (`n` points of x, y, z, intensity float32 in `data`),
+    with the inferred per-point time `t` when `ouster_time`; also used by tools/make_loop_logs.py."""
+    fields = [{"name": c, "offset": 4 * i, "datatype": FLOAT32, "count": 1}
+              for i, c in enumerate(("x", "y", "z", "intensity"))]
+    step = 16
+    if ouster_time:
+        n, data = with_ouster_time(data, n)
+        fields.append({"name": "t", "offset": 16, "datatype": UINT32, "count": 1})
+        step = 20
+    return {
+        "header": fx.header(t_ns, CLOUD_FRAME),
+        "height": 1,
+        "width": n,
+        "fields": fields,
+        "is_bigendian": False,
+        "point_step": step,
+        "row_step": step * n,
+        "data": data,
+        "is_dense": True,
+    }
+
+
 def read_kitti_poses(path):
     poses = []
     with open(path) as f:
@@ -112,8 +145,7 @@ def main(argv):
     if not os.path.isdir(args.data):
         raise SystemExit(f"{args.data}: not found (the KAIST03 keyframes live in ../shared/data)")
     poses = read_kitti_poses(os.path.join(args.data, "poses_kitti.txt"))
-    with open(os.path.join(args.data, "times.txt")) as f:
-        times = [float(x) for x in f.read().split()]
+    times = read_times(args.data)
     frames = parse_frames(args.frames, len(poses))
     first_inv = fx.rigid_inverse(poses[frames[0]])
     tmp = args.out + ".tmp"
@@ -122,26 +154,9 @@ def main(argv):
         cloud_schema = writer.register_msgdef("sensor_msgs/msg/PointCloud2", fx.POINT_CLOUD2_SCHEMA)
         pose_schema = writer.register_msgdef("geometry_msgs/msg/PoseStamped", fx.POSE_STAMPED_SCHEMA)
         for seq, k in enumerate(frames):
-            n, data = read_pcd_xyzi(os.path.join(args.data, "Scans", f"{k:06d}.pcd"))
+            n, data = read_pcd_xyzi(scan_path(args.data, k))
             t_ns = round(times[k] * 1e9)
-            fields = [{"name": c, "offset": 4 * i, "datatype": FLOAT32, "count": 1}
-                      for i, c in enumerate(("x", "y", "z", "intensity"))]
-            step = 16
-            if args.ouster_time:
-                n, data = with_ouster_time(data, n)
-                fields.append({"name": "t", "offset": 16, "datatype": UINT32, "count": 1})
-                step = 20
-            cloud = {
-                "header": fx.header(t_ns, CLOUD_FRAME),
-                "height": 1,
-                "width": n,
-                "fields": fields,
-                "is_bigendian": False,
-                "point_step": step,
-                "row_step": step * n,
-                "data": data,
-                "is_dense": True,
-            }
+            cloud = cloud_message(t_ns, n, data, args.ouster_time)
             writer.write_message(CLOUD_TOPIC, cloud_schema, cloud, log_time=t_ns, publish_time=t_ns, sequence=seq)
             pose = fx.pose_message(t_ns, fx.mat_mul(first_inv, poses[k]))
             writer.write_message(fx.POSE_TOPIC, pose_schema, pose, log_time=t_ns, publish_time=t_ns, sequence=seq)
