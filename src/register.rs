@@ -9,6 +9,7 @@
 //! chunk plus the queue capacity, whatever the log length.
 
 mod clouds;
+mod frames;
 mod motions;
 mod output;
 mod plan;

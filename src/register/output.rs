@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use serde_json::json;
 
 use super::CloudKind;
-use super::registrar::FrameOut;
+use super::frames::FrameOut;
 use crate::Result;
 use crate::io::codec::{self, cdr, foxglove, ros1};
 use crate::io::mcap::log::ChannelInfo;

@@ -11,38 +11,13 @@ use nalgebra::{Isometry3, Point3};
 use crate::geometry::deskew::deskew;
 use crate::io::codec;
 use crate::odometry::keep_map_fine_points;
-use crate::pipeline::{
-    FailureReason, PrepareScratch, PreparedFrame, prepare_frame, prepare_frame_with,
-};
+use crate::pipeline::{FailureReason, PrepareScratch, prepare_frame, prepare_frame_with};
 use crate::{Error, Result};
 
 use super::DeskewMode;
+use super::frames::{CloudMsg, Dropped, PreparedMsg};
 use super::motions::Motions;
 use super::plan::Plan;
-use super::reader::CloudMsg;
-
-/// One cloud, decoded and prepared.
-pub(super) struct PreparedMsg {
-    /// Why the cloud could not be decoded or prepared (the frame is then empty and flagged).
-    pub(super) invalid: Option<(FailureReason, String)>,
-    /// The cloud's time field, and whether its points were deskewed by it.
-    pub(super) time_field: Option<String>,
-    pub(super) deskewed: bool,
-    /// Points dropped by the decoder: non-finite, and zero returns of an organised cloud.
-    pub(super) dropped: Dropped,
-    pub(super) log_time: u64,
-    pub(super) publish_time: u64,
-    pub(super) header: codec::Header,
-    pub(super) decode_s: f64,
-    pub(super) frame: PreparedFrame,
-}
-
-/// Points the decoder dropped from one cloud.
-#[derive(Debug, Clone, Copy, Default)]
-pub(super) struct Dropped {
-    pub(super) non_finite: usize,
-    pub(super) zero: usize,
-}
 
 /// The prepare stage's settings.
 pub(super) struct Prepare<'a> {

@@ -8,21 +8,14 @@ use crate::io::log_order::Reorder;
 use crate::io::mcap::log::OutputLog;
 use crate::{Error, Result};
 
+use super::frames::{CloudMsg, FrameOut};
 use super::plan::Plan;
-use super::registrar::FrameOut;
 use super::writer::Writer;
 use super::{QUEUE_CAPACITY, RegisterOptions};
 
 /// Cloud message buffers outside the reorder window: the queue to the preparing thread, and the
 /// one it decodes.
 const MESSAGE_BUFFERS: usize = QUEUE_CAPACITY + 1;
-
-/// One cloud message's bytes and times.
-pub(super) struct CloudMsg {
-    pub(super) log_time: u64,
-    pub(super) publish_time: u64,
-    pub(super) data: Vec<u8>,
-}
 
 /// Message buffers back from the preparing thread once decoded, for the next clouds' bytes: the
 /// few buffers in flight are allocated (and faulted in) once, instead of a multi-megabyte map and

@@ -7,31 +7,14 @@ use std::time::Instant;
 use nalgebra::Isometry3;
 
 use crate::Result;
-use crate::io::codec;
-use crate::odometry::{FrameEstimate, Odometry};
-use crate::pipeline::{FailureReason, FrameTimings};
+use crate::odometry::Odometry;
 
-use super::prepare::{Dropped, PreparedMsg};
+use super::frames::{FrameOut, PreparedMsg};
 
 /// Frames between two returns of the allocator's free memory to the system
 /// ([`crate::heap::trim`]), which keeps the peak RSS of a long log within a few percent of a short
 /// one's (docs/BENCHMARKS.md).
 const TRIM_EVERY_FRAMES: usize = 8;
-
-/// One frame registered: what the writer puts out.
-pub(super) struct FrameOut {
-    pub(super) invalid: Option<(FailureReason, String)>,
-    pub(super) time_field: Option<String>,
-    pub(super) deskewed: bool,
-    pub(super) dropped: Dropped,
-    pub(super) log_time: u64,
-    pub(super) publish_time: u64,
-    pub(super) header: codec::Header,
-    pub(super) decode_s: f64,
-    pub(super) prep: FrameTimings,
-    pub(super) register_s: f64,
-    pub(super) est: FrameEstimate,
-}
 
 /// Runs `f` on a worker of rayon's global pool, the calling thread waiting (`rayon::scope` from
 /// outside the pool). Registering a frame is many short parallel loops (an ICP iteration each);

@@ -11,9 +11,9 @@ use crate::Result;
 use crate::io::mcap::log::OutputLog;
 use crate::trajectory::{Trajectory, evaluate};
 
+use super::frames::FrameOut;
 use super::output::{Outputs, write_frame};
 use super::plan::Plan;
-use super::registrar::FrameOut;
 use super::window::LogWindow;
 use super::{ReferenceErrors, RegisterOptions, RegisterSummary};
 

@@ -1,0 +1,51 @@
+//! What the stages of `mireg register` hand each other: a cloud message (reader → prepare), a
+//! prepared frame (prepare → registrar), a registered frame (registrar → writer).
+
+use crate::io::codec;
+use crate::odometry::FrameEstimate;
+use crate::pipeline::{FailureReason, FrameTimings, PreparedFrame};
+
+/// One cloud message's bytes and times.
+pub(super) struct CloudMsg {
+    pub(super) log_time: u64,
+    pub(super) publish_time: u64,
+    pub(super) data: Vec<u8>,
+}
+
+/// One cloud, decoded and prepared.
+pub(super) struct PreparedMsg {
+    /// Why the cloud could not be decoded or prepared (the frame is then empty and flagged).
+    pub(super) invalid: Option<(FailureReason, String)>,
+    /// The cloud's time field, and whether its points were deskewed by it.
+    pub(super) time_field: Option<String>,
+    pub(super) deskewed: bool,
+    /// Points dropped by the decoder: non-finite, and zero returns of an organised cloud.
+    pub(super) dropped: Dropped,
+    pub(super) log_time: u64,
+    pub(super) publish_time: u64,
+    pub(super) header: codec::Header,
+    pub(super) decode_s: f64,
+    pub(super) frame: PreparedFrame,
+}
+
+/// Points the decoder dropped from one cloud.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct Dropped {
+    pub(super) non_finite: usize,
+    pub(super) zero: usize,
+}
+
+/// One frame registered: what the writer puts out.
+pub(super) struct FrameOut {
+    pub(super) invalid: Option<(FailureReason, String)>,
+    pub(super) time_field: Option<String>,
+    pub(super) deskewed: bool,
+    pub(super) dropped: Dropped,
+    pub(super) log_time: u64,
+    pub(super) publish_time: u64,
+    pub(super) header: codec::Header,
+    pub(super) decode_s: f64,
+    pub(super) prep: FrameTimings,
+    pub(super) register_s: f64,
+    pub(super) est: FrameEstimate,
+}
