@@ -12,6 +12,7 @@ pub mod error;
 pub mod features;
 pub mod fuzzing;
 pub mod geometry;
+pub mod graph;
 mod hash;
 pub mod heap;
 pub mod io;
