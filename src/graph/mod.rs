@@ -39,7 +39,7 @@ pub struct Edge {
     /// `from_T_to`: the pose of node `to` in node `from`'s frame, i.e. `poses[from]⁻¹ · poses[to]`
     /// when the graph is consistent. Translation in metres.
     pub measurement: Isometry3<f64>,
-    /// Information matrix Ω (inverse covariance) of the error in (rotation [rad], translation [m])
+    /// Information matrix Ω (inverse covariance) of the error in (rotation \[rad\], translation \[m\])
     /// order; symmetric positive semi-definite. Units: 1/rad², 1/(rad·m), 1/m².
     pub information: Matrix6<f64>,
     /// Apply [`GraphOptions::kernel`] to this edge (loop closures that may be wrong).
@@ -58,7 +58,7 @@ pub struct PoseGraph {
 /// GTSAM's default relative and absolute error-decrease tolerances
 /// (`NonlinearOptimizerParams::relativeErrorTol`, `absoluteErrorTol`).
 pub const DEFAULT_ERROR_TOL: f64 = 1e-5;
-/// Default robust-kernel scale `k` [σ, i.e. units of the Mahalanobis distance]: an edge one
+/// Default robust-kernel scale `k` \[σ, i.e. units of the Mahalanobis distance\]: an edge one
 /// standard deviation off keeps weight ½ under Cauchy.
 pub const DEFAULT_KERNEL_SCALE: f64 = 1.0;
 
@@ -75,7 +75,7 @@ pub struct GraphOptions {
     pub absolute_error_tol: f64,
     /// M-estimator for edges with `robust = true`. Default: [`RobustKernel::Cauchy`].
     pub kernel: RobustKernel,
-    /// Kernel scale `k` [σ]. Default: [`DEFAULT_KERNEL_SCALE`] (`1.0`).
+    /// Kernel scale `k` \[σ\]. Default: [`DEFAULT_KERNEL_SCALE`] (`1.0`).
     pub kernel_scale: f64,
     /// Initial damping λ (added as `λ I` to `H`). Default: `1e-5` (GTSAM `lambdaInitial`).
     pub lambda_initial: f64,
@@ -123,7 +123,7 @@ pub struct GraphSolution {
     pub converged: bool,
 }
 
-/// Error `e = Log(Z⁻¹ · T_from⁻¹ · T_to)` of `edge` at `poses`, (rotation [rad], translation [m]).
+/// Error `e = Log(Z⁻¹ · T_from⁻¹ · T_to)` of `edge` at `poses`, (rotation \[rad\], translation \[m\]).
 #[must_use]
 pub fn edge_error(poses: &[Isometry3<f64>], edge: &Edge) -> Vector6<f64> {
     se3::log(&(edge.measurement.inverse() * poses[edge.from].inverse() * poses[edge.to]))

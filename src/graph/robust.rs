@@ -15,7 +15,7 @@ pub enum RobustKernel {
 }
 
 impl RobustKernel {
-    /// Cost `ρ(d)` of an edge at Mahalanobis distance `d` [σ] with scale `k` [σ].
+    /// Cost `ρ(d)` of an edge at Mahalanobis distance `d` \[σ\] with scale `k` \[σ\].
     #[must_use]
     pub fn loss(self, d: f64, k: f64) -> f64 {
         let (d2, k2) = (d * d, k * k);

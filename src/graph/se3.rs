@@ -8,7 +8,7 @@
 
 use nalgebra::{Isometry3, Matrix3, Matrix6, Translation3, UnitQuaternion, Vector3, Vector6};
 
-/// Below this rotation angle [rad] the trigonometric coefficients are evaluated by their Taylor
+/// Below this rotation angle \[rad\] the trigonometric coefficients are evaluated by their Taylor
 /// series (their closed forms lose digits to cancellation there).
 const SMALL_ANGLE_RAD: f64 = 0.1;
 
@@ -18,7 +18,7 @@ pub fn hat(v: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
 }
 
-/// SO(3) logarithm of a unit quaternion: the rotation vector [rad], angle in `[0, π]`.
+/// SO(3) logarithm of a unit quaternion: the rotation vector \[rad\], angle in `[0, π]`.
 #[must_use]
 pub fn so3_log(q: &UnitQuaternion<f64>) -> Vector3<f64> {
     let q = q.quaternion();
@@ -37,7 +37,7 @@ pub fn so3_log(q: &UnitQuaternion<f64>) -> Vector3<f64> {
     }
 }
 
-/// SO(3) exponential of a rotation vector [rad].
+/// SO(3) exponential of a rotation vector \[rad\].
 #[must_use]
 pub fn so3_exp(w: &Vector3<f64>) -> UnitQuaternion<f64> {
     UnitQuaternion::from_scaled_axis(*w)
