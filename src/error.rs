@@ -25,6 +25,16 @@ pub enum Error {
     /// A caller-supplied value is out of its documented range.
     #[error("invalid input: {0}")]
     InvalidInput(String),
+    /// Text input (e.g. a g2o pose graph) is malformed at `line` (1-based), in `field`.
+    #[error("line {line}, field {field}: {detail}")]
+    Parse {
+        /// 1-based line number.
+        line: usize,
+        /// The record field that could not be read (e.g. `qw`, `info[3]`).
+        field: String,
+        /// What is wrong.
+        detail: String,
+    },
 }
 
 /// `Result` with [`Error`].

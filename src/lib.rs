@@ -2,7 +2,8 @@
 //! Zhang & Chen).
 //!
 //! The core is pure: [`ransac`] (samplers, estimators, the consensus loop) and
-//! [`correspondence`] (ranking metrics) take slices and nalgebra types; [`io`] reads files;
+//! [`correspondence`] (ranking metrics) and [`graph`] (robust pose-graph optimisation for loop
+//! closure) take slices and nalgebra types; [`io`] reads files;
 //! [`cli`] maps the command line onto them.
 #![warn(missing_docs)]
 
@@ -12,6 +13,7 @@ pub mod error;
 pub mod features;
 pub mod fuzzing;
 pub mod geometry;
+pub mod graph;
 mod hash;
 pub mod heap;
 pub mod io;
