@@ -6,6 +6,7 @@
 //!
 //! ```text
 //! cargo run --example loop_descriptors [-- <data dir, default /work/shared/data>]
+//! MIREG_FEATURE_POINTS=8000 cargo run --example loop_descriptors   # a finer feature cloud
 //! ```
 //!
 //! Data: `<data>/mulran_kaist03_keyframes` (21 Ouster scans, PCD + KITTI poses; skipped with a
@@ -17,8 +18,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use mireg::io::cloud_file::read_points;
-use mireg::loops::descriptor::total_variation;
-use mireg::loops::{Descriptor, ScanContext};
+use mireg::loops::{CandidateConfig, Descriptor, ScanContext};
 use mireg::pipeline::{
     DEFAULT_FEATURE_POINTS, PairConfig, feature_voxel_for_cloud, prepare_frame, voxel_for_cloud,
     with_feature_voxel,
@@ -30,8 +30,6 @@ struct Frame {
     ours: Descriptor,
     sc_feature: ScanContext,
     sc_raw: ScanContext,
-    /// Histogram of ranges from the sensor origin over the median range (an alternative shape).
-    range: Vec<f32>,
 }
 
 type Metric = (&'static str, fn(&Frame, &Frame) -> f64);
@@ -62,29 +60,14 @@ const METRICS: &[Metric] = &[
     ("fpfh chi2", |a, b| chi2(&a.ours.fpfh, &b.ours.fpfh)),
     ("fpfh cosine", |a, b| cosine(&a.ours.fpfh, &b.ours.fpfh)),
     ("shape L1", |a, b| a.ours.shape_distance(&b.ours)),
-    ("range L1", |a, b| total_variation(&a.range, &b.range)),
-    ("fpfh+shape 0.25", |a, b| a.ours.weighted_distance(&b.ours, 0.25)),
-    ("fpfh+shape 0.5", |a, b| a.ours.distance(&b.ours)),
-    ("fpfh+shape 0.75", |a, b| a.ours.weighted_distance(&b.ours, 0.75)),
-    ("fpfh+range 0.5", |a, b| {
-        0.5 * a.ours.fpfh_distance(&b.ours) + 0.5 * total_variation(&a.range, &b.range)
-    }),
+    ("range L1", |a, b| a.ours.range_distance(&b.ours)),
+    ("fpfh+shape", |a, b| a.ours.weighted_distance(&b.ours, [0.5, 0.5, 0.0])),
+    ("fpfh+range", |a, b| a.ours.weighted_distance(&b.ours, [0.5, 0.0, 0.5])),
+    ("shape+range", |a, b| a.ours.weighted_distance(&b.ours, [0.0, 0.5, 0.5])),
+    ("fpfh+shape+range (Descriptor)", |a, b| a.ours.distance(&b.ours)),
     ("scan context (feature cloud)", |a, b| a.sc_feature.distance(&b.sc_feature)),
     ("scan context (raw scan)", |a, b| a.sc_raw.distance(&b.sc_raw)),
 ];
-
-fn range_histogram(points: &[Point3<f64>]) -> Vec<f32> {
-    let mut r: Vec<f64> = points.iter().map(|p| p.coords.norm()).collect();
-    let mut s = r.clone();
-    let mid = s.len() / 2;
-    let median = *s.select_nth_unstable_by(mid, f64::total_cmp).1;
-    let mut h = vec![0.0f32; 16];
-    for x in r.iter_mut() {
-        let bin = ((*x / median * 16.0 / 3.0) as usize).min(15);
-        h[bin] += 1.0 / points.len() as f32;
-    }
-    h
-}
 
 struct Prepared {
     config: PairConfig,
@@ -99,7 +82,12 @@ impl Prepared {
             icp_fine: false,
             ..PairConfig::default()
         };
-        let fv = feature_voxel_for_cloud(first, voxel, DEFAULT_FEATURE_POINTS)?;
+        // `MIREG_FEATURE_POINTS` overrides the feature-cloud size of `mireg register`.
+        let max_points = std::env::var("MIREG_FEATURE_POINTS")
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(DEFAULT_FEATURE_POINTS);
+        let fv = feature_voxel_for_cloud(first, voxel, max_points)?;
         println!("  voxel {voxel:.3} m, feature voxel {fv:.3} m");
         Ok(Self {
             config: with_feature_voxel(&pair, fv),
@@ -112,7 +100,6 @@ impl Prepared {
             ours: Descriptor::from_prepared(&p),
             sc_feature: ScanContext::new(&p.points),
             sc_raw: ScanContext::new(points),
-            range: range_histogram(&p.points),
         })
     }
 }
@@ -187,6 +174,51 @@ fn retrieval(name: &str, frames: &[Frame], poses: &[Isometry3<f64>], truth: &Tru
             mean(&f),
             f.iter().copied().fold(f64::INFINITY, f64::min),
             right as f64 / total.max(1) as f64
+        );
+    }
+    // The appearance gate of `find_candidates`: a pair passes when its distance is at most
+    // `max_descriptor_distance` and `appearance_ratio` × the median distance from the query to
+    // the database; at the default and at 0.5.
+    let default = CandidateConfig::default();
+    let mut ratios = Vec::new();
+    let mut gates = Vec::new();
+    for &q in &with_truth {
+        let d: Vec<(f64, usize)> =
+            database.iter().map(|&m| (frames[q].ours.distance(&frames[m].ours), m)).collect();
+        let mut sorted: Vec<f64> = d.iter().map(|x| x.0).collect();
+        sorted.sort_by(f64::total_cmp);
+        let median = sorted[sorted.len() / 2];
+        let best_true = d
+            .iter()
+            .filter(|x| truth.overlaps(&poses[q], &poses[x.1]))
+            .map(|x| x.0)
+            .fold(f64::INFINITY, f64::min);
+        ratios.push(best_true / median);
+        gates.push((d, median, best_true, q));
+    }
+    ratios.sort_by(f64::total_cmp);
+    println!(
+        "  Descriptor, best true / median distance over the queries: median {:.3}, max {:.3}",
+        ratios[ratios.len() / 2],
+        ratios[ratios.len() - 1]
+    );
+    for ratio in [default.appearance_ratio, 0.5] {
+        let (mut queries_passing, mut false_passing, mut false_total) = (0, 0, 0);
+        for (d, median, best_true, q) in &gates {
+            let gate = default.max_descriptor_distance.min(ratio * median);
+            queries_passing += usize::from(*best_true <= gate);
+            for &(x, m) in d {
+                if !truth.overlaps(&poses[*q], &poses[m]) {
+                    false_total += 1;
+                    false_passing += usize::from(x <= gate);
+                }
+            }
+        }
+        println!(
+            "  gate <= {} and <= {ratio} x median: passes the best true pair of \
+             {queries_passing}/{} queries and {false_passing}/{false_total} false pairs",
+            default.max_descriptor_distance,
+            with_truth.len()
         );
     }
 }

@@ -51,13 +51,17 @@ fn descriptor_is_invariant_to_yaw_and_other_rotations_of_a_prepared_frame() {
     );
 }
 
-/// A distinct descriptor per index: one-hot FPFH and shape bins, far apart (distance ≥ 0.5).
+/// A distinct descriptor per index: one-hot FPFH and shape bins, far apart (distance ≥ 1/3).
 fn distinct(k: usize) -> Descriptor {
     let mut fpfh = [0.0f32; FPFH_BINS];
     let mut shape = [0.0f32; SHAPE_BINS];
     fpfh[k % FPFH_BINS] = 1.0;
     shape[(k / FPFH_BINS) % SHAPE_BINS] = 1.0;
-    Descriptor { fpfh, shape }
+    Descriptor {
+        fpfh,
+        shape,
+        range: [0.0; SHAPE_BINS],
+    }
 }
 
 /// Keyframes `frame = 10 · k` at `positions`, each with `descriptors[k]`.
@@ -144,7 +148,7 @@ fn appearance_finds_a_revisit_whose_odometry_is_metres_off() {
     let c = found[0];
     assert_eq!((c.query, c.matched, c.by), (55, 5, Source::Appearance));
     assert!((c.odometry_distance_m - 50.0).abs() < 1e-9);
-    assert!((c.descriptor_distance - 0.015).abs() < 1e-6);
+    assert!((c.descriptor_distance - 0.01).abs() < 1e-6);
 }
 
 /// Five laps of a 30 m circle (a keyframe per metre), every keyframe of a place alike.

@@ -83,7 +83,7 @@ pub struct CandidateConfig {
     pub max_descriptor_distance: f64,
     /// Appearance candidates need a descriptor distance at most this fraction of the median
     /// distance from the query to all eligible earlier keyframes: a match must stand out from
-    /// the log's typical keyframe. 1 turns the test off. Default 0.5.
+    /// the log's typical keyframe. 1 turns the test off. Default 0.7.
     ///
     /// NOTE: Lowe's ratio test compares the best with the second best; a place seen several
     /// times has several good matches, so the reference here is the median instead.
@@ -106,7 +106,7 @@ impl Default for CandidateConfig {
             max_place_per_query: 3,
             appearance_k: 3,
             max_descriptor_distance: DEFAULT_MAX_DESCRIPTOR_DISTANCE,
-            appearance_ratio: 0.5,
+            appearance_ratio: 0.7,
             max_per_query: 5,
         }
     }

@@ -2,41 +2,43 @@
 //! [`crate::pipeline::prepare_frame`] already computed: the feature cloud (sensor frame) and its
 //! FPFH.
 //!
-//! [`Descriptor`] holds two histograms (49 `f32`, 196 bytes of state per keyframe):
+//! [`Descriptor`] holds three histograms (65 `f32`, 260 bytes of state per keyframe):
 //! - the *global FPFH signature*: the mean over the feature cloud of each point's FPFH divided by
 //!   its own mass, [`FPFH_BINS`] = 33 bins summing to 1;
 //! - a *shape histogram*: the distances of the feature points to their centroid divided by their
-//!   median, binned into [`SHAPE_BINS`] bins over `[0, SHAPE_MAX_RELATIVE_DISTANCE)` (the last bin
-//!   takes the rest), summing to 1.
+//!   median, [`SHAPE_BINS`] bins over `[0, MAX_RELATIVE_DISTANCE)` medians (the last bin takes
+//!   the rest), summing to 1;
+//! - a *range histogram*: the same for the distances to the sensor origin.
 //!
-//! Both are invariant to any rotation of the cloud about any axis, up to voxel-grid effects: FPFH
-//! pair features are rotation invariant and the pipeline orients normals towards the centroid
-//! ([`crate::pipeline::PairConfig::orient_to_centroid`]), and centroid distances are invariant by
-//! construction. No up axis is needed, so RGB-D logs without one (ICL-NUIM) work as LiDAR logs
-//! do. The distance is a weighted total variation (half the L1 distance) of the two histograms,
-//! in `[0, 1]`: see [`Descriptor::distance`].
+//! All three are invariant to any rotation of the cloud about the sensor origin, about any axis,
+//! up to voxel-grid effects: FPFH pair features are rotation invariant and the pipeline orients
+//! normals towards the centroid ([`crate::pipeline::PairConfig::orient_to_centroid`]), and
+//! distances to the centroid or the origin are invariant by construction. No up axis is needed,
+//! so RGB-D logs without one (ICL-NUIM) work as LiDAR logs do. Dividing by the median makes the
+//! two distance histograms independent of the scale of the scene (room or street). The distance
+//! is the mean of the three histograms' total variations (half their L1 distances), in `[0, 1]`:
+//! see [`Descriptor::distance`].
 //!
-//! # Why this one (measured, `cargo run --release --example loop_descriptors`, 2026-12-04)
+//! # Why this one (measured, `cargo run --example loop_descriptors`, 2026-12-04)
 //!
 //! MEASUREMENTS_PLACEHOLDER
 
-use nalgebra::Point3;
+use nalgebra::{Point3, Vector3};
 
 use crate::features::fpfh::{FPFH_BINS, Fpfh};
 use crate::pipeline::PreparedFrame;
 
-/// Bins of the shape histogram.
+/// Bins of the shape and range histograms.
 pub const SHAPE_BINS: usize = 16;
 
-/// Upper end of the shape histogram, in medians of the centroid distance: 3.
-pub const SHAPE_MAX_RELATIVE_DISTANCE: f64 = 3.0;
+/// Upper end of the shape and range histograms, in medians of their distances: 3.
+pub const MAX_RELATIVE_DISTANCE: f64 = 3.0;
 
-/// Weight of the shape histogram in [`Descriptor::distance`] (the FPFH signature gets
-/// `1 − weight`). Default of [`Descriptor::distance`]: 0.5.
-pub const DEFAULT_SHAPE_WEIGHT: f64 = 0.5;
+/// Weights of the FPFH, shape and range distances in [`Descriptor::distance`]: equal.
+pub const DEFAULT_WEIGHTS: [f64; 3] = [1.0 / 3.0; 3];
 
 /// The appearance of one keyframe (see the module docs). Two descriptors of the same place seen
-/// with any sensor rotation are close; the state is 196 bytes.
+/// with any sensor rotation are close; the state is 260 bytes.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Descriptor {
     /// Mean of the frame's FPFH, each divided by its own sum; sums to 1 (all zero when no point
@@ -44,19 +46,28 @@ pub struct Descriptor {
     pub fpfh: [f32; FPFH_BINS],
     /// Histogram of `‖p − centroid‖ / median`, sums to 1 (all zero for an empty cloud).
     pub shape: [f32; SHAPE_BINS],
+    /// Histogram of `‖p‖ / median` (range from the sensor origin), sums to 1 (all zero for an
+    /// empty cloud).
+    pub range: [f32; SHAPE_BINS],
 }
 
 impl Descriptor {
     /// The descriptor of a feature cloud `points` (sensor frame, metres) with one FPFH per point
     /// (`features`, as [`PreparedFrame::features`]). Points whose FPFH is all zero (no neighbour)
-    /// count in the shape histogram only.
+    /// count in the shape and range histograms only.
     ///
     /// Panics if the lengths differ (a programming error).
     pub fn new(points: &[Point3<f64>], features: &[Fpfh]) -> Self {
         assert_eq!(points.len(), features.len(), "one FPFH per point");
+        let centroid = if points.is_empty() {
+            Vector3::zeros()
+        } else {
+            points.iter().fold(Vector3::zeros(), |acc, p| acc + p.coords) / points.len() as f64
+        };
         Self {
             fpfh: fpfh_signature(features),
-            shape: shape_histogram(points),
+            shape: relative_distance_histogram(points, &centroid),
+            range: relative_distance_histogram(points, &Vector3::zeros()),
         }
     }
 
@@ -65,16 +76,18 @@ impl Descriptor {
         Self::new(&frame.points, &frame.features)
     }
 
-    /// Distance in `[0, 1]`: [`Self::weighted_distance`] with the default shape weight
-    /// [`DEFAULT_SHAPE_WEIGHT`].
+    /// Distance in `[0, 1]`: [`Self::weighted_distance`] with [`DEFAULT_WEIGHTS`] (the mean of
+    /// the three total variations).
     pub fn distance(&self, other: &Self) -> f64 {
-        self.weighted_distance(other, DEFAULT_SHAPE_WEIGHT)
+        self.weighted_distance(other, DEFAULT_WEIGHTS)
     }
 
-    /// `(1 − shape_weight) · TV(fpfh) + shape_weight · TV(shape)`, with TV the total variation
-    /// (half the L1 distance) of two histograms; in `[0, 1]` for `shape_weight` in `[0, 1]`.
-    pub fn weighted_distance(&self, other: &Self, shape_weight: f64) -> f64 {
-        (1.0 - shape_weight) * self.fpfh_distance(other) + shape_weight * self.shape_distance(other)
+    /// `w[0] · TV(fpfh) + w[1] · TV(shape) + w[2] · TV(range)`, with TV the total variation (half
+    /// the L1 distance) of two histograms; in `[0, 1]` for weights summing to 1.
+    pub fn weighted_distance(&self, other: &Self, w: [f64; 3]) -> f64 {
+        w[0] * self.fpfh_distance(other)
+            + w[1] * self.shape_distance(other)
+            + w[2] * self.range_distance(other)
     }
 
     /// Total variation between the FPFH signatures, in `[0, 1]`.
@@ -85,6 +98,11 @@ impl Descriptor {
     /// Total variation between the shape histograms, in `[0, 1]`.
     pub fn shape_distance(&self, other: &Self) -> f64 {
         total_variation(&self.shape, &other.shape)
+    }
+
+    /// Total variation between the range histograms, in `[0, 1]`.
+    pub fn range_distance(&self, other: &Self) -> f64 {
+        total_variation(&self.range, &other.range)
     }
 }
 
@@ -119,26 +137,21 @@ fn fpfh_signature(features: &[Fpfh]) -> [f32; FPFH_BINS] {
     out
 }
 
-/// Histogram of the centroid distances relative to their median (see the module docs).
-fn shape_histogram(points: &[Point3<f64>]) -> [f32; SHAPE_BINS] {
+/// Histogram of the distances of `points` to `from`, divided by their median (module docs).
+fn relative_distance_histogram(points: &[Point3<f64>], from: &Vector3<f64>) -> [f32; SHAPE_BINS] {
     let mut out = [0.0f32; SHAPE_BINS];
     if points.is_empty() {
         return out;
     }
-    let c = points
-        .iter()
-        .fold(nalgebra::Vector3::zeros(), |acc, p| acc + p.coords)
-        / points.len() as f64;
-    let mut d: Vec<f64> = points.iter().map(|p| (p.coords - c).norm()).collect();
+    let d: Vec<f64> = points.iter().map(|p| (p.coords - from).norm()).collect();
     let mut sorted = d.clone();
     let mid = sorted.len() / 2;
     let median = *sorted.select_nth_unstable_by(mid, f64::total_cmp).1;
     let scale = if median > 0.0 { 1.0 / median } else { 0.0 };
-    let per_bin = SHAPE_BINS as f64 / SHAPE_MAX_RELATIVE_DISTANCE;
+    let per_bin = SHAPE_BINS as f64 / MAX_RELATIVE_DISTANCE;
     let mut counts = [0usize; SHAPE_BINS];
-    for x in d.iter_mut() {
-        let bin = ((*x * scale * per_bin) as usize).min(SHAPE_BINS - 1);
-        counts[bin] += 1;
+    for x in d {
+        counts[((x * scale * per_bin) as usize).min(SHAPE_BINS - 1)] += 1;
     }
     for (o, n) in out.iter_mut().zip(counts) {
         *o = (n as f64 / points.len() as f64) as f32;
@@ -165,15 +178,17 @@ mod tests {
         let sum = |h: &[f32]| h.iter().map(|&x| f64::from(x)).sum::<f64>();
         assert!((sum(&d.fpfh) - 1.0).abs() < 1e-5);
         assert!((sum(&d.shape) - 1.0).abs() < 1e-5);
+        assert!((sum(&d.range) - 1.0).abs() < 1e-5);
         assert_eq!(d.distance(&d), 0.0);
         let mut e = d;
         e.fpfh = [0.0; FPFH_BINS];
         e.fpfh[0] = 1.0;
         let tv = d.fpfh_distance(&e);
         assert!(tv > 0.0 && tv <= 1.0);
-        assert!((d.weighted_distance(&e, 0.0) - tv).abs() < 1e-12);
-        assert!((d.distance(&e) - 0.5 * tv).abs() < 1e-12);
+        assert!((d.weighted_distance(&e, [1.0, 0.0, 0.0]) - tv).abs() < 1e-12);
+        assert!((d.distance(&e) - tv / 3.0).abs() < 1e-12);
         let empty = Descriptor::new(&[], &[]);
         assert_eq!(empty.shape, [0.0; SHAPE_BINS]);
+        assert_eq!(empty.range, [0.0; SHAPE_BINS]);
     }
 }
