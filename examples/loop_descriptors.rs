@@ -50,7 +50,11 @@ fn chi2(a: &[f32], b: &[f32]) -> f64 {
 }
 
 fn cosine(a: &[f32], b: &[f32]) -> f64 {
-    let dot: f64 = a.iter().zip(b).map(|(&x, &y)| f64::from(x) * f64::from(y)).sum();
+    let dot: f64 = a
+        .iter()
+        .zip(b)
+        .map(|(&x, &y)| f64::from(x) * f64::from(y))
+        .sum();
     let n = |v: &[f32]| v.iter().map(|&x| f64::from(x).powi(2)).sum::<f64>().sqrt();
     1.0 - dot / (n(a) * n(b)).max(1e-300)
 }
@@ -61,12 +65,24 @@ const METRICS: &[Metric] = &[
     ("fpfh cosine", |a, b| cosine(&a.ours.fpfh, &b.ours.fpfh)),
     ("shape L1", |a, b| a.ours.shape_distance(&b.ours)),
     ("range L1", |a, b| a.ours.range_distance(&b.ours)),
-    ("fpfh+shape", |a, b| a.ours.weighted_distance(&b.ours, [0.5, 0.5, 0.0])),
-    ("fpfh+range", |a, b| a.ours.weighted_distance(&b.ours, [0.5, 0.0, 0.5])),
-    ("shape+range", |a, b| a.ours.weighted_distance(&b.ours, [0.0, 0.5, 0.5])),
-    ("fpfh+shape+range (Descriptor)", |a, b| a.ours.distance(&b.ours)),
-    ("scan context (feature cloud)", |a, b| a.sc_feature.distance(&b.sc_feature)),
-    ("scan context (raw scan)", |a, b| a.sc_raw.distance(&b.sc_raw)),
+    ("fpfh+shape", |a, b| {
+        a.ours.weighted_distance(&b.ours, [0.5, 0.5, 0.0])
+    }),
+    ("fpfh+range", |a, b| {
+        a.ours.weighted_distance(&b.ours, [0.5, 0.0, 0.5])
+    }),
+    ("shape+range", |a, b| {
+        a.ours.weighted_distance(&b.ours, [0.0, 0.5, 0.5])
+    }),
+    ("fpfh+shape+range (Descriptor)", |a, b| {
+        a.ours.distance(&b.ours)
+    }),
+    ("scan context (feature cloud)", |a, b| {
+        a.sc_feature.distance(&b.sc_feature)
+    }),
+    ("scan context (raw scan)", |a, b| {
+        a.sc_raw.distance(&b.sc_raw)
+    }),
 ];
 
 struct Prepared {
@@ -125,11 +141,20 @@ fn retrieval(name: &str, frames: &[Frame], poses: &[Isometry3<f64>], truth: &Tru
     let with_truth: Vec<usize> = queries
         .iter()
         .copied()
-        .filter(|&q| database.iter().any(|&m| truth.overlaps(&poses[q], &poses[m])))
+        .filter(|&q| {
+            database
+                .iter()
+                .any(|&m| truth.overlaps(&poses[q], &poses[m]))
+        })
         .collect();
     let pairs_true: usize = with_truth
         .iter()
-        .map(|&q| database.iter().filter(|&&m| truth.overlaps(&poses[q], &poses[m])).count())
+        .map(|&q| {
+            database
+                .iter()
+                .filter(|&&m| truth.overlaps(&poses[q], &poses[m]))
+                .count()
+        })
         .sum();
     println!(
         "\n{name}: {} queries (odd frames) with a true match among {} even frames \
@@ -148,8 +173,10 @@ fn retrieval(name: &str, frames: &[Frame], poses: &[Isometry3<f64>], truth: &Tru
         let (mut t, mut f) = (Vec::new(), Vec::new());
         let (mut right, mut total) = (0usize, 0usize);
         for &q in &with_truth {
-            let mut ranked: Vec<(f64, usize)> =
-                database.iter().map(|&m| (metric(&frames[q], &frames[m]), m)).collect();
+            let mut ranked: Vec<(f64, usize)> = database
+                .iter()
+                .map(|&m| (metric(&frames[q], &frames[m]), m))
+                .collect();
             ranked.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
             let is_true = |m: usize| truth.overlaps(&poses[q], &poses[m]);
             r1 += usize::from(is_true(ranked[0].1));
@@ -183,8 +210,10 @@ fn retrieval(name: &str, frames: &[Frame], poses: &[Isometry3<f64>], truth: &Tru
     let mut ratios = Vec::new();
     let mut gates = Vec::new();
     for &q in &with_truth {
-        let d: Vec<(f64, usize)> =
-            database.iter().map(|&m| (frames[q].ours.distance(&frames[m].ours), m)).collect();
+        let d: Vec<(f64, usize)> = database
+            .iter()
+            .map(|&m| (frames[q].ours.distance(&frames[m].ours), m))
+            .collect();
         let mut sorted: Vec<f64> = d.iter().map(|x| x.0).collect();
         sorted.sort_by(f64::total_cmp);
         let median = sorted[sorted.len() / 2];
@@ -241,7 +270,10 @@ fn invariance(prep: &Prepared, points: &[Point3<f64>], neighbour: &Frame) -> Res
         ("pitch 90°", rotation(Vector3::y(), 90.0)),
         ("(1,2,3) 120°", rotation(Vector3::new(1.0, 2.0, 3.0), 120.0)),
     ];
-    print!("\n  invariance: distance to the unrotated scan\n  {:<30}", "descriptor");
+    print!(
+        "\n  invariance: distance to the unrotated scan\n  {:<30}",
+        "descriptor"
+    );
     for (name, _) in &cases {
         print!(" {name:>12}");
     }
@@ -267,7 +299,10 @@ fn kaist03(dir: &Path) -> Result<()> {
         .map(|k| read_points(&dir.join(format!("Scans/{k:06}.pcd"))))
         .collect::<mireg::Result<_>>()?;
     let prep = Prepared::new(&clouds[0])?;
-    let frames: Vec<Frame> = clouds.iter().map(|c| prep.frame(c)).collect::<Result<_>>()?;
+    let frames: Vec<Frame> = clouds
+        .iter()
+        .map(|c| prep.frame(c))
+        .collect::<Result<_>>()?;
     let truth = Truth {
         max_distance_m: 2.0,
         max_angle_deg: 180.0,
@@ -283,12 +318,21 @@ fn kaist03(dir: &Path) -> Result<()> {
                 if k % 2 == 0 {
                     return prep.frame(c);
                 }
-                let deg = if label.starts_with("yaw") { 37.0 * k as f64 } else { 90.0 };
+                let deg = if label.starts_with("yaw") {
+                    37.0 * k as f64
+                } else {
+                    90.0
+                };
                 let r = rotation(axis, deg);
                 prep.frame(&c.iter().map(|p| r * p).collect::<Vec<_>>())
             })
             .collect::<Result<_>>()?;
-        retrieval(&format!("KAIST03, queries rotated {label}"), &turned, &poses, &truth);
+        retrieval(
+            &format!("KAIST03, queries rotated {label}"),
+            &turned,
+            &poses,
+            &truth,
+        );
     }
     invariance(&prep, &clouds[0], &frames[1])
 }
@@ -296,8 +340,12 @@ fn kaist03(dir: &Path) -> Result<()> {
 fn icl(path: &Path) -> Result<()> {
     println!("\nICL-NUIM livingroom1 ({})", path.display());
     let reference = mireg::trajectory::read_mcap_pose_topic(path, "/ground_truth/pose")?;
-    let by_stamp: HashMap<i64, Isometry3<f64>> =
-        reference.stamps_ns.iter().copied().zip(reference.poses.iter().copied()).collect();
+    let by_stamp: HashMap<i64, Isometry3<f64>> = reference
+        .stamps_ns
+        .iter()
+        .copied()
+        .zip(reference.poses.iter().copied())
+        .collect();
     let mut clouds = Vec::new();
     let mut poses = Vec::new();
     mireg::register::for_each_cloud(path, Some("/camera/depth/points"), |_, cloud| {
@@ -309,7 +357,10 @@ fn icl(path: &Path) -> Result<()> {
     })?;
     println!("  {} clouds with a reference pose", clouds.len());
     let prep = Prepared::new(&clouds[0])?;
-    let frames: Vec<Frame> = clouds.iter().map(|c| prep.frame(c)).collect::<Result<_>>()?;
+    let frames: Vec<Frame> = clouds
+        .iter()
+        .map(|c| prep.frame(c))
+        .collect::<Result<_>>()?;
     for truth in [
         Truth {
             max_distance_m: 0.3,

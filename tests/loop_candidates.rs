@@ -158,7 +158,8 @@ fn laps() -> Vec<Keyframe> {
         .map(|k| {
             let a = std::f64::consts::TAU * (k % 30) as f64 / 30.0;
             let r = 30.0 / std::f64::consts::TAU;
-            Vector3::new(r * a.cos(), r * a.sin(), 0.0) + Vector3::repeat(rng.random_range(-0.05..0.05))
+            Vector3::new(r * a.cos(), r * a.sin(), 0.0)
+                + Vector3::repeat(rng.random_range(-0.05..0.05))
         })
         .collect();
     let descriptors: Vec<_> = (0..150)
@@ -197,7 +198,10 @@ fn candidates_are_bounded_unique_earlier_and_deterministic() {
             .any(|c| c.query == 140 && c.matched % 30 == 20 && c.by == Source::Both)
     );
     // One thread or many, the same list.
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
     let single: Vec<Candidate> = pool.install(|| find_candidates(&kf, &config).unwrap());
     assert_eq!(single, found);
     assert_eq!(find_candidates(&kf, &config).unwrap(), found);
@@ -214,7 +218,11 @@ fn bad_knobs_and_keyframes_out_of_order_are_errors() {
     let mut swapped = kf.clone();
     swapped.swap(3, 4);
     assert!(find_candidates(&swapped, &CandidateConfig::default()).is_err());
-    assert!(find_candidates(&[], &CandidateConfig::default()).unwrap().is_empty());
+    assert!(
+        find_candidates(&[], &CandidateConfig::default())
+            .unwrap()
+            .is_empty()
+    );
 }
 
 #[test]
@@ -225,7 +233,8 @@ fn keyframe_selector_on_a_known_path() {
         poses.push(Isometry3::translation(0.3 * k as f64, 0.0, 0.0));
     }
     for k in 1..=6 {
-        let r = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), f64::to_radians(4.0 * k as f64));
+        let r =
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), f64::to_radians(4.0 * k as f64));
         poses.push(Isometry3::from_parts(Translation3::new(2.7, 0.0, 0.0), r));
     }
     let travelled = path_distances(&poses);

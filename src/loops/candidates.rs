@@ -157,8 +157,11 @@ impl CandidateConfig {
 /// non-finite position or path length.
 pub fn find_candidates(keyframes: &[Keyframe], config: &CandidateConfig) -> Result<Vec<Candidate>> {
     config.check()?;
+    if keyframes.iter().any(|k| !k.travelled_m.is_finite()) {
+        return Err(Error::InvalidInput("non-finite travelled_m".into()));
+    }
     for (k, w) in keyframes.windows(2).enumerate() {
-        if w[1].frame <= w[0].frame || !(w[1].travelled_m >= w[0].travelled_m) {
+        if w[1].frame <= w[0].frame || w[1].travelled_m < w[0].travelled_m {
             return Err(Error::InvalidInput(format!(
                 "keyframes {k} and {} are out of log order (frames {} → {}, path {} → {} m)",
                 k + 1,
@@ -168,9 +171,6 @@ pub fn find_candidates(keyframes: &[Keyframe], config: &CandidateConfig) -> Resu
                 w[1].travelled_m
             )));
         }
-    }
-    if keyframes.iter().any(|k| !k.travelled_m.is_finite()) {
-        return Err(Error::InvalidInput("non-finite travelled_m".into()));
     }
     let positions: Vec<Point3<f64>> = keyframes
         .iter()
@@ -211,7 +211,11 @@ fn by_place(
     let travelled_q = keyframes[q].travelled_m;
     let radius = config.place_radius_for(travelled_q - keyframes[0].travelled_m);
     // `within_radius` is strict; the test below is inclusive.
-    let ball = tree.within_radius(&positions[q], radius * (1.0 + 1e-12) + 1e-12, positions.len());
+    let ball = tree.within_radius(
+        &positions[q],
+        radius * (1.0 + 1e-12) + 1e-12,
+        positions.len(),
+    );
     let mut out: Vec<(usize, f64)> = ball
         .into_iter()
         .filter(|n| n.index < eligible)

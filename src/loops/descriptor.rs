@@ -62,7 +62,10 @@ impl Descriptor {
         let centroid = if points.is_empty() {
             Vector3::zeros()
         } else {
-            points.iter().fold(Vector3::zeros(), |acc, p| acc + p.coords) / points.len() as f64
+            points
+                .iter()
+                .fold(Vector3::zeros(), |acc, p| acc + p.coords)
+                / points.len() as f64
         };
         Self {
             fpfh: fpfh_signature(features),

@@ -42,7 +42,7 @@ impl ScanContext {
         let ring_m = SC_MAX_RANGE_M / SC_RINGS as f64;
         for p in points {
             let r = p.x.hypot(p.y);
-            if !(r < SC_MAX_RANGE_M) {
+            if !r.is_finite() || r >= SC_MAX_RANGE_M {
                 continue;
             }
             let ring = ((r / ring_m) as usize).min(SC_RINGS - 1);
@@ -117,11 +117,11 @@ mod tests {
 
     #[test]
     fn yaw_by_whole_sectors_is_found_by_the_shift() {
-        // Posts of different heights around the origin, well inside the cells.
-        let points: Vec<Point3<f64>> = (0..40)
+        // A post per sector at different ranges and heights, well inside the cells.
+        let points: Vec<Point3<f64>> = (0..60)
             .map(|i| {
                 let a = (f64::from(i) * 6.0 + 3.0).to_radians(); // sector centres
-                let r = 5.0 + f64::from(i % 7) * 7.0;
+                let r = 5.5 + f64::from(i * 37 % 70); // no period, off the 4 m ring edges
                 Point3::new(r * a.cos(), r * a.sin(), f64::from(i % 5) * 0.5)
             })
             .collect();
