@@ -17,6 +17,7 @@ pub mod graph;
 mod hash;
 pub mod heap;
 pub mod io;
+pub mod loops;
 pub mod ransac;
 pub mod refine;
 pub mod simulate;

@@ -1,0 +1,300 @@
+//! Loop candidates over a whole log (offline: every keyframe is known): pairs of keyframes that
+//! may see the same place, found by odometry position ([`Source::Place`]) and by appearance
+//! ([`Source::Appearance`]). They are only candidates: registration and a robust back-end decide.
+//!
+//! Cost for n keyframes: place search builds a kd-tree over the positions (O(n log n)) and
+//! queries one ball per keyframe, of radius at most [`CandidateConfig::max_place_radius_m`];
+//! appearance search compares each keyframe with every earlier one, O(n²) distances of 49
+//! floats (10⁴ keyframes: 5 · 10⁷ distances, a few seconds on one core, parallel over queries).
+
+use nalgebra::{Isometry3, Point3};
+use rayon::prelude::*;
+
+use super::descriptor::Descriptor;
+use crate::geometry::KdTree;
+use crate::{Error, Result};
+
+/// One keyframe of the log.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Keyframe {
+    /// Index of the frame in the log.
+    pub frame: usize,
+    /// Stamp \[ns since the epoch\].
+    pub stamp_ns: u64,
+    /// Odometry `world_from_sensor` (translation in metres).
+    pub pose: Isometry3<f64>,
+    /// Path length from the log's start \[m\] (non-decreasing along the log).
+    pub travelled_m: f64,
+    /// Appearance of the keyframe.
+    pub descriptor: Descriptor,
+}
+
+/// Which search found a candidate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Source {
+    /// Odometry positions close, allowing for drift.
+    Place,
+    /// Descriptors close.
+    Appearance,
+    /// Both searches.
+    Both,
+}
+
+/// A loop candidate: keyframe `query` may see what the earlier keyframe `matched` saw.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Candidate {
+    /// Index of the later keyframe in the slice given to [`find_candidates`].
+    pub query: usize,
+    /// Index of the earlier keyframe (`matched < query`).
+    pub matched: usize,
+    /// The search(es) that found it.
+    pub by: Source,
+    /// Distance between the two odometry positions \[m\].
+    pub odometry_distance_m: f64,
+    /// [`Descriptor::distance`] of the two keyframes.
+    pub descriptor_distance: f64,
+}
+
+/// Knobs of [`find_candidates`]. The defaults fit a vehicle LiDAR log with keyframes about a
+/// metre apart; a room-scale RGB-D log wants radii and separations about ten times smaller.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CandidateConfig {
+    /// Place radius at zero path between the two keyframes \[m\]. Default 3.
+    pub place_radius_m: f64,
+    /// Growth of the place radius per metre of path between the two keyframes \[m/m\]: the
+    /// odometry drift allowed for. Default 0.02 (2 % of the path).
+    pub drift_fraction: f64,
+    /// The place radius stops growing here \[m\]: beyond it, only appearance can find the
+    /// revisit (and the ball queries stay small on long logs). Default 30.
+    pub max_place_radius_m: f64,
+    /// Place candidates need at least this much path between them \[m\], so that a keyframe is
+    /// not matched with its neighbours along the path. Default 20.
+    pub min_path_separation_m: f64,
+    /// Both searches need the two keyframes at least this many log frames apart
+    /// ([`Keyframe::frame`]). Default 50.
+    pub min_frame_separation: usize,
+    /// Place candidates kept per query, nearest in odometry first. Default 3.
+    pub max_place_per_query: usize,
+    /// Appearance candidates kept per query, nearest in descriptor distance first (the k of
+    /// k-nearest). Default 3.
+    pub appearance_k: usize,
+    /// Appearance candidates need a descriptor distance at most this. Default
+    /// [`DEFAULT_MAX_DESCRIPTOR_DISTANCE`].
+    pub max_descriptor_distance: f64,
+    /// Appearance candidates need a descriptor distance at most this fraction of the median
+    /// distance from the query to all eligible earlier keyframes: a match must stand out from
+    /// the log's typical keyframe. 1 turns the test off. Default 0.7.
+    ///
+    /// NOTE: Lowe's ratio test compares the best with the second best; a place seen several
+    /// times has several good matches, so the reference here is the median instead.
+    pub appearance_ratio: f64,
+    /// Candidates kept per query after merging both searches. Default 5.
+    pub max_per_query: usize,
+}
+
+/// Default [`CandidateConfig::max_descriptor_distance`]: 0.1.
+pub const DEFAULT_MAX_DESCRIPTOR_DISTANCE: f64 = 0.1;
+
+impl Default for CandidateConfig {
+    fn default() -> Self {
+        Self {
+            place_radius_m: 3.0,
+            drift_fraction: 0.02,
+            max_place_radius_m: 30.0,
+            min_path_separation_m: 20.0,
+            min_frame_separation: 50,
+            max_place_per_query: 3,
+            appearance_k: 3,
+            max_descriptor_distance: DEFAULT_MAX_DESCRIPTOR_DISTANCE,
+            appearance_ratio: 0.7,
+            max_per_query: 5,
+        }
+    }
+}
+
+impl CandidateConfig {
+    fn check(&self) -> Result<()> {
+        for (name, x) in [
+            ("place_radius_m", self.place_radius_m),
+            ("drift_fraction", self.drift_fraction),
+            ("max_place_radius_m", self.max_place_radius_m),
+            ("min_path_separation_m", self.min_path_separation_m),
+            ("max_descriptor_distance", self.max_descriptor_distance),
+            ("appearance_ratio", self.appearance_ratio),
+        ] {
+            if !(x.is_finite() && x >= 0.0) {
+                return Err(Error::InvalidInput(format!(
+                    "{name} must be finite and >= 0, got {x}"
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// The place radius \[m\] for two keyframes `path_m` of path apart:
+    /// `min(place_radius_m + drift_fraction · path_m, max(place_radius_m, max_place_radius_m))`.
+    pub fn place_radius_for(&self, path_m: f64) -> f64 {
+        (self.place_radius_m + self.drift_fraction * path_m.max(0.0))
+            .min(self.max_place_radius_m.max(self.place_radius_m))
+    }
+}
+
+/// Loop candidates of a whole log. `keyframes` are in log order (`frame` increasing,
+/// `travelled_m` non-decreasing). For each query keyframe q, against earlier keyframes m with
+/// `frame_q − frame_m ≥ min_frame_separation`:
+/// - by place: `‖t_q − t_m‖ ≤` [`CandidateConfig::place_radius_for`]`(travelled_q − travelled_m)`
+///   and `travelled_q − travelled_m ≥ min_path_separation_m`; the `max_place_per_query` nearest;
+/// - by appearance: descriptor distance `≤ max_descriptor_distance` and `≤ appearance_ratio` ×
+///   the median over the eligible m; the `appearance_k` nearest, whatever the odometry says.
+///
+/// A pair found by both is one [`Source::Both`] candidate. Per query the merged list is ranked
+/// `Both` first, then by descriptor distance, then by the earlier `matched`, and cut to
+/// `max_per_query`. The result is ordered by `query`, then by that rank; it does not depend on the
+/// thread count. Ties in distance go to the smaller index.
+///
+/// # Errors
+/// [`Error::InvalidInput`] for a negative or non-finite knob, keyframes out of log order, or a
+/// non-finite position or path length.
+pub fn find_candidates(keyframes: &[Keyframe], config: &CandidateConfig) -> Result<Vec<Candidate>> {
+    config.check()?;
+    if keyframes.iter().any(|k| !k.travelled_m.is_finite()) {
+        return Err(Error::InvalidInput("non-finite travelled_m".into()));
+    }
+    for (k, w) in keyframes.windows(2).enumerate() {
+        if w[1].frame <= w[0].frame || w[1].travelled_m < w[0].travelled_m {
+            return Err(Error::InvalidInput(format!(
+                "keyframes {k} and {} are out of log order (frames {} → {}, path {} → {} m)",
+                k + 1,
+                w[0].frame,
+                w[1].frame,
+                w[0].travelled_m,
+                w[1].travelled_m
+            )));
+        }
+    }
+    let positions: Vec<Point3<f64>> = keyframes
+        .iter()
+        .map(|k| Point3::from(k.pose.translation.vector))
+        .collect();
+    let tree = KdTree::new(&positions)?;
+    let per_query: Vec<Vec<Candidate>> = (0..keyframes.len())
+        .into_par_iter()
+        .map(|q| {
+            let eligible = eligible_count(keyframes, q, config.min_frame_separation);
+            let place = by_place(keyframes, &positions, &tree, q, eligible, config);
+            let appearance = by_appearance(keyframes, q, eligible, config);
+            merge(keyframes, q, &place, &appearance, config.max_per_query)
+        })
+        .collect();
+    Ok(per_query.into_iter().flatten().collect())
+}
+
+/// Number of keyframes before `q` at least `min_frames` log frames earlier (a prefix, since
+/// frames increase).
+fn eligible_count(keyframes: &[Keyframe], q: usize, min_frames: usize) -> usize {
+    let frame_q = keyframes[q].frame;
+    keyframes[..q].partition_point(|k| frame_q - k.frame >= min_frames)
+}
+
+/// `(matched, odometry distance)` of the place candidates of `q`, nearest first.
+fn by_place(
+    keyframes: &[Keyframe],
+    positions: &[Point3<f64>],
+    tree: &KdTree,
+    q: usize,
+    eligible: usize,
+    config: &CandidateConfig,
+) -> Vec<(usize, f64)> {
+    if eligible == 0 || config.max_place_per_query == 0 {
+        return Vec::new();
+    }
+    let travelled_q = keyframes[q].travelled_m;
+    let radius = config.place_radius_for(travelled_q - keyframes[0].travelled_m);
+    // `within_radius` is strict; the test below is inclusive.
+    let ball = tree.within_radius(
+        &positions[q],
+        radius * (1.0 + 1e-12) + 1e-12,
+        positions.len(),
+    );
+    let mut out: Vec<(usize, f64)> = ball
+        .into_iter()
+        .filter(|n| n.index < eligible)
+        .filter_map(|n| {
+            let path = travelled_q - keyframes[n.index].travelled_m;
+            let d = n.distance_sq.sqrt();
+            (path >= config.min_path_separation_m && d <= config.place_radius_for(path))
+                .then_some((n.index, d))
+        })
+        .collect();
+    // The tree sorts by distance with ties by index; keep that order.
+    out.truncate(config.max_place_per_query);
+    out
+}
+
+/// `(matched, descriptor distance)` of the appearance candidates of `q`, nearest first.
+fn by_appearance(
+    keyframes: &[Keyframe],
+    q: usize,
+    eligible: usize,
+    config: &CandidateConfig,
+) -> Vec<(usize, f64)> {
+    if eligible == 0 || config.appearance_k == 0 {
+        return Vec::new();
+    }
+    let dq = &keyframes[q].descriptor;
+    let mut all: Vec<(usize, f64)> = keyframes[..eligible]
+        .iter()
+        .enumerate()
+        .map(|(m, k)| (m, dq.distance(&k.descriptor)))
+        .collect();
+    let mut distances: Vec<f64> = all.iter().map(|&(_, d)| d).collect();
+    let mid = distances.len() / 2;
+    let median = *distances.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let limit = config
+        .max_descriptor_distance
+        .min(config.appearance_ratio * median);
+    all.retain(|&(_, d)| d <= limit);
+    all.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+    all.truncate(config.appearance_k);
+    all
+}
+
+fn merge(
+    keyframes: &[Keyframe],
+    q: usize,
+    place: &[(usize, f64)],
+    appearance: &[(usize, f64)],
+    max_per_query: usize,
+) -> Vec<Candidate> {
+    let kq = &keyframes[q];
+    let make = |m: usize, by: Source| {
+        let km = &keyframes[m];
+        Candidate {
+            query: q,
+            matched: m,
+            by,
+            odometry_distance_m: (kq.pose.translation.vector - km.pose.translation.vector).norm(),
+            descriptor_distance: kq.descriptor.distance(&km.descriptor),
+        }
+    };
+    let mut out: Vec<Candidate> = place
+        .iter()
+        .map(|&(m, _)| {
+            let both = appearance.iter().any(|&(a, _)| a == m);
+            make(m, if both { Source::Both } else { Source::Place })
+        })
+        .collect();
+    for &(m, _) in appearance {
+        if !place.iter().any(|&(p, _)| p == m) {
+            out.push(make(m, Source::Appearance));
+        }
+    }
+    out.sort_by(|a, b| {
+        (b.by == Source::Both)
+            .cmp(&(a.by == Source::Both))
+            .then(a.descriptor_distance.total_cmp(&b.descriptor_distance))
+            .then(a.matched.cmp(&b.matched))
+    });
+    out.truncate(max_per_query);
+    out
+}
