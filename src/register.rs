@@ -8,6 +8,7 @@
 //! thread ([`registrar`]) registers frame `k` against the local map. Memory is bounded by one
 //! chunk plus the queue capacity, whatever the log length.
 
+mod closure;
 mod clouds;
 mod frames;
 mod motions;
@@ -20,11 +21,12 @@ mod stitch;
 mod window;
 mod writer;
 
+pub use closure::LoopSummary;
 use clouds::CloudKind;
 pub use clouds::{for_each_cloud, point_cloud_topic};
 pub use motions::{DeskewMode, OutputMessages};
 use output::Outputs;
-pub use output::stats_json_schema;
+pub use output::{loops_json_schema, stats_json_schema};
 use plan::Plan;
 use prepare::Prepare;
 pub use stitch::{Seam, StitchSummary, stitch};
@@ -37,6 +39,7 @@ use std::time::Instant;
 
 use crate::io::atomic_file::same_file;
 use crate::io::mcap::log::OutputLog;
+use crate::loops::LoopConfig;
 use crate::odometry::{Odometry, OdometryConfig};
 use crate::{Error, Result};
 
@@ -94,6 +97,12 @@ pub struct RegisterOptions {
     /// Copy only the input messages whose log time lies in the segment (`--copy-window`),
     /// instead of the whole log. Default `false`.
     pub copy_window_only: bool,
+    /// Close loops after the odometry ([`closure`]): `/mireg/loops`, `/mireg/pose_optimized`
+    /// and its `/tf` variant. Default `true` (`--no-loops` turns it off).
+    pub loops: bool,
+    /// Loop-closure settings; `None`: [`LoopConfig::for_voxel`] of the run's voxel. Default
+    /// `None`.
+    pub loop_config: Option<LoopConfig>,
 }
 
 impl RegisterOptions {
@@ -118,6 +127,8 @@ impl RegisterOptions {
             start: None,
             end: None,
             copy_window_only: false,
+            loops: true,
+            loop_config: None,
         }
     }
 }
@@ -183,12 +194,18 @@ pub struct RegisterSummary {
     pub elapsed_s: f64,
     /// Frames per second (wall clock).
     pub frames_per_s: f64,
-    /// Errors against the reference pose topic, when the log has one.
+    /// Errors against the reference pose topic, when the log has one (the odometry's).
     pub reference: Option<ReferenceErrors>,
+    /// Topic of the optimised poses (`/mireg/pose_optimized`), when loop closure ran.
+    pub pose_optimized_topic: Option<String>,
+    /// What loop closure did, when it ran.
+    pub loops: Option<LoopSummary>,
+    /// The optimised trajectory's errors against the reference, when both exist.
+    pub reference_optimized: Option<ReferenceErrors>,
 }
 
 /// Runs the whole job: the stages [`plan`] → [`reader`] → [`prepare`] → [`registrar`] →
-/// [`writer`] (docs/ARCHITECTURE.md). On any error the output path is left untouched.
+/// [`writer`], then loop closure ([`closure`]) over the whole trajectory (docs/ARCHITECTURE.md). On any error the output path is left untouched.
 pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     let start = Instant::now();
     if same_file(&opts.input, &opts.output) {
@@ -209,13 +226,14 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         OutputMessages::Ros1 => CloudKind::Ros1,
         OutputMessages::Foxglove => CloudKind::Foxglove,
     };
-    let outputs = Outputs::create(&mut log, family, &plan.topics)?;
+    let outputs = Outputs::create(&mut log, family, &plan.topics, opts.loops)?;
     let mut writer = Writer::new(outputs, &opts.world_frame, opts.progress, plan.total_frames);
     let prepare = Prepare {
         plan: &plan,
         input: &opts.input,
         max_points: opts.max_points_per_cloud,
         deskew_mode: opts.deskew,
+        descriptors: opts.loops,
     };
 
     let copied = std::thread::scope(|scope| -> Result<u64> {
@@ -244,5 +262,14 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         );
         writer.drain(&mut log, out_rx, read)
     })?;
-    writer.finish(log, plan, opts, copied, start)
+    let loops = if opts.loops {
+        let config = opts
+            .loop_config
+            .unwrap_or_else(|| LoopConfig::for_voxel(plan.voxel_m));
+        let outcome = closure::close_loops(&plan, opts, &writer.estimates, &config)?;
+        Some((outcome, config))
+    } else {
+        None
+    };
+    writer.finish(log, plan, opts, copied, start, loops)
 }

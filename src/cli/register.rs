@@ -81,6 +81,11 @@ pub struct RegisterArgs {
     /// its order; a cloud later out of order than this is an error.
     #[arg(long, value_name = "N", default_value_t = crate::register::REORDER_WINDOW)]
     pub reorder_window: usize,
+    /// Skip loop closure: no /mireg/loops, no /mireg/pose_optimized (the odometry alone, as
+    /// /mireg/pose always is). On by default: candidates by place and appearance, verified by
+    /// MI-RANSAC + ICP, then a robust pose graph (docs/LOOPS.md).
+    #[arg(long)]
+    pub no_loops: bool,
     /// Replace an existing output file.
     #[arg(long)]
     pub force: bool,
@@ -133,6 +138,8 @@ pub(super) fn run_register(args: &RegisterArgs) -> Result<()> {
         start: args.start,
         end: args.end,
         copy_window_only: args.copy_window,
+        loops: !args.no_loops,
+        loop_config: None,
     };
     if opts.copy_window_only && opts.start.is_none() && opts.end.is_none() {
         return Err(crate::Error::InvalidInput(
@@ -211,10 +218,26 @@ fn print_summary(s: &RegisterSummary) {
         s.tf_topic,
         s.pose_topic
     );
-    if let Some(r) = &s.reference {
+    if let Some(l) = &s.loops {
         println!(
-            "vs {} ({} frames): ATE RMSE {:.4} m, RPE mean {:.4} m / {:.3} deg per frame",
-            r.topic, r.frames, r.ate_rmse_m, r.rpe_trans_mean_m, r.rpe_rot_mean_deg
+            "loops: {} keyframes, {} candidates tried, {} accepted ({} down-weighted by the pose graph), {:.2} s; optimised poses on {}",
+            l.keyframes,
+            l.candidates,
+            l.accepted,
+            l.down_weighted,
+            l.elapsed_s,
+            s.pose_optimized_topic.as_deref().unwrap_or("-")
         );
+    }
+    for (what, r) in [
+        ("odometry", &s.reference),
+        ("optimised", &s.reference_optimized),
+    ] {
+        if let Some(r) = r {
+            println!(
+                "{what} vs {} ({} frames): ATE RMSE {:.4} m, RPE mean {:.4} m / {:.3} deg per frame",
+                r.topic, r.frames, r.ate_rmse_m, r.rpe_trans_mean_m, r.rpe_rot_mean_deg
+            );
+        }
     }
 }

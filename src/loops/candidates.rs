@@ -57,7 +57,7 @@ pub struct Candidate {
 
 /// Knobs of [`find_candidates`]. The defaults fit a vehicle LiDAR log with keyframes about a
 /// metre apart; a room-scale RGB-D log wants radii and separations about ten times smaller.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct CandidateConfig {
     /// Place radius at zero path between the two keyframes \[m\]. Default 3.
     pub place_radius_m: f64,

@@ -5,7 +5,7 @@ use nalgebra::Isometry3;
 use crate::{Error, Result};
 
 /// When a frame becomes a keyframe.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct KeyframeConfig {
     /// Path length since the previous keyframe that makes a new one \[m\]. Default
     /// [`DEFAULT_KEYFRAME_DISTANCE_M`] (1 m).

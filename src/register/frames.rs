@@ -1,7 +1,10 @@
 //! What the stages of `mireg register` hand each other: a cloud message (reader → prepare), a
 //! prepared frame (prepare → registrar), a registered frame (registrar → writer).
 
+use nalgebra::Isometry3;
+
 use crate::io::codec;
+use crate::loops::Descriptor;
 use crate::odometry::FrameEstimate;
 use crate::pipeline::{FailureReason, FrameTimings, PreparedFrame};
 
@@ -19,6 +22,10 @@ pub(super) struct PreparedMsg {
     /// The cloud's time field, and whether its points were deskewed by it.
     pub(super) time_field: Option<String>,
     pub(super) deskewed: bool,
+    /// The motion (`prev_from_curr`, seconds) the cloud was deskewed by, if it was.
+    pub(super) deskew_motion: Option<(Isometry3<f64>, f64)>,
+    /// The frame's appearance descriptor, when loop closure is on and the frame has features.
+    pub(super) descriptor: Option<Descriptor>,
     /// Points dropped by the decoder: non-finite, and zero returns of an organised cloud.
     pub(super) dropped: Dropped,
     pub(super) log_time: u64,
@@ -40,6 +47,10 @@ pub(super) struct FrameOut {
     pub(super) invalid: Option<(FailureReason, String)>,
     pub(super) time_field: Option<String>,
     pub(super) deskewed: bool,
+    /// The motion (`prev_from_curr`, seconds) the cloud was deskewed by, if it was.
+    pub(super) deskew_motion: Option<(Isometry3<f64>, f64)>,
+    /// The frame's appearance descriptor, when loop closure is on and the frame has features.
+    pub(super) descriptor: Option<Descriptor>,
     pub(super) dropped: Dropped,
     pub(super) log_time: u64,
     pub(super) publish_time: u64,

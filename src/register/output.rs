@@ -110,6 +110,10 @@ pub(super) struct Topics {
     pub(super) tf: String,
     pub(super) pose: String,
     pub(super) stats: String,
+    /// Loop closure's: the optimised poses, their transforms, the candidates tried.
+    pub(super) pose_optimized: String,
+    pub(super) tf_optimized: String,
+    pub(super) loops: String,
 }
 
 impl Topics {
@@ -124,6 +128,9 @@ impl Topics {
             tf,
             pose: format!("{namespace}/pose"),
             stats: format!("{namespace}/stats"),
+            pose_optimized: format!("{namespace}/pose_optimized"),
+            tf_optimized: format!("{namespace}/tf_optimized"),
+            loops: format!("{namespace}/loops"),
         }
     }
 }
@@ -133,83 +140,29 @@ pub(super) struct Outputs {
     tf: u16,
     pose: u16,
     stats: u16,
+    /// Loop closure's channels, when it runs.
+    pub(super) loops: Option<LoopChannels>,
+}
+
+/// The channels of loop closure: the optimised trajectory (`/tf` variant and poses) and the
+/// candidates tried.
+pub(super) struct LoopChannels {
+    tf: u16,
+    pose: u16,
+    loops: u16,
 }
 
 impl Outputs {
     /// Registers our channels in the input's message family: ROS 2 messages for ROS 2 inputs,
     /// ROS 1 messages (with the ROS 1 profile's channel metadata) for ROS 1 inputs, foxglove
     /// protobuf messages for foxglove inputs.
-    pub(super) fn create(log: &mut OutputLog, kind: CloudKind, topics: &Topics) -> Result<Self> {
-        let (tf_topic, pose_topic) = (&topics.tf, &topics.pose);
-        let (tf, pose) = match kind {
-            CloudKind::Ros2 => (
-                log.add_channel(
-                    tf_topic,
-                    cdr::TF_MESSAGE_SCHEMA_NAME,
-                    cdr::SCHEMA_ENCODING,
-                    cdr::TF_MESSAGE_SCHEMA.as_bytes(),
-                    cdr::MESSAGE_ENCODING,
-                )?,
-                log.add_channel(
-                    pose_topic,
-                    cdr::POSE_STAMPED_SCHEMA_NAME,
-                    cdr::SCHEMA_ENCODING,
-                    cdr::POSE_STAMPED_SCHEMA.as_bytes(),
-                    cdr::MESSAGE_ENCODING,
-                )?,
-            ),
-            CloudKind::Ros1 => {
-                // The channel metadata the ROS 1 profile (and `mcap convert` from a bag) writes.
-                let meta = |topic: &str, md5: &str| {
-                    BTreeMap::from([
-                        ("callerid".to_string(), ROS1_CALLERID.to_string()),
-                        ("latching".to_string(), "0".to_string()),
-                        ("md5sum".to_string(), md5.to_string()),
-                        ("topic".to_string(), topic.to_string()),
-                    ])
-                };
-                (
-                    log.add_channel_with_metadata(
-                        tf_topic,
-                        ros1::TF_MESSAGE_SCHEMA_NAME,
-                        ros1::SCHEMA_ENCODING,
-                        ros1::TF_MESSAGE_SCHEMA.as_bytes(),
-                        ros1::MESSAGE_ENCODING,
-                        meta(tf_topic, ros1::TF_MESSAGE_MD5),
-                    )?,
-                    log.add_channel_with_metadata(
-                        pose_topic,
-                        ros1::POSE_STAMPED_SCHEMA_NAME,
-                        ros1::SCHEMA_ENCODING,
-                        ros1::POSE_STAMPED_SCHEMA.as_bytes(),
-                        ros1::MESSAGE_ENCODING,
-                        meta(pose_topic, ros1::POSE_STAMPED_MD5),
-                    )?,
-                )
-            }
-            CloudKind::Foxglove => {
-                let (t, p) = (
-                    foxglove::frame_transforms_schema(),
-                    foxglove::pose_in_frame_schema(),
-                );
-                (
-                    log.add_channel(
-                        tf_topic,
-                        &t.name,
-                        &t.encoding,
-                        &t.data,
-                        foxglove::MESSAGE_ENCODING,
-                    )?,
-                    log.add_channel(
-                        pose_topic,
-                        &p.name,
-                        &p.encoding,
-                        &p.data,
-                        foxglove::MESSAGE_ENCODING,
-                    )?,
-                )
-            }
-        };
+    pub(super) fn create(
+        log: &mut OutputLog,
+        kind: CloudKind,
+        topics: &Topics,
+        loops: bool,
+    ) -> Result<Self> {
+        let (tf, pose) = pose_channels(log, kind, &topics.tf, &topics.pose)?;
         let schema = serde_json::to_string(&stats_json_schema()).expect("schema JSON");
         let stats = log.add_channel(
             &topics.stats,
@@ -218,13 +171,107 @@ impl Outputs {
             schema.as_bytes(),
             "json",
         )?;
+        let loops = if loops {
+            let (tf, pose) =
+                pose_channels(log, kind, &topics.tf_optimized, &topics.pose_optimized)?;
+            let schema = serde_json::to_string(&loops_json_schema()).expect("schema JSON");
+            let loops = log.add_channel(
+                &topics.loops,
+                "mireg.LoopCandidate",
+                "jsonschema",
+                schema.as_bytes(),
+                "json",
+            )?;
+            Some(LoopChannels { tf, pose, loops })
+        } else {
+            None
+        };
         Ok(Self {
             kind,
             tf,
             pose,
             stats,
+            loops,
         })
     }
+}
+
+/// A `/tf` and a pose channel in `kind`'s message family, on `tf_topic` and `pose_topic`.
+fn pose_channels(
+    log: &mut OutputLog,
+    kind: CloudKind,
+    tf_topic: &str,
+    pose_topic: &str,
+) -> Result<(u16, u16)> {
+    Ok(match kind {
+        CloudKind::Ros2 => (
+            log.add_channel(
+                tf_topic,
+                cdr::TF_MESSAGE_SCHEMA_NAME,
+                cdr::SCHEMA_ENCODING,
+                cdr::TF_MESSAGE_SCHEMA.as_bytes(),
+                cdr::MESSAGE_ENCODING,
+            )?,
+            log.add_channel(
+                pose_topic,
+                cdr::POSE_STAMPED_SCHEMA_NAME,
+                cdr::SCHEMA_ENCODING,
+                cdr::POSE_STAMPED_SCHEMA.as_bytes(),
+                cdr::MESSAGE_ENCODING,
+            )?,
+        ),
+        CloudKind::Ros1 => {
+            // The channel metadata the ROS 1 profile (and `mcap convert` from a bag) writes.
+            let meta = |topic: &str, md5: &str| {
+                BTreeMap::from([
+                    ("callerid".to_string(), ROS1_CALLERID.to_string()),
+                    ("latching".to_string(), "0".to_string()),
+                    ("md5sum".to_string(), md5.to_string()),
+                    ("topic".to_string(), topic.to_string()),
+                ])
+            };
+            (
+                log.add_channel_with_metadata(
+                    tf_topic,
+                    ros1::TF_MESSAGE_SCHEMA_NAME,
+                    ros1::SCHEMA_ENCODING,
+                    ros1::TF_MESSAGE_SCHEMA.as_bytes(),
+                    ros1::MESSAGE_ENCODING,
+                    meta(tf_topic, ros1::TF_MESSAGE_MD5),
+                )?,
+                log.add_channel_with_metadata(
+                    pose_topic,
+                    ros1::POSE_STAMPED_SCHEMA_NAME,
+                    ros1::SCHEMA_ENCODING,
+                    ros1::POSE_STAMPED_SCHEMA.as_bytes(),
+                    ros1::MESSAGE_ENCODING,
+                    meta(pose_topic, ros1::POSE_STAMPED_MD5),
+                )?,
+            )
+        }
+        CloudKind::Foxglove => {
+            let (t, p) = (
+                foxglove::frame_transforms_schema(),
+                foxglove::pose_in_frame_schema(),
+            );
+            (
+                log.add_channel(
+                    tf_topic,
+                    &t.name,
+                    &t.encoding,
+                    &t.data,
+                    foxglove::MESSAGE_ENCODING,
+                )?,
+                log.add_channel(
+                    pose_topic,
+                    &p.name,
+                    &p.encoding,
+                    &p.data,
+                    foxglove::MESSAGE_ENCODING,
+                )?,
+            )
+        }
+    })
 }
 
 pub(super) fn write_frame(
@@ -262,6 +309,39 @@ pub(super) fn write_pose(
     p: &StampedPose<'_>,
     stats: &[u8],
 ) -> Result<()> {
+    let (pose, tf) = encode_pose(ch.kind, world_frame, p);
+    log.write(ch.tf, p.log_time, p.publish_time, &tf)?;
+    log.write(ch.pose, p.log_time, p.publish_time, &pose)?;
+    log.write(ch.stats, p.log_time, p.publish_time, stats)
+}
+
+/// One frame's optimised pose on loop closure's channels (its `/tf` variant and poses), at the
+/// frame's own log time.
+pub(super) fn write_optimized_pose(
+    log: &mut OutputLog,
+    ch: &Outputs,
+    loops: &LoopChannels,
+    world_frame: &str,
+    p: &StampedPose<'_>,
+) -> Result<()> {
+    let (pose, tf) = encode_pose(ch.kind, world_frame, p);
+    log.write(loops.tf, p.log_time, p.publish_time, &tf)?;
+    log.write(loops.pose, p.log_time, p.publish_time, &pose)
+}
+
+/// One `/mireg/loops` message (JSON, [`loops_json_schema`]).
+pub(super) fn write_loop(
+    log: &mut OutputLog,
+    loops: &LoopChannels,
+    log_time: u64,
+    publish_time: u64,
+    json: &[u8],
+) -> Result<()> {
+    log.write(loops.loops, log_time, publish_time, json)
+}
+
+/// A pose's message and its `/tf` message in `kind`'s family.
+fn encode_pose(kind: CloudKind, world_frame: &str, p: &StampedPose<'_>) -> (Vec<u8>, Vec<u8>) {
     let world_from_frame = p.world_from_frame;
     let header = codec::Header {
         stamp: p.stamp,
@@ -272,7 +352,7 @@ pub(super) fn write_pose(
         child_frame_id: p.child_frame.to_string(),
         transform: world_from_frame,
     }];
-    let (pose, tf) = match ch.kind {
+    match kind {
         CloudKind::Ros2 => (
             cdr::encode_pose_stamped(&header, &world_from_frame),
             cdr::encode_tf_message(&transforms),
@@ -293,8 +373,39 @@ pub(super) fn write_pose(
                 )]),
             )
         }
-    };
-    log.write(ch.tf, p.log_time, p.publish_time, &tf)?;
-    log.write(ch.pose, p.log_time, p.publish_time, &pose)?;
-    log.write(ch.stats, p.log_time, p.publish_time, stats)
+    }
+}
+
+/// JSON Schema of the `/mireg/loops` messages: one per loop candidate tried.
+pub fn loops_json_schema() -> serde_json::Value {
+    let num = json!({"type": "number"});
+    let int = json!({"type": "integer"});
+    let nullable_num = json!({"type": ["number", "null"]});
+    json!({
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": "mireg.LoopCandidate",
+        "description": "A loop-closure candidate tried by mireg register: the two frames (0-based indices of the run's clouds, header stamps), how it was found, the MI-RANSAC + ICP registration of the query frame against the match frame, the verdict and why, and the loop edge's robust weight in the optimised pose graph",
+        "type": "object",
+        "properties": {
+            "query_frame": int, "match_frame": int, "query_stamp_ns": int, "match_stamp_ns": int,
+            "found_by": {"type": "string", "enum": ["place", "appearance", "both"]},
+            "descriptor_distance": num, "odometry_distance_m": num, "path_between_m": num,
+            "verdict": {"type": "string", "enum": ["accepted", "rejected"]},
+            "reason": {"type": "string"},
+            "match_from_query": {
+                "description": "The query sensor's pose in the match sensor's frame (p_match = T p_query); null when the registration failed",
+                "type": ["object", "null"],
+                "properties": {
+                    "translation": {"type": "array", "items": num, "minItems": 3, "maxItems": 3},
+                    "rotation_xyzw": {"type": "array", "items": num, "minItems": 4, "maxItems": 4}
+                },
+                "required": ["translation", "rotation_xyzw"]
+            },
+            "inliers": int, "correspondences": int, "fitness": num, "inlier_rmse_m": num,
+            "odometry_disagreement_m": nullable_num, "odometry_disagreement_deg": nullable_num,
+            "weight": num, "verify_s": num
+        },
+        "required": ["query_frame", "match_frame", "query_stamp_ns", "match_stamp_ns", "found_by",
+                     "verdict", "reason", "match_from_query", "inliers", "fitness", "weight"]
+    })
 }

@@ -10,6 +10,7 @@ use nalgebra::{Isometry3, Point3};
 
 use crate::geometry::deskew::deskew;
 use crate::io::codec;
+use crate::loops::Descriptor;
 use crate::odometry::keep_map_fine_points;
 use crate::pipeline::{FailureReason, PrepareScratch, prepare_frame, prepare_frame_with};
 use crate::{Error, Result};
@@ -27,6 +28,8 @@ pub(super) struct Prepare<'a> {
     /// [`super::RegisterOptions::max_points_per_cloud`].
     pub(super) max_points: usize,
     pub(super) deskew_mode: DeskewMode,
+    /// Compute each frame's loop-closure descriptor ([`Descriptor`]).
+    pub(super) descriptors: bool,
 }
 
 /// What the prepare stage carries from one cloud to the next.
@@ -75,7 +78,7 @@ impl Prepare<'_> {
         let (kind, config, topic) = (self.plan.kind, &self.plan.config, self.plan.topic.as_str());
         let t = Instant::now();
         let decoded = kind.decode_reusing(&msg.data, std::mem::take(&mut carry.spare_points));
-        let (mut time_field, mut deskewed, mut fatal) = (None, false, None);
+        let (mut time_field, mut deskew_motion, mut fatal) = (None, None, None);
         let dropped = decoded.as_ref().map_or(Dropped::default(), |c| Dropped {
             non_finite: c.num_dropped_non_finite,
             zero: c.num_dropped_zero,
@@ -109,7 +112,7 @@ impl Prepare<'_> {
                         && let Some((motion, dt)) = motions.of(frame_index.checked_sub(2))
                     {
                         deskew(&mut cloud.points, &times.seconds, &motion, dt);
-                        deskewed = true;
+                        deskew_motion = Some((motion, dt));
                     }
                 } else if self.deskew_mode == DeskewMode::On {
                     let detail = format!(
@@ -141,9 +144,12 @@ impl Prepare<'_> {
             Err(invalid) => prepare_frame(&[], &config.pair).map(|f| (f, Some(invalid))),
         }
         .map(|(frame, invalid)| PreparedMsg {
+            descriptor: (self.descriptors && invalid.is_none() && !frame.features.is_empty())
+                .then(|| Descriptor::from_prepared(&frame)),
             invalid,
             time_field,
-            deskewed,
+            deskewed: deskew_motion.is_some(),
+            deskew_motion,
             dropped,
             log_time: msg.log_time,
             publish_time: msg.publish_time,

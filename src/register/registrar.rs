@@ -59,6 +59,8 @@ pub(super) fn run(
                 invalid: m.invalid,
                 time_field: m.time_field,
                 deskewed: m.deskewed,
+                deskew_motion: m.deskew_motion,
+                descriptor: m.descriptor,
                 dropped: m.dropped,
                 log_time: m.log_time,
                 publish_time: m.publish_time,

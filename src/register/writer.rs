@@ -8,23 +8,34 @@ use std::time::Instant;
 use nalgebra::Isometry3;
 
 use crate::Result;
+use crate::io::codec;
 use crate::io::mcap::log::OutputLog;
+use crate::loops::{Descriptor, LoopConfig};
 use crate::trajectory::{Trajectory, evaluate};
 
+use super::closure::LoopOutcome;
 use super::frames::FrameOut;
-use super::output::{Outputs, write_frame};
+use super::output::{Outputs, StampedPose, write_frame, write_loop, write_optimized_pose};
 use super::plan::Plan;
 use super::window::LogWindow;
 use super::{ReferenceErrors, RegisterOptions, RegisterSummary};
 
-/// One frame's estimate as the summary needs it.
-#[derive(Debug, Clone, Copy)]
+/// One frame's estimate as the summary and loop closure need it (a few hundred bytes a frame).
+#[derive(Debug, Clone)]
 pub(super) struct Estimate {
     /// The cloud's header stamp \[ns\].
     pub(super) stamp_ns: i64,
     pub(super) world_from_frame: Isometry3<f64>,
     pub(super) success: bool,
     pub(super) inliers: usize,
+    /// The cloud's header (stamp and frame id), log and publish times.
+    pub(super) header: codec::Header,
+    pub(super) log_time: u64,
+    pub(super) publish_time: u64,
+    /// The motion the cloud was deskewed by, if it was ([`super::frames::PreparedMsg`]).
+    pub(super) deskew_motion: Option<(Isometry3<f64>, f64)>,
+    /// The loop-closure descriptor, when computed.
+    pub(super) descriptor: Option<Descriptor>,
 }
 
 /// Writes the frames as they come and keeps what the summary needs.
@@ -75,9 +86,40 @@ impl<'a> Writer<'a> {
             world_from_frame: out.est.world_from_frame,
             success: out.est.success,
             inliers: out.est.pair.as_ref().map_or(0, |p| p.num_inliers),
+            header: out.header,
+            log_time: out.log_time,
+            publish_time: out.publish_time,
+            deskew_motion: out.deskew_motion,
+            descriptor: out.descriptor,
         });
         if let Some(bar) = &self.progress {
             bar.inc(1);
+        }
+        Ok(())
+    }
+
+    /// Writes loop closure's outcome: each candidate tried on `/mireg/loops` at its query frame's
+    /// log time, then every frame's optimised pose on `/mireg/pose_optimized` and its `/tf`
+    /// variant at the frame's own log time (MCAP readers order by log time; the file holds them
+    /// after the odometry's).
+    fn write_loops(&self, log: &mut OutputLog, outcome: &LoopOutcome) -> Result<()> {
+        let Some(channels) = &self.outputs.loops else {
+            return Ok(());
+        };
+        for r in &outcome.records {
+            let e = &self.estimates[r.query_frame];
+            let json = serde_json::to_vec(r).expect("JSON of plain values");
+            write_loop(log, channels, e.log_time, e.publish_time, &json)?;
+        }
+        for (e, pose) in self.estimates.iter().zip(&outcome.optimized) {
+            let p = StampedPose {
+                stamp: e.header.stamp,
+                child_frame: &e.header.frame_id,
+                world_from_frame: *pose,
+                log_time: e.log_time,
+                publish_time: e.publish_time,
+            };
+            write_optimized_pose(log, &self.outputs, channels, self.world_frame, &p)?;
         }
         Ok(())
     }
@@ -123,11 +165,33 @@ impl<'a> Writer<'a> {
         opts: &RegisterOptions,
         copied: u64,
         start: Instant,
+        loops: Option<(LoopOutcome, LoopConfig)>,
     ) -> Result<RegisterSummary> {
         if let Some(bar) = &self.progress {
             bar.finish_and_clear();
         }
-        log.write_metadata("mireg", metadata(&plan, opts))?;
+        let mut meta = metadata(&plan, opts);
+        if let Some((outcome, config)) = &loops {
+            self.write_loops(&mut log, outcome)?;
+            meta.insert(
+                "pose_optimized_topic".to_string(),
+                plan.topics.pose_optimized.clone(),
+            );
+            meta.insert(
+                "tf_optimized_topic".to_string(),
+                plan.topics.tf_optimized.clone(),
+            );
+            meta.insert("loops_topic".to_string(), plan.topics.loops.clone());
+            meta.insert(
+                "loop_config".to_string(),
+                serde_json::to_string(config).expect("loop config JSON"),
+            );
+            meta.insert(
+                "loops".to_string(),
+                serde_json::to_string(&outcome.summary).expect("loop summary JSON"),
+            );
+        }
+        log.write_metadata("mireg", meta)?;
         log.finish()?;
 
         let estimates = &self.estimates;
@@ -144,10 +208,26 @@ impl<'a> Writer<'a> {
         } else {
             registered.iter().sum::<usize>() as f64 / registered.len() as f64
         };
+        let reference_poses = std::mem::take(&mut self.reference);
+        let odometry: Vec<(i64, Isometry3<f64>)> = estimates
+            .iter()
+            .map(|e| (e.stamp_ns, e.world_from_frame))
+            .collect();
         let reference = plan
             .reference
             .as_ref()
-            .and_then(|(t, _)| reference_errors(t, estimates, std::mem::take(&mut self.reference)));
+            .and_then(|(t, _)| reference_errors(t, &odometry, reference_poses.clone()));
+        let reference_optimized = match (&plan.reference, &loops) {
+            (Some((t, _)), Some((outcome, _))) => {
+                let optimized: Vec<(i64, Isometry3<f64>)> = estimates
+                    .iter()
+                    .zip(&outcome.optimized)
+                    .map(|(e, p)| (e.stamp_ns, *p))
+                    .collect();
+                reference_errors(t, &optimized, reference_poses)
+            }
+            _ => None,
+        };
         let elapsed_s = start.elapsed().as_secs_f64();
         Ok(RegisterSummary {
             output: opts.output.clone(),
@@ -165,6 +245,9 @@ impl<'a> Writer<'a> {
             elapsed_s,
             frames_per_s: frames as f64 / elapsed_s.max(1e-9),
             reference,
+            pose_optimized_topic: loops.is_some().then(|| plan.topics.pose_optimized.clone()),
+            loops: loops.map(|(outcome, _)| outcome.summary),
+            reference_optimized,
         })
     }
 }
@@ -204,12 +287,12 @@ fn metadata(plan: &Plan, opts: &RegisterOptions) -> BTreeMap<String, String> {
 /// ([`crate::trajectory::evaluate`] with exact stamp association); `None` with fewer than 2 pairs.
 fn reference_errors(
     topic: &str,
-    estimates: &[Estimate],
+    estimate: &[(i64, Isometry3<f64>)],
     reference: Vec<(i64, Isometry3<f64>)>,
 ) -> Option<ReferenceErrors> {
     let estimate = Trajectory::stamped(
-        estimates.iter().map(|e| e.stamp_ns).collect(),
-        estimates.iter().map(|e| e.world_from_frame).collect(),
+        estimate.iter().map(|e| e.0).collect(),
+        estimate.iter().map(|e| e.1).collect(),
     );
     let (stamps, poses) = reference.into_iter().unzip();
     let e = evaluate(&estimate, &Trajectory::stamped(stamps, poses), None, 0).ok()?;

@@ -1,0 +1,231 @@
+//! Loop closure of a whole trajectory: the settings, scaled to the log, and the pose graph that
+//! joins the odometry with the verified loops.
+//!
+//! Nodes are every frame's odometry pose (`world_from_sensor`); node 0 is held fixed. Edges:
+//! - odometry, between consecutive frames: the odometry's relative pose, with the information
+//!   of [`LoopConfig::odometry_sigma_m`] / [`LoopConfig::odometry_sigma_deg`] per edge (a
+//!   documented model, not the ICP's Hessian: the ICP fit's own covariance is known to be
+//!   over-confident, and a constant per-step noise makes the drift a random walk, as Open3D's
+//!   multiway registration also assumes for its odometry edges); a frame whose registration
+//!   failed (its pose is the fallback's) gets [`FAILED_FRAME_SIGMA_FACTOR`]× the deviations;
+//! - loop, between a verified pair: the loop's relative pose, with [`LoopConfig::loop_sigma_m`]
+//!   / [`LoopConfig::loop_sigma_deg`], marked robust: the Cauchy kernel ([`crate::graph`]) down-
+//!   weights a loop the rest of the graph contradicts, so a false loop that slipped through
+//!   cannot wreck the trajectory.
+
+use nalgebra::{Isometry3, Matrix6};
+use serde::Serialize;
+
+use super::candidates::CandidateConfig;
+use super::keyframes::KeyframeConfig;
+use super::verify::VerifyConfig;
+use crate::graph::{Edge, GraphOptions, GraphSolution, PoseGraph, optimize};
+use crate::{Error, Result};
+
+/// The first solve of [`optimize_trajectory`] runs at [`LoopConfig::kernel_scale`] times this
+/// over [`ANNEALING_FACTOR`]: 100 (nearly least squares for misclosures under ~100 σ).
+pub const ANNEALING_START: f64 = 1000.0;
+/// Each solve of [`optimize_trajectory`] divides the kernel scale by this: 10.
+pub const ANNEALING_FACTOR: f64 = 10.0;
+
+/// Standard deviations of a failed frame's odometry edge, relative to a registered one's: 100.
+/// Its pose came from a constant-velocity guess or the previous pose; a loop may pull it freely.
+pub const FAILED_FRAME_SIGMA_FACTOR: f64 = 100.0;
+
+/// Everything loop closure needs, in metres and degrees. [`LoopConfig::for_voxel`] scales the
+/// defaults to the log's voxel.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct LoopConfig {
+    /// Path length \[m\] or rotation \[deg\] since the previous keyframe that makes a new one.
+    pub keyframes: KeyframeConfig,
+    /// The candidate search.
+    pub candidates: CandidateConfig,
+    /// The acceptance test.
+    pub verify: VerifyConfig,
+    /// Per-step standard deviation of an odometry edge's translation \[m\].
+    pub odometry_sigma_m: f64,
+    /// Per-step standard deviation of an odometry edge's rotation \[deg\].
+    pub odometry_sigma_deg: f64,
+    /// Standard deviation of a loop edge's translation \[m\].
+    pub loop_sigma_m: f64,
+    /// Standard deviation of a loop edge's rotation \[deg\].
+    pub loop_sigma_deg: f64,
+    /// The Cauchy kernel's scale on loop edges \[σ\]. Default 1.
+    pub kernel_scale: f64,
+    /// At most this many prepared frames are held at once while verifying (each pass over the
+    /// log loads one batch). Default [`DEFAULT_FRAMES_IN_MEMORY`].
+    pub frames_in_memory: usize,
+    /// The agreement test with the odometry applies up to this much path between the two
+    /// frames \[m\]; beyond it the drift may be anything and only the robust graph judges.
+    pub agreement_path_m: f64,
+}
+
+/// Default [`LoopConfig::frames_in_memory`]: 32 prepared frames.
+pub const DEFAULT_FRAMES_IN_MEMORY: usize = 32;
+
+impl LoopConfig {
+    /// The defaults for a log registered at an ICP voxel of `voxel_m` metres: lengths in voxels,
+    /// so that a room-scale RGB-D log (voxel ~5 cm) and a street LiDAR log (~0.4 m) get the same
+    /// behaviour. In voxels `v`: keyframes every 2.5 v of path or 10°; place radius 8 v growing
+    /// by 2 % of the path between the frames up to 80 v; at least 20 v of path and 5 frames
+    /// between the two frames of a loop; agreement with the odometry required up to 200 v of
+    /// path. Odometry edges σ = 0.1 v and 0.2° per step; loop edges the same.
+    pub fn for_voxel(voxel_m: f64) -> Self {
+        let v = voxel_m;
+        Self {
+            keyframes: KeyframeConfig {
+                keyframe_distance_m: 2.5 * v,
+                keyframe_angle_deg: 10.0,
+            },
+            candidates: CandidateConfig {
+                place_radius_m: 8.0 * v,
+                drift_fraction: 0.02,
+                max_place_radius_m: 80.0 * v,
+                min_path_separation_m: 20.0 * v,
+                min_frame_separation: 5,
+                ..CandidateConfig::default()
+            },
+            verify: VerifyConfig::default(),
+            odometry_sigma_m: 0.1 * v,
+            odometry_sigma_deg: 0.2,
+            loop_sigma_m: 0.1 * v,
+            loop_sigma_deg: 0.2,
+            kernel_scale: 1.0,
+            frames_in_memory: DEFAULT_FRAMES_IN_MEMORY,
+            agreement_path_m: 200.0 * v,
+        }
+    }
+
+    /// The translation bound of the agreement test for two frames `path_m` of path apart:
+    /// the place radius there ([`CandidateConfig::place_radius_for`]), or `None` beyond
+    /// [`Self::agreement_path_m`].
+    pub fn drift_allowance(&self, path_m: f64) -> Option<f64> {
+        (path_m <= self.agreement_path_m).then(|| self.candidates.place_radius_for(path_m))
+    }
+}
+
+/// A verified loop between two frames of the trajectory.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LoopEdge {
+    /// The later frame (0-based index in the trajectory).
+    pub query: usize,
+    /// The earlier frame.
+    pub matched: usize,
+    /// The query frame's pose in the match frame (`p_match = T · p_query`).
+    pub match_from_query: Isometry3<f64>,
+}
+
+/// The information matrix of an edge with standard deviations `sigma_m` (translation, each
+/// axis) and `sigma_deg` (rotation), in the graph's (rotation, translation) order.
+fn information(sigma_m: f64, sigma_deg: f64) -> Matrix6<f64> {
+    let r = 1.0 / sigma_deg.to_radians().powi(2);
+    let t = 1.0 / (sigma_m * sigma_m);
+    Matrix6::from_diagonal(&nalgebra::Vector6::new(r, r, r, t, t, t))
+}
+
+/// The pose graph of a trajectory (`poses`, with `registered[k]` false where frame `k`'s
+/// registration failed) and its verified `loops`; see the module doc for the edges.
+///
+/// # Errors
+/// [`Error::InvalidInput`] for mismatched lengths, a loop naming a frame outside the trajectory
+/// or itself, or non-positive standard deviations.
+pub fn pose_graph(
+    poses: &[Isometry3<f64>],
+    registered: &[bool],
+    loops: &[LoopEdge],
+    config: &LoopConfig,
+) -> Result<PoseGraph> {
+    if poses.len() != registered.len() {
+        return Err(Error::InvalidInput(format!(
+            "pose_graph: {} poses but {} registration flags",
+            poses.len(),
+            registered.len()
+        )));
+    }
+    for (name, s) in [
+        ("odometry_sigma_m", config.odometry_sigma_m),
+        ("odometry_sigma_deg", config.odometry_sigma_deg),
+        ("loop_sigma_m", config.loop_sigma_m),
+        ("loop_sigma_deg", config.loop_sigma_deg),
+    ] {
+        if !(s.is_finite() && s > 0.0) {
+            return Err(Error::InvalidInput(format!(
+                "{name} must be finite and > 0, got {s}"
+            )));
+        }
+    }
+    let odometry = information(config.odometry_sigma_m, config.odometry_sigma_deg);
+    let failed = odometry / (FAILED_FRAME_SIGMA_FACTOR * FAILED_FRAME_SIGMA_FACTOR);
+    let mut edges: Vec<Edge> = (1..poses.len())
+        .map(|k| Edge {
+            from: k - 1,
+            to: k,
+            measurement: poses[k - 1].inverse() * poses[k],
+            information: if registered[k] { odometry } else { failed },
+            robust: false,
+        })
+        .collect();
+    let loop_information = information(config.loop_sigma_m, config.loop_sigma_deg);
+    for l in loops {
+        if l.query >= poses.len() || l.matched >= poses.len() || l.query == l.matched {
+            return Err(Error::InvalidInput(format!(
+                "loop {} → {} outside a trajectory of {} frames",
+                l.query,
+                l.matched,
+                poses.len()
+            )));
+        }
+        edges.push(Edge {
+            from: l.matched,
+            to: l.query,
+            measurement: l.match_from_query,
+            information: loop_information,
+            robust: true,
+        });
+    }
+    Ok(PoseGraph {
+        poses: poses.to_vec(),
+        edges,
+    })
+}
+
+/// The optimised trajectory: [`pose_graph`] solved by [`optimize`] with the Cauchy kernel at
+/// [`LoopConfig::kernel_scale`]. Without loops the graph is consistent and the trajectory is the
+/// odometry's, returned as it is (no solve). Returns the poses and, with loops, the solution
+/// (whose `edge_weights` end with one weight per loop, in order).
+///
+/// # Errors
+/// As [`pose_graph`] and [`optimize`].
+pub fn optimize_trajectory(
+    poses: &[Isometry3<f64>],
+    registered: &[bool],
+    loops: &[LoopEdge],
+    config: &LoopConfig,
+) -> Result<(Vec<Isometry3<f64>>, Option<GraphSolution>)> {
+    if loops.is_empty() || poses.len() < 2 {
+        return Ok((poses.to_vec(), None));
+    }
+    let mut graph = pose_graph(poses, registered, loops, config)?;
+    // NOTE: graduated, as in graduated non-convexity (Yang et al. 2020) but on the Cauchy
+    // kernel's scale: from a drifted start, a loop whose misclosure is many σ of the odometry
+    // chain sits where the kernel is flat, and the drifted trajectory is a local minimum. Each
+    // solve starts from the last, with the scale falling by ANNEALING_FACTOR to the configured
+    // one: a nearly quadratic first solve pulls the trajectory towards the loops, the last
+    // judges them.
+    let mut scale = config.kernel_scale * ANNEALING_START;
+    let mut iterations = 0;
+    loop {
+        scale = (scale / ANNEALING_FACTOR).max(config.kernel_scale);
+        let options = GraphOptions {
+            kernel_scale: scale,
+            ..GraphOptions::default()
+        };
+        let mut solution = optimize(&graph, &options)?;
+        iterations += solution.iterations;
+        if scale <= config.kernel_scale {
+            solution.iterations = iterations;
+            return Ok((solution.poses.clone(), Some(solution)));
+        }
+        graph.poses.clone_from(&solution.poses);
+    }
+}

@@ -1,0 +1,129 @@
+//! Verification of a loop candidate: prior-free MI-RANSAC between the two frames, then ICP
+//! ([`register_prepared`]), and an acceptance test on the result.
+//!
+//! A revisit comes with no usable prior (the drift may be metres, at any heading), which is the
+//! setting global registration is for: the query frame is registered against the earlier frame
+//! exactly as `mireg pair` registers two clouds. The candidate is accepted when
+//! - registration succeeded ([`PairResult::failure`] is `None`);
+//! - it has at least [`VerifyConfig::min_inliers`] RANSAC inliers;
+//! - its ICP fitness (the fraction of the query's ICP cloud within the ICP distance of the match
+//!   frame: their overlap) is at least [`VerifyConfig::min_fitness`];
+//! - where the path between the two frames is short enough for the odometry to be trusted
+//!   (a drift allowance is given), the loop's relative pose agrees with the odometry's within
+//!   that allowance — translation within the allowance, rotation within
+//!   [`VerifyConfig::max_rotation_disagreement_deg`].
+//!
+//! NOTE: KISS-SLAM accepts a MapClosures candidate on its inlier count alone; the overlap and the
+//! agreement tests are ours, so that a look-alike place (repeated geometry, a corridor) whose
+//! registration is self-consistent but wrong is rejected where the odometry can tell, and is
+//! down-weighted by the robust pose graph where it cannot.
+
+use nalgebra::Isometry3;
+
+use crate::Result;
+use crate::pipeline::{PairConfig, PairResult, PreparedFrame, register_prepared};
+
+/// The acceptance test of [`verify`].
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct VerifyConfig {
+    /// RANSAC inliers needed. Default [`DEFAULT_MIN_LOOP_INLIERS`] (30).
+    pub min_inliers: usize,
+    /// ICP fitness (overlap) needed, in `[0, 1]`. Default [`DEFAULT_MIN_LOOP_FITNESS`] (0.5).
+    pub min_fitness: f64,
+    /// Largest rotation between the loop's relative pose and the odometry's, where the
+    /// agreement test applies \[deg\]. Default 10.
+    pub max_rotation_disagreement_deg: f64,
+}
+
+/// Default [`VerifyConfig::min_inliers`]: 30, 2.5× odometry's minimum
+/// ([`crate::odometry::OdometryConfig::min_inliers`], 12): a loop edge moves the whole trajectory,
+/// a frame-to-frame edge only one step.
+pub const DEFAULT_MIN_LOOP_INLIERS: usize = 30;
+/// Default [`VerifyConfig::min_fitness`]: 0.5 (odometry accepts 0.3): half the query's ICP cloud
+/// must lie on the match frame's surfaces.
+pub const DEFAULT_MIN_LOOP_FITNESS: f64 = 0.5;
+
+impl Default for VerifyConfig {
+    fn default() -> Self {
+        Self {
+            min_inliers: DEFAULT_MIN_LOOP_INLIERS,
+            min_fitness: DEFAULT_MIN_LOOP_FITNESS,
+            max_rotation_disagreement_deg: 10.0,
+        }
+    }
+}
+
+/// The outcome of [`verify`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Verification {
+    /// Whether the loop passed every test.
+    pub accepted: bool,
+    /// Why it did not (empty when accepted).
+    pub reason: String,
+    /// The query frame's pose in the match frame (`p_match = T · p_query`); `None` when the
+    /// registration failed.
+    pub match_from_query: Option<Isometry3<f64>>,
+    /// The pair registration's result.
+    pub pair: PairResult,
+    /// Translation between the loop's relative pose and the odometry's \[m\].
+    pub disagreement_m: f64,
+    /// Rotation between them \[deg\].
+    pub disagreement_deg: f64,
+}
+
+/// Registers `query` (source) against `matched` (target) with `pair` and applies the acceptance
+/// test. `odometry_match_from_query` is the relative pose the odometry gives;
+/// `drift_allowance_m`, when `Some`, turns on the agreement test with that translation bound.
+///
+/// # Errors
+/// Only what [`register_prepared`] returns for an invalid configuration; a failed registration is
+/// a rejected candidate, not an error.
+pub fn verify(
+    query: &PreparedFrame,
+    matched: &PreparedFrame,
+    odometry_match_from_query: &Isometry3<f64>,
+    drift_allowance_m: Option<f64>,
+    pair: &PairConfig,
+    config: &VerifyConfig,
+) -> Result<Verification> {
+    let result = register_prepared(query, matched, pair)?;
+    let estimate = result.target_from_source;
+    let delta = odometry_match_from_query.inverse() * estimate;
+    let disagreement_m = delta.translation.vector.norm();
+    let disagreement_deg = delta.rotation.angle().to_degrees();
+    let reason = if let Some(f) = result.failure {
+        format!("registration failed: {}", f.as_str())
+    } else if result.num_inliers < config.min_inliers {
+        format!(
+            "{} inliers, fewer than {}",
+            result.num_inliers, config.min_inliers
+        )
+    } else if result.fitness.is_nan() || result.fitness < config.min_fitness {
+        format!(
+            "fitness {:.3}, below {}",
+            result.fitness, config.min_fitness
+        )
+    } else if let Some(allowance) = drift_allowance_m
+        && disagreement_m > allowance
+    {
+        format!(
+            "disagrees with the odometry by {disagreement_m:.3} m, more than the drift allowance of {allowance:.3} m"
+        )
+    } else if drift_allowance_m.is_some() && disagreement_deg > config.max_rotation_disagreement_deg
+    {
+        format!(
+            "disagrees with the odometry by {disagreement_deg:.1}°, more than {}°",
+            config.max_rotation_disagreement_deg
+        )
+    } else {
+        String::new()
+    };
+    Ok(Verification {
+        accepted: reason.is_empty(),
+        reason,
+        match_from_query: result.failure.is_none().then_some(estimate),
+        pair: result,
+        disagreement_m,
+        disagreement_deg,
+    })
+}

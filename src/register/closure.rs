@@ -1,0 +1,318 @@
+//! The *loop-closure* stage of `mireg register`, after the odometry: keyframes and candidates
+//! from the whole trajectory ([`crate::loops`]), each candidate verified by MI-RANSAC + ICP on
+//! the two frames read again from the input (the log is on disk: a second pass, in batches of at
+//! most [`LoopConfig::frames_in_memory`] prepared frames), then the robust pose graph.
+//!
+//! Memory: per frame, the odometry's estimate and a [`Descriptor`] (260 bytes) are kept through
+//! the run; the verification holds at most `frames_in_memory` prepared frames at a time.
+
+use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::ops::ControlFlow;
+use std::time::Instant;
+
+use nalgebra::Isometry3;
+use serde::Serialize;
+
+use crate::Result;
+use crate::evaluate::path_distances;
+use crate::geometry::deskew::deskew;
+use crate::loops::{
+    Candidate, Keyframe, LoopConfig, LoopEdge, Source, find_candidates, optimize_trajectory,
+    select_keyframes, verify,
+};
+use crate::pipeline::{PairConfig, PreparedFrame, prepare_frame, refine};
+
+use super::RegisterOptions;
+use super::plan::Plan;
+use super::writer::Estimate;
+
+/// One candidate tried: what `/mireg/loops` carries ([`loops_json_schema`]).
+#[derive(Debug, Clone, Serialize)]
+pub(super) struct LoopRecord {
+    pub(super) query_frame: usize,
+    pub(super) match_frame: usize,
+    pub(super) query_stamp_ns: i64,
+    pub(super) match_stamp_ns: i64,
+    pub(super) found_by: &'static str,
+    pub(super) descriptor_distance: f64,
+    pub(super) odometry_distance_m: f64,
+    pub(super) path_between_m: f64,
+    pub(super) verdict: &'static str,
+    pub(super) reason: String,
+    pub(super) match_from_query: Option<serde_json::Value>,
+    pub(super) inliers: usize,
+    pub(super) correspondences: usize,
+    pub(super) fitness: f64,
+    pub(super) inlier_rmse_m: f64,
+    pub(super) odometry_disagreement_m: f64,
+    pub(super) odometry_disagreement_deg: f64,
+    /// Robust weight of the loop edge at the optimum (0 for a rejected candidate).
+    pub(super) weight: f64,
+    pub(super) verify_s: f64,
+}
+
+/// What loop closure did, in the run's summary.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LoopSummary {
+    /// Keyframes selected.
+    pub keyframes: usize,
+    /// Candidates tried.
+    pub candidates: usize,
+    /// Loops accepted (edges of the pose graph).
+    pub accepted: usize,
+    /// Accepted loops whose robust weight at the optimum is below ½ (the graph down-weighted
+    /// them as inconsistent with the rest).
+    pub down_weighted: usize,
+    /// Passes over the input to read the candidates' frames.
+    pub passes: usize,
+    /// Pose-graph iterations (0 without loops).
+    pub graph_iterations: usize,
+    /// Wall-clock seconds of the whole stage.
+    pub elapsed_s: f64,
+}
+
+/// The stage's result: the candidates tried and the optimised trajectory.
+pub(super) struct LoopOutcome {
+    pub(super) records: Vec<LoopRecord>,
+    /// `world_from_sensor` per frame after optimisation (the odometry's without loops).
+    pub(super) optimized: Vec<Isometry3<f64>>,
+    pub(super) summary: LoopSummary,
+}
+
+/// The pair settings of loop verification: the run's, with the pairwise fine stage as `mireg
+/// pair` runs it (the odometry's frames draw their fine points for the map instead).
+fn loop_pair_config(pair: &PairConfig) -> PairConfig {
+    PairConfig {
+        icp_fine: true,
+        icp_fine_points_per_icp_point: refine::FINE_POINTS_PER_ICP_POINT,
+        ..pair.clone()
+    }
+}
+
+/// Runs loop closure over the odometry's `estimates` (one per frame, in order).
+pub(super) fn close_loops(
+    plan: &Plan,
+    opts: &RegisterOptions,
+    estimates: &[Estimate],
+    config: &LoopConfig,
+) -> Result<LoopOutcome> {
+    let start = Instant::now();
+    let poses: Vec<Isometry3<f64>> = estimates.iter().map(|e| e.world_from_frame).collect();
+    let registered: Vec<bool> = estimates.iter().map(|e| e.success).collect();
+    let travelled = path_distances(&poses);
+    let keyframes: Vec<Keyframe> = select_keyframes(&poses, &travelled, &config.keyframes)?
+        .into_iter()
+        .filter_map(|k| {
+            let e = &estimates[k];
+            Some(Keyframe {
+                frame: k,
+                stamp_ns: u64::try_from(e.stamp_ns).unwrap_or(0),
+                pose: e.world_from_frame,
+                travelled_m: travelled[k],
+                descriptor: e.descriptor?,
+            })
+        })
+        .collect();
+    // Candidates in frames (the search's indices are keyframes').
+    let candidates: Vec<Candidate> = find_candidates(&keyframes, &config.candidates)?
+        .into_iter()
+        .map(|c| Candidate {
+            query: keyframes[c.query].frame,
+            matched: keyframes[c.matched].frame,
+            ..c
+        })
+        .collect();
+
+    let pair = loop_pair_config(&plan.config.pair);
+    let mut verified: BTreeMap<(usize, usize), (crate::loops::Verification, f64)> = BTreeMap::new();
+    let batches = batches(&candidates, config.frames_in_memory.max(2));
+    for batch in &batches {
+        let frames: BTreeSet<usize> = batch.iter().flat_map(|c| [c.query, c.matched]).collect();
+        let prepared = read_frames(plan, opts, estimates, &frames, &pair)?;
+        for c in batch {
+            let (Some(q), Some(m)) = (prepared.get(&c.query), prepared.get(&c.matched)) else {
+                continue;
+            };
+            let t = Instant::now();
+            let odometry = poses[c.matched].inverse() * poses[c.query];
+            let allowance = config.drift_allowance(travelled[c.query] - travelled[c.matched]);
+            let v = verify(q, m, &odometry, allowance, &pair, &config.verify)?;
+            verified.insert((c.query, c.matched), (v, t.elapsed().as_secs_f64()));
+        }
+    }
+
+    let loops: Vec<LoopEdge> = candidates
+        .iter()
+        .filter_map(|c| {
+            let (v, _) = verified.get(&(c.query, c.matched))?;
+            v.accepted.then(|| LoopEdge {
+                query: c.query,
+                matched: c.matched,
+                match_from_query: v.match_from_query.expect("accepted loops have a pose"),
+            })
+        })
+        .collect();
+    let (optimized, solution) = optimize_trajectory(&poses, &registered, &loops, config)?;
+    // The loop edges come after the odometry's in the graph, in the order of `loops`.
+    let weights: HashMap<(usize, usize), f64> = solution
+        .as_ref()
+        .map(|s| {
+            let first = s.edge_weights.len() - loops.len();
+            loops
+                .iter()
+                .zip(&s.edge_weights[first..])
+                .map(|(l, w)| ((l.query, l.matched), *w))
+                .collect()
+        })
+        .unwrap_or_default();
+    let records: Vec<LoopRecord> = candidates
+        .iter()
+        .map(|c| {
+            record(
+                c,
+                estimates,
+                &travelled,
+                verified.get(&(c.query, c.matched)),
+                &weights,
+            )
+        })
+        .collect();
+    let summary = LoopSummary {
+        keyframes: keyframes.len(),
+        candidates: candidates.len(),
+        accepted: loops.len(),
+        down_weighted: weights.values().filter(|w| **w < 0.5).count(),
+        passes: batches.len(),
+        graph_iterations: solution.as_ref().map_or(0, |s| s.iterations),
+        elapsed_s: start.elapsed().as_secs_f64(),
+    };
+    Ok(LoopOutcome {
+        records,
+        optimized,
+        summary,
+    })
+}
+
+/// The `/mireg/loops` record of candidate `c`.
+fn record(
+    c: &Candidate,
+    estimates: &[Estimate],
+    travelled: &[f64],
+    verified: Option<&(crate::loops::Verification, f64)>,
+    weights: &HashMap<(usize, usize), f64>,
+) -> LoopRecord {
+    let pose_json = |t: &Isometry3<f64>| {
+        let q = t.rotation.coords;
+        serde_json::json!({
+            "translation": [t.translation.x, t.translation.y, t.translation.z],
+            "rotation_xyzw": [q.x, q.y, q.z, q.w],
+        })
+    };
+    let (verdict, reason) = match verified {
+        Some((v, _)) if v.accepted => ("accepted", String::new()),
+        Some((v, _)) => ("rejected", v.reason.clone()),
+        None => (
+            "rejected",
+            "a frame could not be read or prepared".to_string(),
+        ),
+    };
+    LoopRecord {
+        query_frame: c.query,
+        match_frame: c.matched,
+        query_stamp_ns: estimates[c.query].stamp_ns,
+        match_stamp_ns: estimates[c.matched].stamp_ns,
+        found_by: match c.by {
+            Source::Place => "place",
+            Source::Appearance => "appearance",
+            Source::Both => "both",
+        },
+        descriptor_distance: c.descriptor_distance,
+        odometry_distance_m: c.odometry_distance_m,
+        path_between_m: travelled[c.query] - travelled[c.matched],
+        verdict,
+        reason,
+        match_from_query: verified.and_then(|(v, _)| v.match_from_query.as_ref().map(pose_json)),
+        inliers: verified.map_or(0, |(v, _)| v.pair.num_inliers),
+        correspondences: verified.map_or(0, |(v, _)| v.pair.num_correspondences),
+        fitness: verified.map_or(0.0, |(v, _)| v.pair.fitness),
+        inlier_rmse_m: verified.map_or(0.0, |(v, _)| v.pair.inlier_rmse_m),
+        odometry_disagreement_m: verified.map_or(f64::NAN, |(v, _)| v.disagreement_m),
+        odometry_disagreement_deg: verified.map_or(f64::NAN, |(v, _)| v.disagreement_deg),
+        weight: weights.get(&(c.query, c.matched)).copied().unwrap_or(0.0),
+        verify_s: verified.map_or(0.0, |(_, s)| *s),
+    }
+}
+
+/// Candidates split into batches whose frames number at most `max_frames` (a candidate needs
+/// both of its frames in memory), in the order of the match frame, so that a frame matched by
+/// many later ones is read once.
+fn batches(candidates: &[Candidate], max_frames: usize) -> Vec<Vec<Candidate>> {
+    let mut sorted = candidates.to_vec();
+    sorted.sort_by_key(|c| (c.matched, c.query));
+    let mut out: Vec<Vec<Candidate>> = Vec::new();
+    let mut frames = BTreeSet::new();
+    for c in sorted {
+        let new =
+            usize::from(!frames.contains(&c.query)) + usize::from(!frames.contains(&c.matched));
+        if frames.len() + new > max_frames && !frames.is_empty() {
+            frames.clear();
+        }
+        if frames.is_empty() {
+            out.push(Vec::new());
+        }
+        frames.insert(c.query);
+        frames.insert(c.matched);
+        out.last_mut().expect("pushed").push(c);
+    }
+    out
+}
+
+/// Reads `frames` (indices into `estimates`) from the input again and prepares them for
+/// verification, deskewed as the odometry deskewed them. Frames registered in log-time order are
+/// found by their log time (the n-th cloud of a log time is the n-th frame of it); a cloud that no
+/// longer decodes or is over the point bound is left out.
+fn read_frames(
+    plan: &Plan,
+    opts: &RegisterOptions,
+    estimates: &[Estimate],
+    frames: &BTreeSet<usize>,
+    pair: &PairConfig,
+) -> Result<BTreeMap<usize, PreparedFrame>> {
+    let times: BTreeSet<u64> = frames.iter().map(|&k| estimates[k].log_time).collect();
+    let mut by_time: HashMap<u64, (Vec<usize>, usize)> = HashMap::new();
+    for (k, e) in estimates.iter().enumerate() {
+        if times.contains(&e.log_time) {
+            by_time.entry(e.log_time).or_default().0.push(k);
+        }
+    }
+    let mut out = BTreeMap::new();
+    plan.input_log.for_each_message_until(|header, data| {
+        if !plan.cloud_channels.contains(&header.channel_id)
+            || !plan.segment.contains(header.log_time)
+        {
+            return Ok(ControlFlow::Continue(()));
+        }
+        let Some((indices, seen)) = by_time.get_mut(&header.log_time) else {
+            return Ok(ControlFlow::Continue(()));
+        };
+        let k = indices.get(*seen).copied();
+        *seen += 1;
+        if let Some(k) = k.filter(|k| frames.contains(k))
+            && let Ok(mut cloud) = plan.kind.decode(data)
+            && cloud.points.len() <= opts.max_points_per_cloud
+        {
+            if let (Some((motion, dt)), Some(times)) = (&estimates[k].deskew_motion, &cloud.times) {
+                deskew(&mut cloud.points, &times.seconds, motion, *dt);
+            }
+            if let Ok(frame) = prepare_frame(&cloud.points, pair) {
+                out.insert(k, frame);
+            }
+        }
+        Ok(if out.len() == frames.len() {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        })
+    })?;
+    Ok(out)
+}
