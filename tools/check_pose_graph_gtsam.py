@@ -17,6 +17,7 @@ Usage:
     bash tools/setup_gtsam_venv.sh
     cargo build --release --example pose_graph_g2o
     tools/.venv-gtsam/bin/python tools/check_pose_graph_gtsam.py [--binary PATH] [--workdir DIR]
+        [--default-tolerances]
 """
 
 import argparse
@@ -223,7 +224,13 @@ def main():
     target_dir = os.environ.get("CARGO_TARGET_DIR", os.path.join(here, "..", "target"))
     ap.add_argument("--binary", default=os.path.join(target_dir, "release", "examples", "pose_graph_g2o"))
     ap.add_argument("--workdir", default=None, help="keep the g2o files here (default: a temporary dir)")
+    ap.add_argument("--default-tolerances", action="store_true",
+                    help="both solvers with GTSAM's defaults (1e-5 relative/absolute, 100 iterations) "
+                         "instead of 1e-12/1e-14/500")
     args = ap.parse_args()
+    if args.default_tolerances:
+        global REL_TOL, ABS_TOL, MAX_ITERATIONS
+        REL_TOL, ABS_TOL, MAX_ITERATIONS = 1e-5, 1e-5, 100
     workdir = args.workdir or tempfile.mkdtemp(prefix="pose_graph_gtsam_")
     os.makedirs(workdir, exist_ok=True)
 

@@ -10,9 +10,10 @@
 //! with `ρ(d) = ½ d²` for ordinary edges and an M-estimator ([`RobustKernel`]) for edges marked
 //! `robust` — GTSAM's `BetweenFactor<Pose3>` with the full SE(3) logarithm (`Pose3::Logmap`), tangent
 //! order **(rotation, translation)**. The solver is Levenberg–Marquardt on the manifold (Grisetti,
-//! Kümmerle, Stachniss & Burgard 2010, "A tutorial on graph-based SLAM", §IV: linearise, solve the
-//! sparse system `H Δx = −b`, retract `T ← T · Exp(δ)`; the gauge is removed by fixing node 0, their
-//! §IV-A), with GTSAM's `LevenbergMarquardtOptimizer` damping schedule and stopping rule, and
+//! Kümmerle, Stachniss & Burgard 2010, "A tutorial on graph-based SLAM": linearise every edge, solve
+//! the sparse system `H Δx = −b`, apply the increment through the manifold operator — here
+//! `T ← T · Exp(δ)` — and remove the gauge freedom by fixing one node, node 0), with GTSAM's
+//! `LevenbergMarquardtOptimizer` damping schedule and stopping rule, and
 //! robust edges by iteratively reweighted least squares as GTSAM's `noiseModel::Robust`.
 //!
 //! The module is pure (slices and nalgebra types); [`g2o`] reads and writes the g2o text format.
@@ -200,6 +201,14 @@ fn validate(graph: &PoseGraph, options: &GraphOptions) -> Result<()> {
         a
     }
     for (k, e) in graph.edges.iter().enumerate() {
+        let m = &e.measurement;
+        if !(m.translation.vector.iter().all(|v| v.is_finite())
+            && m.rotation.coords.iter().all(|v| v.is_finite()))
+        {
+            return Err(Error::InvalidInput(format!(
+                "edge {k}: measurement is not finite"
+            )));
+        }
         if e.from >= n || e.to >= n || e.from == e.to {
             return Err(Error::InvalidInput(format!(
                 "edge {k} joins nodes {} and {} of a {n}-node graph",
@@ -266,8 +275,8 @@ fn retract(
 /// tolerance (GTSAM's `checkConvergence`), after `max_iterations`, or when λ exceeds its bound.
 ///
 /// # Errors
-/// [`Error::InvalidInput`] for an empty graph, an edge index out of range or joining a node to
-/// itself, a non-finite or asymmetric information matrix, a node not connected to node 0, or a
+/// [`Error::InvalidInput`] for an empty graph, a non-finite pose or measurement, an edge index out
+/// of range or joining a node to itself, a non-finite or asymmetric information matrix, a node not connected to node 0, or a
 /// non-positive kernel scale.
 pub fn optimize(graph: &PoseGraph, options: &GraphOptions) -> Result<GraphSolution> {
     validate(graph, options)?;
@@ -392,6 +401,29 @@ mod tests {
             poses,
         };
         assert!(optimize(&graph, &GraphOptions::default()).is_err());
+    }
+
+    #[test]
+    fn iteration_cap_is_not_convergence() {
+        // A 6-node ring whose start is far from its optimum: one iteration cannot meet 1e-5.
+        let truth: Vec<Isometry3<f64>> = (0..6)
+            .map(|k| se3::exp(&Vector6::new(0.0, 0.0, k as f64, 3.0 * k as f64, 0.0, 0.0)))
+            .collect();
+        let edges = (0..6).map(|k| edge(&truth, k, (k + 1) % 6)).collect();
+        let poses = (0..6)
+            .map(|k| truth[k] * se3::exp(&Vector6::repeat(0.2 * k as f64)))
+            .collect();
+        let graph = PoseGraph { poses, edges };
+        let capped = GraphOptions {
+            max_iterations: 1,
+            ..GraphOptions::default()
+        };
+        let one = optimize(&graph, &capped).unwrap();
+        assert_eq!(one.iterations, 1);
+        assert!(!one.converged);
+        assert!(one.final_cost < one.initial_cost);
+        let full = optimize(&graph, &GraphOptions::default()).unwrap();
+        assert!(full.converged && full.final_cost < 1e-12, "{full:?}");
     }
 
     #[test]
