@@ -86,6 +86,7 @@ fn args(input: &Path) -> EvaluateArgs {
         gt: None,
         gt_format: TrajectoryFormat::Tum,
         est_topic: Some("/mireg/pose".into()),
+        odometry: false,
         max_dt: 0.01,
         csv: false,
         json: false,

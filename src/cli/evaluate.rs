@@ -34,10 +34,15 @@ pub struct EvaluateArgs {
     /// Format of --gt.
     #[arg(long, value_enum, default_value_t = TrajectoryFormat::Tum, requires = "gt")]
     pub gt_format: TrajectoryFormat,
-    /// Estimated PoseStamped topic in INPUT [default: the newest run's, /mireg/pose, or
-    /// /mireg_N/pose for a log registered N times].
+    /// Estimated PoseStamped topic in INPUT [default: the newest run's loop-closed trajectory,
+    /// /mireg/pose_optimized, when present (the odometry's, /mireg/pose, is then evaluated too),
+    /// else its odometry, /mireg/pose; /mireg_N/… for a log registered N times].
     #[arg(long, value_name = "TOPIC")]
     pub est_topic: Option<String>,
+    /// Evaluate the newest run's odometry (/mireg/pose) even when the log has a loop-closed
+    /// trajectory.
+    #[arg(long, conflicts_with = "est_topic")]
+    pub odometry: bool,
     /// Largest stamp difference for pairing an estimate with a reference pose, in seconds.
     #[arg(long, value_name = "SECONDS", default_value_t = 0.01)]
     pub max_dt: f64,
@@ -77,20 +82,29 @@ fn reference_name(args: &EvaluateArgs, topic: Option<&str>) -> String {
 }
 
 /// The estimate and statistics topics of a log: `est_topic` when given (its run's statistics
-/// when it is a mireg topic), else the newest mireg run's.
+/// when it is a mireg topic), else the newest mireg run's: its loop-closed trajectory
+/// (`…/pose_optimized`) when the log has one and `odometry` is false, else its odometry
+/// (`…/pose`).
 pub(super) fn run_topics(
     channels: &[crate::io::mcap::log::ChannelInfo],
     est_topic: Option<&str>,
+    odometry: bool,
 ) -> (String, String) {
     let ns = match est_topic {
         Some(t) => t
             .strip_suffix("/pose")
+            .or_else(|| t.strip_suffix("/pose_optimized"))
             .filter(|ns| ns.starts_with(trajectory::MIREG_NAMESPACE))
             .map(str::to_string),
         None => trajectory::newest_mireg_namespace(channels),
     };
     let ns = ns.unwrap_or_else(|| trajectory::MIREG_NAMESPACE.to_string());
-    let est = est_topic.map_or_else(|| format!("{ns}/pose"), str::to_string);
+    let optimized = format!("{ns}/pose_optimized");
+    let est = match est_topic {
+        Some(t) => t.to_string(),
+        None if !odometry && channels.iter().any(|c| c.topic == optimized) => optimized,
+        None => format!("{ns}/pose"),
+    };
     (est, format!("{ns}/stats"))
 }
 
@@ -100,7 +114,7 @@ pub fn evaluate_log(args: &EvaluateArgs) -> Result<(Evaluation, String)> {
     let input = &args.input;
     let max_dt = max_dt_ns(args.max_dt)?;
     let channels = list_channels(input)?;
-    let (est_topic, stats_topic) = run_topics(&channels, args.est_topic.as_deref());
+    let (est_topic, stats_topic) = run_topics(&channels, args.est_topic.as_deref(), args.odometry);
     let (estimate, reference, name) = match &args.gt {
         Some(path) => {
             let reference = match args.gt_format {
@@ -289,14 +303,40 @@ pub(super) fn run_evaluate(args: &EvaluateArgs) -> Result<()> {
 
 fn evaluate_to_stdout(args: &EvaluateArgs) -> Result<()> {
     let (ev, reference) = evaluate_log(args)?;
-    let (estimate, _) = run_topics(&list_channels(&args.input)?, args.est_topic.as_deref());
+    let channels = list_channels(&args.input)?;
+    let (estimate, _) = run_topics(&channels, args.est_topic.as_deref(), args.odometry);
+    // The loop-closed trajectory chosen by default: the odometry's errors beside it.
+    let odometry = if args.est_topic.is_none() && estimate.ends_with("/pose_optimized") {
+        let odometry_args = EvaluateArgs {
+            input: args.input.clone(),
+            gt_topic: args.gt_topic.clone(),
+            gt: args.gt.clone(),
+            gt_format: args.gt_format,
+            est_topic: None,
+            odometry: true,
+            max_dt: args.max_dt,
+            csv: false,
+            json: false,
+        };
+        let topic = run_topics(&channels, None, true).0;
+        Some((evaluate_log(&odometry_args)?.0, topic))
+    } else {
+        None
+    };
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
     if args.csv {
         write_csv(&mut out, &ev)?;
     } else if args.json {
-        let v = evaluation_json(&ev, &estimate, &reference)?;
+        let mut v = evaluation_json(&ev, &estimate, &reference)?;
+        if let Some((odo, topic)) = &odometry {
+            v["odometry"] = evaluation_json(odo, topic, &reference)?;
+        }
         writeln!(out, "{}", serde_json::to_string_pretty(&v)?)?;
+    } else if let Some((odo, topic)) = &odometry {
+        write_text(&mut out, &ev, &args.input, &estimate, &reference)?;
+        writeln!(out)?;
+        write_text(&mut out, odo, &args.input, topic, &reference)?;
     } else {
         write_text(&mut out, &ev, &args.input, &estimate, &reference)?;
     }

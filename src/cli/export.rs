@@ -32,10 +32,15 @@ pub struct ExportArgs {
     /// Output file (replaced if it exists) [default: stdout].
     #[arg(short, long, value_name = "FILE")]
     pub output: Option<PathBuf>,
-    /// PoseStamped topic to export [default: the newest run's, /mireg/pose, or /mireg_N/pose
-    /// for a log registered N times].
+    /// PoseStamped topic to export [default: the newest run's loop-closed trajectory,
+    /// /mireg/pose_optimized, when present, else its odometry, /mireg/pose; /mireg_N/… for a
+    /// log registered N times].
     #[arg(long, value_name = "TOPIC")]
     pub topic: Option<String>,
+    /// Export the newest run's odometry (/mireg/pose) even when the log has a loop-closed
+    /// trajectory.
+    #[arg(long, conflicts_with = "topic")]
+    pub odometry: bool,
 }
 
 fn write_trajectory(t: &Trajectory, format: ExportFormat, out: &mut impl Write) -> Result<()> {
@@ -48,7 +53,7 @@ fn write_trajectory(t: &Trajectory, format: ExportFormat, out: &mut impl Write) 
 
 /// Runs `mireg export`.
 pub(super) fn run_export(args: &ExportArgs) -> Result<()> {
-    let (topic, _) = run_topics(&list_channels(&args.input)?, args.topic.as_deref());
+    let (topic, _) = run_topics(&list_channels(&args.input)?, args.topic.as_deref(), args.odometry);
     let t = trajectory::read_mcap_pose_topic(&args.input, &topic)?;
     if t.is_empty() {
         bail!("{}: topic {topic} has no messages", args.input.display());
