@@ -89,11 +89,11 @@ pub struct CandidateConfig {
     /// the log's typical keyframe. 1 turns the test off. Default 0.7.
     ///
     /// Measured (`examples/loop_descriptors.rs`, odd frames against even ones): the best true
-    /// match lies at 0.52–0.60 × the median on KAIST03 (up to 0.68 and 0.76 with the queries
-    /// turned by yaw or roll) and 0.20–0.49 × on ICL-NUIM. With the 0.1 cap, 0.7 passes the best
-    /// true match of 10/10, 10/10 and 8/10 KAIST03 queries (5/90, 6/90, 4/90 false pairs) and
-    /// 35/35 ICL queries (75/1011 false pairs, many of them overlapping frames just beyond the
-    /// 0.3 m truth radius); 0.5 passes 4/10, 3/10, 2/10 and 35/35.
+    /// match of a query lies at a median 0.52 × (max 0.60) the median distance on KAIST03 (max
+    /// 0.68 and 0.76 with the queries turned by yaw or roll), and at 0.20 × (max 0.49) on
+    /// ICL-NUIM. With the 0.1 cap, 0.7 passes the best true match of 10/10, 10/10 and 8/10
+    /// KAIST03 queries (and 5/90, 6/90, 4/90 false pairs) and of 35/35 ICL queries (75/1011
+    /// false pairs); 0.5 passes 4/10, 3/10, 2/10 and 35/35 (1/90, 0/90, 0/90, 21/1011).
     ///
     /// NOTE: Lowe's ratio test compares the best with the second best; a place seen several
     /// times has several good matches, so the reference here is the median instead.
