@@ -251,3 +251,40 @@ fn keyframe_selector_on_a_known_path() {
     );
     assert!(select_keyframes(&poses, &travelled[1..], &every).is_err());
 }
+
+#[test]
+fn appearance_finds_a_rotated_revisit_of_a_prepared_scene() {
+    // Eight rooms along a 70 m drive, then the third seen again turned by 120° about its up axis,
+    // its odometry 40 m from where it was first seen.
+    let mut descriptors: Vec<Descriptor> = (0..8)
+        .map(|k| descriptor_of(&synthetic_log::scene(10 + k)))
+        .collect();
+    let turn = Rotation3::from_axis_angle(&Vector3::y_axis(), f64::to_radians(120.0));
+    let revisit: Vec<_> = synthetic_log::scene(12).iter().map(|p| turn * p).collect();
+    descriptors.push(descriptor_of(&revisit));
+    let mut positions: Vec<_> = (0..8)
+        .map(|k| Vector3::new(10.0 * k as f64, 0.0, 0.0))
+        .collect();
+    positions.push(Vector3::new(20.0, 40.0, 0.0));
+    let kf = keyframes(&positions, &descriptors);
+    let config = CandidateConfig {
+        min_frame_separation: 10,
+        ..CandidateConfig::default()
+    };
+    let found = find_candidates(&kf, &config).unwrap();
+    let of_revisit: Vec<&Candidate> = found.iter().filter(|c| c.query == 8).collect();
+    assert!(!of_revisit.is_empty(), "{found:?}");
+    assert_eq!(
+        (of_revisit[0].matched, of_revisit[0].by),
+        (2, Source::Appearance)
+    );
+    // Other rooms may pass the gate (few earlier keyframes make a loose median), never as close.
+    let d = of_revisit[0].descriptor_distance;
+    assert!(
+        found
+            .iter()
+            .filter(|c| c.matched != 2)
+            .all(|c| c.descriptor_distance > 5.0 * d),
+        "{found:?}"
+    );
+}

@@ -4,8 +4,11 @@
 //!
 //! Cost for n keyframes: place search builds a kd-tree over the positions (O(n log n)) and
 //! queries one ball per keyframe, of radius at most [`CandidateConfig::max_place_radius_m`];
-//! appearance search compares each keyframe with every earlier one, O(n²) distances of 49
-//! floats (10⁴ keyframes: 5 · 10⁷ distances, a few seconds on one core, parallel over queries).
+//! appearance search compares each keyframe with every earlier one, O(n²) distances of 65
+//! floats (10⁴ keyframes: 5 · 10⁷ distances). Measured on 10⁴ synthetic keyframes 0.5 m apart
+//! on 16 laps of a 50 m circle (dev profile, this repository's 2-core machine): 3.0 s on one
+//! thread, 1.6 s on two (parallel over queries). Beyond ~10⁴ keyframes the appearance scan wants
+//! an index (a kd-tree over the 65-float descriptors, as Scan Context's ring keys).
 
 use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
@@ -79,11 +82,18 @@ pub struct CandidateConfig {
     /// k-nearest). Default 3.
     pub appearance_k: usize,
     /// Appearance candidates need a descriptor distance at most this. Default
-    /// [`DEFAULT_MAX_DESCRIPTOR_DISTANCE`].
+    /// [`DEFAULT_MAX_DESCRIPTOR_DISTANCE`] (0.1).
     pub max_descriptor_distance: f64,
     /// Appearance candidates need a descriptor distance at most this fraction of the median
     /// distance from the query to all eligible earlier keyframes: a match must stand out from
     /// the log's typical keyframe. 1 turns the test off. Default 0.7.
+    ///
+    /// Measured (`examples/loop_descriptors.rs`, odd frames against even ones): the best true
+    /// match of a query lies at a median 0.52 × (max 0.60) the median distance on KAIST03 (max
+    /// 0.68 and 0.76 with the queries turned by yaw or roll), and at 0.20 × (max 0.49) on
+    /// ICL-NUIM. With the 0.1 cap, 0.7 passes the best true match of 10/10, 10/10 and 8/10
+    /// KAIST03 queries (and 5/90, 6/90, 4/90 false pairs) and of 35/35 ICL queries (75/1011
+    /// false pairs); 0.5 passes 4/10, 3/10, 2/10 and 35/35 (1/90, 0/90, 0/90, 21/1011).
     ///
     /// NOTE: Lowe's ratio test compares the best with the second best; a place seen several
     /// times has several good matches, so the reference here is the median instead.
@@ -92,7 +102,9 @@ pub struct CandidateConfig {
     pub max_per_query: usize,
 }
 
-/// Default [`CandidateConfig::max_descriptor_distance`]: 0.1.
+/// Default [`CandidateConfig::max_descriptor_distance`]: 0.1. Measured with
+/// `examples/loop_descriptors.rs`: true pairs average 0.036 on KAIST03 and 0.064 on ICL-NUIM,
+/// false ones 0.071 and 0.144; the cap only bites where the median test is loose.
 pub const DEFAULT_MAX_DESCRIPTOR_DISTANCE: f64 = 0.1;
 
 impl Default for CandidateConfig {
