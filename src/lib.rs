@@ -15,6 +15,7 @@ pub mod geometry;
 mod hash;
 pub mod heap;
 pub mod io;
+pub mod map;
 pub mod ransac;
 pub mod refine;
 pub mod simulate;

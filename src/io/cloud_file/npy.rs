@@ -136,6 +136,27 @@ pub fn parse_npy(bytes: &[u8], path: &Path) -> Result<Vec<Point3<f64>>> {
     Ok(points)
 }
 
+
+/// Writes `rows` (flat `f32`, `cols` columns: 3 for `x y z`, 4 with intensity) as a NumPy
+/// format 1.0 `.npy`: `'<f4'`, C order, shape `(N, cols)`, header padded with spaces to a
+/// multiple of 64 bytes and ended by `\n`.
+///
+/// # Errors
+/// The writer's I/O errors.
+pub fn write_npy(rows: &[f32], cols: usize, out: &mut impl std::io::Write) -> std::io::Result<()> {
+    let n = rows.len() / cols;
+    let mut dict = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({n}, {cols}), }}");
+    // magic (6) + version (2) + header length (2) + dict + padding + '\n' ≡ 0 (mod 64)
+    let unpadded = 10 + dict.len() + 1;
+    dict.extend(std::iter::repeat_n(' ', unpadded.next_multiple_of(64) - unpadded));
+    dict.push('\n');
+    let len = u16::try_from(dict.len()).map_err(std::io::Error::other)?;
+    out.write_all(b"\x93NUMPY\x01\x00")?;
+    out.write_all(&len.to_le_bytes())?;
+    out.write_all(dict.as_bytes())?;
+    super::write_f32_le(&rows[..n * cols], out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
