@@ -308,7 +308,11 @@ mod tests {
     #[test]
     fn written_files_read_back() {
         let rows = [1.0f32, -2.0, 3.5, 7.0, 0.25, 0.5, -0.75, 9.0];
-        for format in [CloudFileFormat::Ply, CloudFileFormat::Pcd, CloudFileFormat::Npy] {
+        for format in [
+            CloudFileFormat::Ply,
+            CloudFileFormat::Pcd,
+            CloudFileFormat::Npy,
+        ] {
             for cols in [3, 4] {
                 let rows = &rows[..2 * cols];
                 let mut bytes = Vec::new();

@@ -136,7 +136,6 @@ pub fn parse_npy(bytes: &[u8], path: &Path) -> Result<Vec<Point3<f64>>> {
     Ok(points)
 }
 
-
 /// Writes `rows` (flat `f32`, `cols` columns: 3 for `x y z`, 4 with intensity) as a NumPy
 /// format 1.0 `.npy`: `'<f4'`, C order, shape `(N, cols)`, header padded with spaces to a
 /// multiple of 64 bytes and ended by `\n`.
@@ -148,7 +147,10 @@ pub fn write_npy(rows: &[f32], cols: usize, out: &mut impl std::io::Write) -> st
     let mut dict = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({n}, {cols}), }}");
     // magic (6) + version (2) + header length (2) + dict + padding + '\n' ≡ 0 (mod 64)
     let unpadded = 10 + dict.len() + 1;
-    dict.extend(std::iter::repeat_n(' ', unpadded.next_multiple_of(64) - unpadded));
+    dict.extend(std::iter::repeat_n(
+        ' ',
+        unpadded.next_multiple_of(64) - unpadded,
+    ));
     dict.push('\n');
     let len = u16::try_from(dict.len()).map_err(std::io::Error::other)?;
     out.write_all(b"\x93NUMPY\x01\x00")?;

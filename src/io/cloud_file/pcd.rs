@@ -397,7 +397,6 @@ fn parse_ascii(h: &Header, xyz: [usize; 3], path: &Path) -> Result<Vec<Point3<f6
     Ok(points)
 }
 
-
 /// Writes `rows` (flat `f32`, `cols` = 3 for `x y z` or 4 for `x y z intensity`) as a PCD v0.7
 /// with `DATA binary` (little-endian `F 4` fields, `HEIGHT 1`, identity viewpoint).
 ///

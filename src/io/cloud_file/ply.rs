@@ -329,7 +329,6 @@ fn read_ascii_record(
     Ok(())
 }
 
-
 /// Writes `rows` (flat `f32`, `cols` = 3 for `x y z` or 4 for `x y z intensity`) as a
 /// `binary_little_endian` PLY with one `element vertex` of `float` properties.
 ///
@@ -341,7 +340,11 @@ pub fn write_ply(rows: &[f32], cols: usize, out: &mut impl std::io::Write) -> st
         out,
         "ply\nformat binary_little_endian 1.0\ncomment written by mireg\nelement vertex {n}\n\
          property float x\nproperty float y\nproperty float z\n{}end_header\n",
-        if cols == 4 { "property float intensity\n" } else { "" }
+        if cols == 4 {
+            "property float intensity\n"
+        } else {
+            ""
+        }
     )?;
     super::write_f32_le(&rows[..n * cols], out)
 }
