@@ -280,15 +280,13 @@ fn world_from_frame(k: usize) -> Isometry3<f64> {
     )
 }
 
+/// Poses of some frames: (frame, world_from_frame).
+type FramePoses = Vec<(usize, Isometry3<f64>)>;
+
 /// Writes `frames` clouds (the scene seen from [`world_from_frame`]) and, per `(topic, poses)`,
 /// a PoseStamped channel with `poses[k]` for the frames it covers; `voxel` in the `mireg`
 /// metadata when given.
-fn write_log(
-    path: &Path,
-    frames: usize,
-    pose_topics: &[(&str, Vec<(usize, Isometry3<f64>)>)],
-    voxel: Option<f64>,
-) {
+fn write_log(path: &Path, frames: usize, pose_topics: &[(&str, FramePoses)], voxel: Option<f64>) {
     let (world, inten) = world_scene();
     let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
     let mut w = mcap::WriteOptions::new()
@@ -357,7 +355,7 @@ fn write_log(
 }
 
 /// Poses of frames `ks`, each `world_from_frame(k)` moved by `error`.
-fn poses(ks: &[usize], error: Isometry3<f64>) -> Vec<(usize, Isometry3<f64>)> {
+fn poses(ks: &[usize], error: Isometry3<f64>) -> FramePoses {
     ks.iter()
         .map(|&k| (k, error * world_from_frame(k)))
         .collect()

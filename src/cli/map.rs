@@ -99,7 +99,7 @@ pub(super) fn run_map(args: &MapArgs) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else {
         println!(
-            "map of {} clouds ({} without a pose, skipped) on {} -> {}: {} points ({} in), voxel {} m ({}){}",
+            "map of {} clouds ({} without a pose, skipped) on {} -> {}: {} points ({} in), voxel {:.3} m ({}){}",
             summary.clouds_used,
             summary.clouds_without_pose,
             summary.pose_topic,

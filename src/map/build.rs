@@ -76,13 +76,16 @@ fn run_pose_topics(channels: &[ChannelInfo]) -> (String, String) {
     (format!("{ns}/pose"), format!("{ns}/pose_optimized"))
 }
 
+/// Poses by header stamp \[ns\], and the `mireg` metadata records of a log.
+type PosesAndMetadata = (Vec<(i64, Isometry3<f64>)>, Vec<BTreeMap<String, String>>);
+
 /// Reads the poses on `topic` (sorted by header stamp) and the `mireg` metadata records in
 /// one pass.
 fn read_poses_and_metadata(
     path: &Path,
     topic: &str,
     decode: PoseStampedDecoder,
-) -> Result<(Vec<(i64, Isometry3<f64>)>, Vec<BTreeMap<String, String>>)> {
+) -> Result<PosesAndMetadata> {
     let mut ids = Vec::new();
     let mut poses = Vec::new();
     let mut metas = Vec::new();

@@ -180,12 +180,12 @@ mod tests {
     use rand::{RngExt, SeedableRng};
     use std::collections::BTreeMap;
 
+    /// A cloud: its pose, points and intensities.
+    type Cloud = (Isometry3<f64>, Vec<Point3<f64>>, Vec<f32>);
+
     /// Per-voxel mean by brute force: every point's voxel computed independently, sums in a
     /// sorted map.
-    fn brute_force(
-        voxel: f64,
-        clouds: &[(Isometry3<f64>, Vec<Point3<f64>>, Vec<f32>)],
-    ) -> BTreeMap<[i64; 3], ([f64; 3], f64, u32)> {
+    fn brute_force(voxel: f64, clouds: &[Cloud]) -> BTreeMap<[i64; 3], ([f64; 3], f64, u32)> {
         let mut m: BTreeMap<[i64; 3], ([f64; 3], f64, u32)> = BTreeMap::new();
         for (pose, pts, inten) in clouds {
             for (p, &i) in pts.iter().zip(inten) {

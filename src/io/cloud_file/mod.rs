@@ -1,4 +1,6 @@
-//! Point cloud file readers: PLY, PCD (v0.7), NumPy `.npy` and KITTI velodyne `.bin`.
+//! Point cloud file readers: PLY, PCD (v0.7), NumPy `.npy` and KITTI velodyne `.bin`; and
+//! writers of PLY, PCD and `.npy` ([`CloudFileFormat::write`]: binary `f32` `x y z`, with an
+//! optional `intensity`), used by `mireg map`.
 //!
 //! Every reader returns the x, y, z coordinates as `Point3<f64>` in the file's own units
 //! (metres for all the data sets mireg is used with) and in file order.

@@ -1,5 +1,6 @@
 //! NumPy `.npy` reader (format versions 1.0, 2.0 and 3.0) for float arrays of shape (N, 3)
-//! or (N, 4); the fourth column (intensity, colour, ...) is ignored.
+//! or (N, 4); the fourth column (intensity, colour, ...) is ignored. [`write_npy`] writes
+//! format 1.0 `<f4` arrays of shape (N, 3) or (N, 4).
 
 use std::path::Path;
 

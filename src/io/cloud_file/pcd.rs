@@ -1,4 +1,4 @@
-//! PCD reader (Point Cloud Library format, v0.7 header).
+//! PCD reader and writer ([`write_pcd`]) (Point Cloud Library format, v0.7 header).
 //!
 //! Supports `DATA ascii`, `DATA binary` (little-endian, point-major records) and
 //! `DATA binary_compressed` (LZF-compressed, field-major). Reads the `x`, `y`, `z` fields (any

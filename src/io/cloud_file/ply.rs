@@ -1,4 +1,5 @@
-//! PLY reader (Turk's format, as written by the Stanford scanners, Open3D, PCL, CloudCompare).
+//! PLY reader (Turk's format, as written by the Stanford scanners, Open3D, PCL, CloudCompare)
+//! and writer ([`write_ply`]).
 //!
 //! Supports `ascii`, `binary_little_endian` and `binary_big_endian`; reads `x`, `y`, `z` of
 //! `element vertex` (any scalar type), skipping every other property, including list
