@@ -18,6 +18,7 @@ mod hash;
 pub mod heap;
 pub mod io;
 pub mod loops;
+pub mod map;
 pub mod ransac;
 pub mod refine;
 pub mod simulate;

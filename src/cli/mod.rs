@@ -8,6 +8,7 @@ mod evaluate;
 mod export;
 mod flags;
 mod info;
+mod map;
 mod pair;
 mod process;
 mod register;
@@ -21,6 +22,7 @@ pub use evaluate::{
 pub use export::{ExportArgs, ExportFormat};
 pub use flags::{RankingArg, RegistrationFlags, SamplerArg, VerificationArg};
 pub use info::InfoArgs;
+pub use map::MapArgs;
 pub use pair::{GtFormat, PairArgs, RegistrationFailed, pair_json};
 pub use process::error_text;
 pub use register::{DEFAULT_FIXTURE, RegisterArgs};
@@ -57,6 +59,8 @@ pub enum Command {
     /// The paper's registration experiment (Fig. 6): recall and precision per sampler, μ and
     /// ranking on frame pairs of a log with a reference trajectory.
     Sweep(SweepArgs),
+    /// The voxel-downsampled world map of a `register` output, as .ply, .pcd or .npy.
+    Map(MapArgs),
 }
 
 /// Runs the parsed command line.
@@ -72,6 +76,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Some(Command::Info(args)) => info::run_info(&args),
         Some(Command::Stitch(args)) => stitch::run_stitch(&args),
         Some(Command::Sweep(args)) => sweep::run_sweep(&args),
+        Some(Command::Map(args)) => map::run_map(&args),
         None => register::run_default(),
     }
 }

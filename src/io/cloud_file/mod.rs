@@ -1,4 +1,6 @@
-//! Point cloud file readers: PLY, PCD (v0.7), NumPy `.npy` and KITTI velodyne `.bin`.
+//! Point cloud file readers: PLY, PCD (v0.7), NumPy `.npy` and KITTI velodyne `.bin`; and
+//! writers of PLY, PCD and `.npy` ([`CloudFileFormat::write`]: binary `f32` `x y z`, with an
+//! optional `intensity`), used by `mireg map`.
 //!
 //! Every reader returns the x, y, z coordinates as `Point3<f64>` in the file's own units
 //! (metres for all the data sets mireg is used with) and in file order.
@@ -25,9 +27,75 @@ mod pcd;
 mod ply;
 
 pub use kitti::parse_kitti_bin;
-pub use npy::parse_npy;
-pub use pcd::{lzf_decompress, parse_pcd};
-pub use ply::parse_ply;
+pub use npy::{parse_npy, write_npy};
+pub use pcd::{lzf_decompress, parse_pcd, write_pcd};
+pub use ply::{parse_ply, write_ply};
+
+/// A point cloud file format mireg writes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CloudFileFormat {
+    /// `.ply`: binary little-endian PLY, `float` vertex properties.
+    Ply,
+    /// `.pcd`: PCD v0.7, `DATA binary`, `F 4` fields.
+    Pcd,
+    /// `.npy`: NumPy format 1.0, `<f4`, shape (N, 3) or (N, 4).
+    Npy,
+}
+
+impl CloudFileFormat {
+    /// The format of `path` by its extension (case-insensitive).
+    ///
+    /// # Errors
+    /// [`Error::InvalidInput`] naming the file for any other extension.
+    pub fn from_path(path: &Path) -> Result<Self> {
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase)
+            .unwrap_or_default();
+        match ext.as_str() {
+            "ply" => Ok(Self::Ply),
+            "pcd" => Ok(Self::Pcd),
+            "npy" => Ok(Self::Npy),
+            _ => Err(Error::InvalidInput(format!(
+                "{}: unsupported output extension '.{ext}' (expected .ply, .pcd or .npy)",
+                path.display()
+            ))),
+        }
+    }
+
+    /// Writes `rows` (flat `f32`: `x y z` in metres, then intensity when `cols` is 4).
+    ///
+    /// # Errors
+    /// The writer's I/O errors.
+    ///
+    /// # Panics
+    /// If `cols` is not 3 or 4 (a programming error).
+    pub fn write(
+        self,
+        rows: &[f32],
+        cols: usize,
+        out: &mut impl std::io::Write,
+    ) -> std::io::Result<()> {
+        assert!(cols == 3 || cols == 4, "3 or 4 columns");
+        match self {
+            Self::Ply => write_ply(rows, cols, out),
+            Self::Pcd => write_pcd(rows, cols, out),
+            Self::Npy => write_npy(rows, cols, out),
+        }
+    }
+}
+
+/// Writes `values` as little-endian `f32`, buffered in blocks.
+fn write_f32_le(values: &[f32], out: &mut impl std::io::Write) -> std::io::Result<()> {
+    let mut buf = Vec::with_capacity(4096 * 4);
+    for block in values.chunks(4096) {
+        buf.clear();
+        block.iter().for_each(|v| buf.extend(v.to_le_bytes()));
+        out.write_all(&buf)?;
+    }
+    Ok(())
+}
 
 /// Reads the points of a cloud file, choosing the format by extension (case-insensitive):
 /// `.ply`, `.pcd`, `.npy`, or `.bin` (KITTI velodyne: little-endian f32 x, y, z, intensity).
@@ -237,6 +305,45 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn written_files_read_back() {
+        let rows = [1.0f32, -2.0, 3.5, 7.0, 0.25, 0.5, -0.75, 9.0];
+        for format in [
+            CloudFileFormat::Ply,
+            CloudFileFormat::Pcd,
+            CloudFileFormat::Npy,
+        ] {
+            for cols in [3, 4] {
+                let rows = &rows[..2 * cols];
+                let mut bytes = Vec::new();
+                format.write(rows, cols, &mut bytes).unwrap();
+                let path = Path::new("map");
+                let pts = match format {
+                    CloudFileFormat::Ply => parse_ply(&bytes, path),
+                    CloudFileFormat::Pcd => parse_pcd(&bytes, path),
+                    CloudFileFormat::Npy => parse_npy(&bytes, path),
+                }
+                .unwrap();
+                let want: Vec<Point3<f64>> = rows
+                    .chunks(cols)
+                    .map(|r| Point3::new(r[0].into(), r[1].into(), r[2].into()))
+                    .collect();
+                assert_eq!(pts, want, "{format:?} {cols}");
+                // Data is the last 4·N·cols bytes, intensity included.
+                let tail: Vec<u8> = rows.iter().flat_map(|v| v.to_le_bytes()).collect();
+                assert!(bytes.ends_with(&tail), "{format:?} {cols}");
+                if format == CloudFileFormat::Npy {
+                    assert_eq!((bytes.len() - tail.len()) % 64, 0);
+                }
+            }
+        }
+        assert!(CloudFileFormat::from_path(Path::new("m.xyz")).is_err());
+        assert_eq!(
+            CloudFileFormat::from_path(Path::new("m.PLY")).unwrap(),
+            CloudFileFormat::Ply
+        );
     }
 
     #[test]

@@ -1,5 +1,6 @@
 //! NumPy `.npy` reader (format versions 1.0, 2.0 and 3.0) for float arrays of shape (N, 3)
-//! or (N, 4); the fourth column (intensity, colour, ...) is ignored.
+//! or (N, 4); the fourth column (intensity, colour, ...) is ignored. [`write_npy`] writes
+//! format 1.0 `<f4` arrays of shape (N, 3) or (N, 4).
 
 use std::path::Path;
 
@@ -134,6 +135,29 @@ pub fn parse_npy(bytes: &[u8], path: &Path) -> Result<Vec<Point3<f64>>> {
         push_finite(&mut points, get(r, 0), get(r, 1), get(r, 2));
     }
     Ok(points)
+}
+
+/// Writes `rows` (flat `f32`, `cols` columns: 3 for `x y z`, 4 with intensity) as a NumPy
+/// format 1.0 `.npy`: `'<f4'`, C order, shape `(N, cols)`, header padded with spaces to a
+/// multiple of 64 bytes and ended by `\n`.
+///
+/// # Errors
+/// The writer's I/O errors.
+pub fn write_npy(rows: &[f32], cols: usize, out: &mut impl std::io::Write) -> std::io::Result<()> {
+    let n = rows.len() / cols;
+    let mut dict = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({n}, {cols}), }}");
+    // magic (6) + version (2) + header length (2) + dict + padding + '\n' ≡ 0 (mod 64)
+    let unpadded = 10 + dict.len() + 1;
+    dict.extend(std::iter::repeat_n(
+        ' ',
+        unpadded.next_multiple_of(64) - unpadded,
+    ));
+    dict.push('\n');
+    let len = u16::try_from(dict.len()).map_err(std::io::Error::other)?;
+    out.write_all(b"\x93NUMPY\x01\x00")?;
+    out.write_all(&len.to_le_bytes())?;
+    out.write_all(dict.as_bytes())?;
+    super::write_f32_le(&rows[..n * cols], out)
 }
 
 #[cfg(test)]

@@ -1,4 +1,4 @@
-//! PCD reader (Point Cloud Library format, v0.7 header).
+//! PCD reader and writer ([`write_pcd`]) (Point Cloud Library format, v0.7 header).
 //!
 //! Supports `DATA ascii`, `DATA binary` (little-endian, point-major records) and
 //! `DATA binary_compressed` (LZF-compressed, field-major). Reads the `x`, `y`, `z` fields (any
@@ -395,6 +395,27 @@ fn parse_ascii(h: &Header, xyz: [usize; 3], path: &Path) -> Result<Vec<Point3<f6
         k += 1;
     }
     Ok(points)
+}
+
+/// Writes `rows` (flat `f32`, `cols` = 3 for `x y z` or 4 for `x y z intensity`) as a PCD v0.7
+/// with `DATA binary` (little-endian `F 4` fields, `HEIGHT 1`, identity viewpoint).
+///
+/// # Errors
+/// The writer's I/O errors.
+pub fn write_pcd(rows: &[f32], cols: usize, out: &mut impl std::io::Write) -> std::io::Result<()> {
+    let n = rows.len() / cols;
+    let (fields, size, ty, count) = if cols == 4 {
+        ("x y z intensity", "4 4 4 4", "F F F F", "1 1 1 1")
+    } else {
+        ("x y z", "4 4 4", "F F F", "1 1 1")
+    };
+    write!(
+        out,
+        "# .PCD v0.7 - Point Cloud Data file format (written by mireg)\nVERSION 0.7\n\
+         FIELDS {fields}\nSIZE {size}\nTYPE {ty}\nCOUNT {count}\nWIDTH {n}\nHEIGHT 1\n\
+         VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA binary\n"
+    )?;
+    super::write_f32_le(&rows[..n * cols], out)
 }
 
 #[cfg(test)]

@@ -1,4 +1,5 @@
-//! PLY reader (Turk's format, as written by the Stanford scanners, Open3D, PCL, CloudCompare).
+//! PLY reader (Turk's format, as written by the Stanford scanners, Open3D, PCL, CloudCompare)
+//! and writer ([`write_ply`]).
 //!
 //! Supports `ascii`, `binary_little_endian` and `binary_big_endian`; reads `x`, `y`, `z` of
 //! `element vertex` (any scalar type), skipping every other property, including list
@@ -327,6 +328,26 @@ fn read_ascii_record(
         return Err(format!("extra values on line '{}'", show(line)));
     }
     Ok(())
+}
+
+/// Writes `rows` (flat `f32`, `cols` = 3 for `x y z` or 4 for `x y z intensity`) as a
+/// `binary_little_endian` PLY with one `element vertex` of `float` properties.
+///
+/// # Errors
+/// The writer's I/O errors.
+pub fn write_ply(rows: &[f32], cols: usize, out: &mut impl std::io::Write) -> std::io::Result<()> {
+    let n = rows.len() / cols;
+    write!(
+        out,
+        "ply\nformat binary_little_endian 1.0\ncomment written by mireg\nelement vertex {n}\n\
+         property float x\nproperty float y\nproperty float z\n{}end_header\n",
+        if cols == 4 {
+            "property float intensity\n"
+        } else {
+            ""
+        }
+    )?;
+    super::write_f32_le(&rows[..n * cols], out)
 }
 
 #[cfg(test)]

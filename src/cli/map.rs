@@ -1,0 +1,119 @@
+//! `mireg map`: the voxel-downsampled world map of a `register` output ([`crate::map`]) as
+//! `.ply`, `.pcd` or `.npy`.
+
+use std::io::Write;
+use std::path::PathBuf;
+
+use anyhow::{Result, bail};
+use clap::{Args, ValueEnum};
+
+use crate::io::atomic_file::{PendingFile, check_target, same_file};
+use crate::io::cloud_file::CloudFileFormat;
+use crate::map::{MapOptions, TrajectoryChoice, build_map};
+
+/// `--trajectory` of `mireg map`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum TrajectoryArg {
+    /// `/mireg/pose`: register's odometry.
+    Odometry,
+    /// `/mireg/pose_optimized`: the loop-closed trajectory (an error if the log lacks it).
+    Optimized,
+    /// `/mireg/pose_optimized` when present, else `/mireg/pose`.
+    Auto,
+}
+
+/// Arguments of `mireg map`.
+#[derive(Debug, Args)]
+pub struct MapArgs {
+    /// MCAP written by `mireg register` (it holds the clouds and their poses).
+    pub input: PathBuf,
+    /// Output map: `.ply` (binary), `.pcd` (binary) or `.npy` (float32, N×3, or N×4 with
+    /// intensity), chosen by extension.
+    #[arg(short, long, value_name = "FILE")]
+    pub output: PathBuf,
+    /// Voxel edge of the map [m]: one point (centroid, mean intensity) per occupied voxel
+    /// [default: the voxel `register` used, from the output's `mireg` metadata (`voxel_m`)].
+    #[arg(long, value_name = "METRES")]
+    pub voxel: Option<f64>,
+    /// Trajectory placing the clouds (the newest run's topics, `/mireg_N/…` for a log
+    /// registered N times).
+    #[arg(long, value_enum, default_value = "auto")]
+    pub trajectory: TrajectoryArg,
+    /// Point cloud topic [default: the one `register` read].
+    #[arg(long, value_name = "TOPIC")]
+    pub topic: Option<String>,
+    /// Replace an existing output.
+    #[arg(long)]
+    pub force: bool,
+    /// Print the summary as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Runs `mireg map`.
+pub(super) fn run_map(args: &MapArgs) -> Result<()> {
+    let out = &args.output;
+    let format = CloudFileFormat::from_path(out)?;
+    if same_file(&args.input, out) {
+        bail!(
+            "output {} is the input; mireg never writes over its input",
+            out.display()
+        );
+    }
+    // Fail before reading the whole log, not after.
+    check_target(out, args.force)?;
+    let opts = MapOptions {
+        voxel_m: args.voxel,
+        trajectory: match args.trajectory {
+            TrajectoryArg::Odometry => TrajectoryChoice::Odometry,
+            TrajectoryArg::Optimized => TrajectoryChoice::Optimized,
+            TrajectoryArg::Auto => TrajectoryChoice::Auto,
+        },
+        topic: args.topic.clone(),
+    };
+    let (map, summary) = build_map(&args.input, &opts)?;
+    if map.is_empty() {
+        bail!(
+            "{}: no cloud on {} has a pose on {} ({} clouds without one): the map would be empty",
+            args.input.display(),
+            summary.cloud_topic,
+            summary.pose_topic,
+            summary.clouds_without_pose
+        );
+    }
+    let cols = if summary.intensity { 4 } else { 3 };
+    let rows = map.to_rows(summary.intensity);
+    drop(map);
+    // Written beside the target and moved into place when complete.
+    let (file, pending) = PendingFile::create(out, args.force)?;
+    let io = |e: std::io::Error| crate::Error::Io {
+        path: out.clone(),
+        source: e,
+    };
+    let mut w = std::io::BufWriter::new(file);
+    format.write(&rows, cols, &mut w).map_err(io)?;
+    w.flush().map_err(io)?;
+    let file = w.into_inner().map_err(|e| io(e.into_error()))?;
+    pending.commit(file)?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    } else {
+        println!(
+            "map of {} clouds ({} without a pose, skipped) on {} -> {}: {} points ({} in), voxel {:.3} m ({}){}",
+            summary.clouds_used,
+            summary.clouds_without_pose,
+            summary.pose_topic,
+            out.display(),
+            summary.map_points,
+            summary.points_in,
+            summary.voxel_m,
+            summary.voxel_source,
+            if summary.intensity {
+                ", with intensity"
+            } else {
+                ""
+            }
+        );
+    }
+    Ok(())
+}

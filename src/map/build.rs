@@ -1,0 +1,203 @@
+//! [`build_map`]: the [`VoxelMap`] of a `mireg register` output, from its best trajectory.
+//!
+//! Two passes over the MCAP: the first reads the trajectory (one pose per frame, 64 bytes each)
+//! and the run's `mireg` metadata; the second streams the clouds one at a time into the
+//! accumulator. Clouds are used as stored in the log (not deskewed, whatever `register` did).
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use mcap::records::Record;
+use nalgebra::Isometry3;
+
+use super::VoxelMap;
+use crate::io::codec::PoseStampedDecoder;
+use crate::io::mcap::log::{ChannelInfo, for_each_record, list_channels};
+use crate::register::for_each_cloud;
+use crate::trajectory::{self, check_pose_topic};
+use crate::{Error, Result};
+
+/// Which trajectory places the clouds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum TrajectoryChoice {
+    /// `…/pose`: the odometry of `mireg register`.
+    Odometry,
+    /// `…/pose_optimized`: the loop-closed trajectory (same message type).
+    Optimized,
+    /// `…/pose_optimized` when the log has it, else `…/pose`.
+    #[default]
+    Auto,
+}
+
+/// What [`build_map`] needs besides the log.
+#[derive(Debug, Clone, Default)]
+pub struct MapOptions {
+    /// Voxel edge \[m\]; `None`: the `voxel_m` that `register` used, from the run's `mireg`
+    /// metadata.
+    pub voxel_m: Option<f64>,
+    /// Trajectory to use.
+    pub trajectory: TrajectoryChoice,
+    /// Point cloud topic; `None`: the one `register` read (its metadata), else the log's only
+    /// cloud topic.
+    pub topic: Option<String>,
+}
+
+/// What went into a map.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct MapSummary {
+    /// Pose topic used.
+    pub pose_topic: String,
+    /// Point cloud topic read.
+    pub cloud_topic: String,
+    /// Voxel edge \[m\].
+    pub voxel_m: f64,
+    /// Where the voxel came from: `option` (`--voxel`) or `register_metadata`.
+    pub voxel_source: &'static str,
+    /// Poses on the pose topic.
+    pub poses: usize,
+    /// Clouds placed in the map.
+    pub clouds_used: u64,
+    /// Clouds skipped because no pose has their header stamp (e.g. frames a trajectory left out).
+    pub clouds_without_pose: u64,
+    /// Points accumulated.
+    pub points_in: u64,
+    /// Points skipped because too far from the origin for a voxel key.
+    pub points_out_of_range: u64,
+    /// Points of the map (occupied voxels).
+    pub map_points: usize,
+    /// Whether the map carries intensity: every cloud used had an `intensity` field.
+    pub intensity: bool,
+}
+
+/// The pose topics of the newest `mireg` run of a log: (odometry, optimized).
+fn run_pose_topics(channels: &[ChannelInfo]) -> (String, String) {
+    let ns = trajectory::newest_mireg_namespace(channels)
+        .unwrap_or_else(|| trajectory::MIREG_NAMESPACE.to_string());
+    (format!("{ns}/pose"), format!("{ns}/pose_optimized"))
+}
+
+/// Poses by header stamp \[ns\], and the `mireg` metadata records of a log.
+type PosesAndMetadata = (Vec<(i64, Isometry3<f64>)>, Vec<BTreeMap<String, String>>);
+
+/// Reads the poses on `topic` (sorted by header stamp) and the `mireg` metadata records in
+/// one pass.
+fn read_poses_and_metadata(
+    path: &Path,
+    topic: &str,
+    decode: PoseStampedDecoder,
+) -> Result<PosesAndMetadata> {
+    let mut ids = Vec::new();
+    let mut poses = Vec::new();
+    let mut metas = Vec::new();
+    for_each_record(path, |r| {
+        match r {
+            Record::Channel(c) if c.topic == topic => ids.push(c.id),
+            Record::Metadata(m) if m.name == "mireg" => metas.push(m.metadata),
+            Record::Message { header, data } if ids.contains(&header.channel_id) => {
+                let (h, pose) = decode(&data).map_err(|e| {
+                    crate::io::format_err(
+                        path,
+                        format!(
+                            "message on {topic} at log time {} ns: field {}: {}",
+                            header.log_time, e.field, e.detail
+                        ),
+                    )
+                })?;
+                poses.push((h.stamp.to_ns(), pose));
+            }
+            _ => {}
+        }
+        Ok(())
+    })?;
+    poses.sort_by_key(|p| p.0);
+    Ok((poses, metas))
+}
+
+/// Builds the map of `input`, a `mireg register` output (MCAP holding the clouds and the
+/// poses): each cloud on the cloud topic is placed by the pose with its header stamp and
+/// accumulated into a [`VoxelMap`]; clouds without a pose are skipped and counted.
+///
+/// # Errors
+/// [`Error::InvalidInput`] naming the file when it has no pose topic of the chosen kind, no
+/// poses on it, no voxel (neither `voxel_m` nor `mireg` metadata), or no cloud topic;
+/// [`Error::Io`] / [`Error::Format`] for an unreadable or malformed file.
+pub fn build_map(input: &Path, opts: &MapOptions) -> Result<(VoxelMap, MapSummary)> {
+    let channels = list_channels(input)?;
+    let (odometry, optimized) = run_pose_topics(&channels);
+    let has = |t: &str| channels.iter().any(|c| c.topic == t);
+    let pose_topic = match opts.trajectory {
+        TrajectoryChoice::Odometry => odometry.clone(),
+        TrajectoryChoice::Optimized => optimized,
+        TrajectoryChoice::Auto if has(&optimized) => optimized,
+        TrajectoryChoice::Auto => odometry.clone(),
+    };
+    let decode = check_pose_topic(input, &channels, &pose_topic).map_err(|e| match e {
+        Error::InvalidInput(m) => Error::InvalidInput(format!(
+            "{m} (mireg map needs the poses of a `mireg register` output)"
+        )),
+        e => e,
+    })?;
+    let (poses, metas) = read_poses_and_metadata(input, &pose_topic, decode)?;
+    if poses.is_empty() {
+        return Err(Error::InvalidInput(format!(
+            "{}: no poses: topic {pose_topic} has no messages",
+            input.display()
+        )));
+    }
+    // The metadata of the run that wrote these poses (the last one when none names them).
+    let meta = metas
+        .iter()
+        .rev()
+        .find(|m| m.get("pose_topic") == Some(&odometry))
+        .or(metas.last());
+    let (voxel_m, voxel_source) = match opts.voxel_m {
+        Some(v) => (v, "option"),
+        None => {
+            let v = meta
+                .and_then(|m| m.get("voxel_m"))
+                .and_then(|v| v.parse::<f64>().ok())
+                .ok_or_else(|| {
+                    Error::InvalidInput(format!(
+                        "{}: no mireg metadata with voxel_m (not written by `mireg register`?); \
+                         set the map's voxel with --voxel",
+                        input.display()
+                    ))
+                })?;
+            (v, "register_metadata")
+        }
+    };
+    let mut map = VoxelMap::new(voxel_m)?;
+    let topic = opts
+        .topic
+        .clone()
+        .or_else(|| meta.and_then(|m| m.get("topic").cloned()));
+    let mut used = 0u64;
+    let mut without_pose = 0u64;
+    let mut all_intensity = true;
+    let cloud_topic = for_each_cloud(input, topic.as_deref(), |_, cloud| {
+        let stamp = cloud.header.stamp.to_ns();
+        match poses.binary_search_by_key(&stamp, |p| p.0) {
+            Ok(k) => {
+                all_intensity &= cloud.intensity.is_some();
+                map.add_cloud(&poses[k].1, &cloud.points, cloud.intensity.as_deref());
+                used += 1;
+            }
+            Err(_) => without_pose += 1,
+        }
+        Ok(std::ops::ControlFlow::Continue(()))
+    })?;
+    let summary = MapSummary {
+        pose_topic,
+        cloud_topic,
+        voxel_m,
+        voxel_source,
+        poses: poses.len(),
+        clouds_used: used,
+        clouds_without_pose: without_pose,
+        points_in: map.points_added(),
+        points_out_of_range: map.points_out_of_range(),
+        map_points: map.len(),
+        intensity: used > 0 && all_intensity,
+    };
+    Ok((map, summary))
+}
