@@ -203,7 +203,8 @@ fn fixture_map_is_the_voxel_mean_of_the_registered_clouds() {
     let ply = dir.path().join("map.ply");
     let summary = map_json(&[s(&reg), "-o", s(&ply)]);
     assert_eq!(summary["voxel_source"], "register_metadata");
-    assert_eq!(summary["pose_topic"], "/mireg/pose");
+    // Loop closure is on by default: the best trajectory is the optimised one.
+    assert_eq!(summary["pose_topic"], "/mireg/pose_optimized");
     assert_eq!(summary["clouds_used"], 71);
     assert_eq!(summary["clouds_without_pose"], 0);
     assert_eq!(summary["intensity"], false);
@@ -211,7 +212,7 @@ fn fixture_map_is_the_voxel_mean_of_the_registered_clouds() {
     assert!(voxel > 0.01 && voxel < 0.2, "{voxel}");
 
     // Brute force from the clouds and poses of the output, read by the library.
-    let traj = mireg::trajectory::read_mcap_pose_topic(&reg, "/mireg/pose").unwrap();
+    let traj = mireg::trajectory::read_mcap_pose_topic(&reg, "/mireg/pose_optimized").unwrap();
     let pose_of: HashMap<i64, Isometry3<f64>> = traj
         .stamps_ns
         .iter()

@@ -69,7 +69,14 @@ impl LoopConfig {
     /// behaviour. In voxels `v`: keyframes every 2.5 v of path or 10°; place radius 8 v growing
     /// by 2 % of the path between the frames up to 80 v; at least 20 v of path and 5 frames
     /// between the two frames of a loop; agreement with the odometry required up to 200 v of
-    /// path. Odometry edges σ = 0.1 v and 0.2° per step; loop edges the same.
+    /// path; at most 2 candidates per keyframe. Odometry edges σ = 0.1 v and 0.2° per step; loop
+    /// edges 3× that, 0.3 v and 0.6°.
+    ///
+    /// Measured (`examples/loop_settings.rs`, docs/LOOPS.md) on the out-and-back logs of
+    /// `tools/make_loop_logs.py`: loop σ at 1× the odometry's, the optimised ATE was above the
+    /// odometry's on KAIST03 (2.58 against 2.44 cm); at 3×, 2.39 cm (and its gap log 2.45 against
+    /// 2.49 cm), micro211 1.23 cm either way. A loop joins two frames seen from further apart
+    /// than consecutive ones, with less overlap: its registration is the less certain.
     pub fn for_voxel(voxel_m: f64) -> Self {
         let v = voxel_m;
         Self {
@@ -83,13 +90,14 @@ impl LoopConfig {
                 max_place_radius_m: 80.0 * v,
                 min_path_separation_m: 20.0 * v,
                 min_frame_separation: 5,
+                max_per_query: 2,
                 ..CandidateConfig::default()
             },
             verify: VerifyConfig::default(),
             odometry_sigma_m: 0.1 * v,
             odometry_sigma_deg: 0.2,
-            loop_sigma_m: 0.1 * v,
-            loop_sigma_deg: 0.2,
+            loop_sigma_m: 0.3 * v,
+            loop_sigma_deg: 0.6,
             kernel_scale: 1.0,
             frames_in_memory: DEFAULT_FRAMES_IN_MEMORY,
             agreement_path_m: 200.0 * v,
