@@ -74,7 +74,7 @@ from viewer.geometry import nearest_neighbours, transform, voxel_downsample  # n
 from viewer.mapfile import load_map  # noqa: E402,F401
 from viewer.pair import to_toml  # noqa: E402,F401
 from viewer.reading import (  # noqa: E402,F401
-    Frame, Loop, MissingDecoder, Run, decode_pointcloud2, pose_to_matrix, read_run,
+    Frame, Loop, MissingDecoder, Run, decode_pointcloud2, pose_to_matrix, read_run, run_topics,
 )
 from viewer.scene import STAGES, STAT_SERIES  # noqa: E402,F401
 from viewer.timeline import TIMELINE, colour_map, up_vector  # noqa: E402,F401

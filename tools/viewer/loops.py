@@ -133,8 +133,8 @@ def log_loop_pair(rr, run: Run, args):
     median = float(np.median(dist)) if len(dist) else float("nan")
     text = (
         f"{loop_text(loop)}. Drawn: match cloud {m.index} (white) and query cloud {q.index} placed "
-        f"by {placed_by}, voxel {voxel} m; {int(close.sum())}/{len(query_pts)} query points "
-        f"within {threshold} m of a match point, median distance {median:.3g} m"
+        f"by {placed_by}, voxel {voxel:.4g} m; {int(close.sum())}/{len(query_pts)} query points "
+        f"within {threshold:.4g} m of a match point, median distance {median:.3g} m"
     )
     rr.log("log/loop_pair", rr.TextLog(text, level=rr.TextLogLevel.INFO))
     print(text, file=sys.stderr)
