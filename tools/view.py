@@ -58,8 +58,9 @@ this is a *recomputation*: clouds K (source) and K−1 (target) are written as f
 files in a temp dir and registered again with ``mireg pair SOURCE TARGET --json`` (binary from
 ``--mireg``, default ``target/release/mireg``) using the voxel size, inlier threshold and seed of the
 ``mireg`` metadata record. Both clouds are voxel-downsampled, placed in the world by
-world_from_(K−1) on ``--trajectory`` (source also by the pair's target_from_source), and every source point whose
-nearest target point lies within the inlier threshold (1.5·voxel by default) gets a line segment.
+world_from_(K−1) on ``--trajectory`` (source also by the pair's target_from_source), and every
+source point whose nearest target point lies within the inlier threshold (1.5·voxel by default)
+gets a line segment.
 Those are geometric inlier pairs under the recomputed estimate, not the feature correspondences
 RANSAC voted with, and the recomputed estimate can differ from the one in the MCAP if the run used
 settings the flags here do not reproduce.
