@@ -77,19 +77,6 @@ def read_rrd(path: Path) -> dict:
     return dict(entities)
 
 
-def column(entity: dict, suffix: str) -> list:
-    """Values of the column whose name ends with ``suffix``, ordered by message_log_time."""
-    pairs = []
-    for batch in entity["batches"]:
-        names = batch.schema.names
-        if "message_log_time" not in names:
-            continue
-        name = next(n for n in names if n.endswith(suffix))
-        times = batch.column("message_log_time").cast("int64").to_pylist()
-        pairs += zip(times, batch.column(name).to_pylist())
-    return sorted(pairs, key=lambda p: p[0])
-
-
 @pytest.fixture(scope="module")
 def run():
     return view.read_run(output_mcap(), load_clouds=False)
@@ -135,7 +122,7 @@ def test_clouds_one_per_every_frame(saved, run):
         assert "message_log_time" in saved[path]["timelines"]
     # the cloud of frame k is logged at frame k's log time
     k = expected[-1]
-    (t, _), = column(saved[k], "Points3D:positions")
+    (t, _), = values(saved[k], "Points3D:positions")
     assert t == run.frames[(n - 1) // EVERY * EVERY].log_time
 
 
@@ -145,7 +132,7 @@ def test_trajectories(saved, run):
     assert saved["world/trajectory/estimate"]["rows"] == n_est
     assert saved["world/camera"]["rows"] == n_est
     assert saved["world/camera/axes"]["rows"] == n_est
-    strips = column(saved["world/trajectory/estimate"], "LineStrips3D:strips")
+    strips = values(saved["world/trajectory/estimate"], "LineStrips3D:strips")
     assert [t for t, _ in strips] == [f.log_time for f in run.frames]
     last = np.array(strips[-1][1][0])
     assert last.shape == (n_est, 3)  # the strip grows to the whole trajectory
@@ -170,7 +157,7 @@ def test_no_loop_topics_nothing_drawn(saved, run):
 def test_stats_series_one_value_per_frame(saved, run):
     stats = [f for f in run.frames if f.stats is not None]
     assert len(stats) == len(run.frames)
-    inliers = column(saved["stats/inliers"], "Scalars:scalars")
+    inliers = values(saved["stats/inliers"], "Scalars:scalars")
     assert [t for t, _ in inliers] == [f.log_time for f in stats]
     assert [v[0] for _, v in inliers] == [float(f.stats["num_inliers"]) for f in stats]
     for name in ("correspondences", "inlier_ratio", "hypotheses", "fitness", "inlier_rmse_m"):
@@ -185,7 +172,7 @@ def test_failures_marked(saved, run):
     if failed:
         assert saved["world/failures"]["rows"] == len(failed)
         assert saved["log/failures"]["rows"] == len(failed)
-        texts = [v for _, v in column(saved["log/failures"], "TextLog:text")]
+        texts = [v for _, v in values(saved["log/failures"], "TextLog:text")]
         assert all(f"frame {f.index} " in str(text) for f, text in zip(failed, texts))
     else:
         assert "world/failures" not in saved
@@ -206,7 +193,7 @@ def test_frame_pair_recomputation(tmp_path, run):
     for path in ("world/pair/source", "world/pair/target", "world/pair/correspondences",
                  "log/pair", f"world/clouds/frame_{k:04d}"):
         assert saved[path]["rows"] == 1, path
-    (t, strips), = column(saved["world/pair/correspondences"], "LineStrips3D:strips")
+    (t, strips), = values(saved["world/pair/correspondences"], "LineStrips3D:strips")
     assert t == run.frames[k].log_time
     assert len(strips) > 10  # consecutive fixture frames overlap: many inlier pairs
     assert all(len(s) == 2 for s in strips)
@@ -404,6 +391,10 @@ def test_loop_edges_coloured_by_verdict_on_the_optimized_trajectory(loop_saved, 
     assert len(texts) == len(loops)
 
 
+LOOP_PAIR_COLUMN = {"world/loop_pair": "Transform3D:translation", "log/loop_pair": "TextLog:text",
+                    "world/loop_pair/inlier_pairs": "LineStrips3D:strips"}
+
+
 @pytest.mark.parametrize("verdict", ["accepted", "rejected"])
 def test_loop_pair(tmp_path, loop_mcap, loop_run, verdict):
     loop = next((x for x in loop_run.loops if x.data["verdict"] == verdict), None)
@@ -416,7 +407,8 @@ def test_loop_pair(tmp_path, loop_mcap, loop_run, verdict):
     for path in ("world/loop_pair", "world/loop_pair/match", "world/loop_pair/query",
                  "world/loop_pair/inlier_pairs", "log/loop_pair"):
         assert saved[path]["rows"] == 1, path
-        assert values(saved[path], values_col(path))[0][0] == loop.query.log_time, path
+        assert [t for t, _ in values(saved[path], LOOP_PAIR_COLUMN.get(path, "Points3D:positions"))
+                ] == [loop.query.log_time], path
     (_, translation), = values(saved["world/loop_pair"], "Transform3D:translation")
     np.testing.assert_allclose(translation[0], loop.match.optimized[:3, 3], atol=1e-5)
     (_, query), = values(saved["world/loop_pair/query"], "Points3D:positions")
@@ -427,11 +419,6 @@ def test_loop_pair(tmp_path, loop_mcap, loop_run, verdict):
         # made-up loops: the query cloud is placed by the odometry, so the clouds overlap
         (_, pairs), = values(saved["world/loop_pair/inlier_pairs"], "LineStrips3D:strips")
         assert len(pairs) > 0.5 * len(query) if verdict == "accepted" else len(pairs) > 10
-
-
-def values_col(path: str) -> str:
-    return {"world/loop_pair": "Transform3D:translation", "log/loop_pair": "TextLog:text",
-            "world/loop_pair/inlier_pairs": "LineStrips3D:strips"}.get(path, "Points3D:positions")
 
 
 def test_loop_out_of_range_is_a_message(loop_mcap, loop_run):
