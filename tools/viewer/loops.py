@@ -83,7 +83,7 @@ def log_loops(rr, run: Run, args) -> None:
 
 
 def log_loop_pair(rr, run: Run, args):
-    """``--loop N``: the match cloud in its sensor frame (white) and the query cloud moved into
+    """``--loop N``: the match cloud in its sensor frame (grey) and the query cloud moved into
     it by ``match_from_query`` (coloured by the distance to its nearest match point, turbo from 0
     to 3× the inlier threshold), both voxel-downsampled, with a yellow segment per query point
     within the inlier threshold; under ``world/loop_pair``, whose transform is the match frame's
@@ -120,7 +120,7 @@ def log_loop_pair(rr, run: Run, args):
         "world/loop_pair",
         rr.Transform3D(translation=world_from_match[:3, 3], mat3x3=world_from_match[:3, :3]),
     )
-    rr.log("world/loop_pair/match", rr.Points3D(match_pts, colors=[255, 255, 255], radii=0.007))
+    rr.log("world/loop_pair/match", rr.Points3D(match_pts, colors=[170, 170, 170], radii=0.007))
     rr.log(
         "world/loop_pair/query",
         rr.Points3D(query_pts, colors=colour_map(dist, 0.0, 3.0 * threshold), radii=0.007),
@@ -128,17 +128,17 @@ def log_loop_pair(rr, run: Run, args):
     rr.log(
         "world/loop_pair/inlier_pairs",
         rr.LineStrips3D(np.stack([query_pts[close], match_pts[idx[close]]], axis=1),
-                        colors=[255, 255, 0], radii=0.003),
+                        colors=[255, 255, 0, 80], radii=0.0015),
     )
     median = float(np.median(dist)) if len(dist) else float("nan")
     text = (
-        f"{loop_text(loop)}. Drawn: match cloud {m.index} (white) and query cloud {q.index} placed "
+        f"{loop_text(loop)}. Drawn: match cloud {m.index} (grey) and query cloud {q.index} placed "
         f"by {placed_by}, voxel {voxel:.4g} m; {int(close.sum())}/{len(query_pts)} query points "
         f"within {threshold:.4g} m of a match point, median distance {median:.3g} m"
     )
     rr.log("log/loop_pair", rr.TextLog(text, level=rr.TextLogLevel.INFO))
     print(text, file=sys.stderr)
     world = transform(world_from_match, np.concatenate([match_pts, query_pts]))
-    title = (f"match {m.index} white, query {q.index} by distance (turbo), "
+    title = (f"match {m.index} grey, query {q.index} by distance (turbo), "
              f"{loop.data.get('verdict')}")
     return world, title
