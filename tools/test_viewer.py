@@ -361,6 +361,14 @@ def test_both_trajectories(loop_saved, loop_run):
     assert colours["estimate"] != colours["optimized"]
 
 
+def test_camera_follows_the_optimized_trajectory_by_default(loop_saved, loop_run):
+    """--trajectory auto: clouds and camera are placed by /mireg/pose_optimized."""
+    cams = values(loop_saved["world/camera"], "Transform3D:translation")
+    assert [t for t, _ in cams] == [f.log_time for f in loop_run.frames]
+    for (_, translation), f in zip(cams, loop_run.frames):
+        np.testing.assert_allclose(translation[0], f.optimized[:3, 3], atol=1e-5)
+
+
 def rgba(rgb) -> int:
     r, g, b = rgb
     return (r << 24) | (g << 16) | (b << 8) | 0xFF
