@@ -244,8 +244,9 @@ def log_run(rr, run: Run, args) -> dict:
         eyes["loop_pair"] = log_loop_pair(rr, run, args)
 
     # Camera: look at the middle of the map from behind and above the first sensor.
-    # Box = 5–95 % of the map points plus the whole trajectory, so both are in the picture.
-    traj = np.array([p for ps in positions.values() for p in ps] or [[0.0, 0.0, 0.0]])
+    # Box = 5–95 % of the map points plus the whole (placing) trajectory, so both are in the picture.
+    placed = [f.pose(placing)[:3, 3] for f in frames if f.pose(placing) is not None]
+    traj = np.array(placed or [[0.0, 0.0, 0.0]])
     lo_b, hi_b = traj.min(axis=0), traj.max(axis=0)
     cloud_pts = all_pts if len(all_pts) else map_pts
     if len(cloud_pts):
