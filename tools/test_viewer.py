@@ -9,6 +9,11 @@ check the entities against what the MCAP holds: one cloud entity per ``--every``
 trajectory/camera row and one value per stats series per frame, failures where the stats say so,
 everything on the ``message_log_time`` timeline at the MCAP's log times.
 The ``--frame`` test also needs the mireg binary (``MIREG_BIN`` or ``target/release/mireg``).
+The loop-closure tests use the output as is when it already has ``/mireg/pose_optimized`` and
+``/mireg/loops``; otherwise they append made-up ones with tools/add_fake_loops.py (odometry
+poses + k·offset, one accepted and one rejected loop) and also check the perturbation.
+A missing ``mcap_ros1`` is simulated (``sys.modules``) to check that a ROS 2 log still works and
+a ROS 1 log gets a message naming the package, not a traceback.
 The unit tests (PointCloud2 decoding with padded layouts, RPE, TOML writer) need nothing.
 
 Usage:
@@ -34,6 +39,7 @@ TOOLS = Path(__file__).resolve().parent
 REPO = TOOLS.parent
 sys.path.insert(0, str(TOOLS))
 
+import add_fake_loops  # noqa: E402
 import report  # noqa: E402
 import view  # noqa: E402
 
@@ -71,19 +77,6 @@ def read_rrd(path: Path) -> dict:
     return dict(entities)
 
 
-def column(entity: dict, suffix: str) -> list:
-    """Values of the column whose name ends with ``suffix``, ordered by message_log_time."""
-    pairs = []
-    for batch in entity["batches"]:
-        names = batch.schema.names
-        if "message_log_time" not in names:
-            continue
-        name = next(n for n in names if n.endswith(suffix))
-        times = batch.column("message_log_time").cast("int64").to_pylist()
-        pairs += zip(times, batch.column(name).to_pylist())
-    return sorted(pairs, key=lambda p: p[0])
-
-
 @pytest.fixture(scope="module")
 def run():
     return view.read_run(output_mcap(), load_clouds=False)
@@ -100,6 +93,24 @@ def saved(tmp_path_factory, run):
     return read_rrd(rrd)
 
 
+def values(entity: dict, name: str) -> list:
+    """(log time, value) of every row that has the column ``name`` (exact or ``…:name``)."""
+    pairs = []
+    for batch in entity["batches"]:
+        names = batch.schema.names
+        col = next((n for n in names if n == name or n.endswith(":" + name)), None)
+        if col is None or "message_log_time" not in names:
+            continue
+        times = batch.column("message_log_time").cast("int64").to_pylist()
+        pairs += zip(times, batch.column(col).to_pylist())
+    return sorted(pairs, key=lambda p: p[0])
+
+
+def run_view(*args, timeout=120, prefix=()):
+    cmd = [sys.executable, *prefix, str(TOOLS / "view.py"), *map(str, args)]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, cwd=REPO)
+
+
 def test_clouds_one_per_every_frame(saved, run):
     n = len(run.frames)
     assert n > 1
@@ -111,7 +122,7 @@ def test_clouds_one_per_every_frame(saved, run):
         assert "message_log_time" in saved[path]["timelines"]
     # the cloud of frame k is logged at frame k's log time
     k = expected[-1]
-    (t, _), = column(saved[k], "Points3D:positions")
+    (t, _), = values(saved[k], "Points3D:positions")
     assert t == run.frames[(n - 1) // EVERY * EVERY].log_time
 
 
@@ -121,7 +132,7 @@ def test_trajectories(saved, run):
     assert saved["world/trajectory/estimate"]["rows"] == n_est
     assert saved["world/camera"]["rows"] == n_est
     assert saved["world/camera/axes"]["rows"] == n_est
-    strips = column(saved["world/trajectory/estimate"], "LineStrips3D:strips")
+    strips = values(saved["world/trajectory/estimate"], "LineStrips3D:strips")
     assert [t for t, _ in strips] == [f.log_time for f in run.frames]
     last = np.array(strips[-1][1][0])
     assert last.shape == (n_est, 3)  # the strip grows to the whole trajectory
@@ -133,10 +144,20 @@ def test_trajectories(saved, run):
         assert "world/trajectory/reference" not in saved
 
 
+def test_no_loop_topics_nothing_drawn(saved, run):
+    """A log without the loop-closure topics: no optimised trajectory, no loop edges, no error."""
+    if run.has_optimized or run.loops:
+        pytest.skip("this output has loop-closure topics")
+    for path in saved:
+        assert not path.startswith(("world/loops", "world/loop_pair", "log/loop")), path
+    assert "world/trajectory/optimized" not in saved
+    assert "world/map" not in saved
+
+
 def test_stats_series_one_value_per_frame(saved, run):
     stats = [f for f in run.frames if f.stats is not None]
     assert len(stats) == len(run.frames)
-    inliers = column(saved["stats/inliers"], "Scalars:scalars")
+    inliers = values(saved["stats/inliers"], "Scalars:scalars")
     assert [t for t, _ in inliers] == [f.log_time for f in stats]
     assert [v[0] for _, v in inliers] == [float(f.stats["num_inliers"]) for f in stats]
     for name in ("correspondences", "inlier_ratio", "hypotheses", "fitness", "inlier_rmse_m"):
@@ -151,7 +172,7 @@ def test_failures_marked(saved, run):
     if failed:
         assert saved["world/failures"]["rows"] == len(failed)
         assert saved["log/failures"]["rows"] == len(failed)
-        texts = [v for _, v in column(saved["log/failures"], "TextLog:text")]
+        texts = [v for _, v in values(saved["log/failures"], "TextLog:text")]
         assert all(f"frame {f.index} " in str(text) for f, text in zip(failed, texts))
     else:
         assert "world/failures" not in saved
@@ -172,7 +193,7 @@ def test_frame_pair_recomputation(tmp_path, run):
     for path in ("world/pair/source", "world/pair/target", "world/pair/correspondences",
                  "log/pair", f"world/clouds/frame_{k:04d}"):
         assert saved[path]["rows"] == 1, path
-    (t, strips), = column(saved["world/pair/correspondences"], "LineStrips3D:strips")
+    (t, strips), = values(saved["world/pair/correspondences"], "LineStrips3D:strips")
     assert t == run.frames[k].log_time
     assert len(strips) > 10  # consecutive fixture frames overlap: many inlier pairs
     assert all(len(s) == 2 for s in strips)
@@ -281,3 +302,238 @@ def test_ros1_output_reads_with_its_reference_and_a_chosen_reference_topic():
         np.testing.assert_array_equal(f.reference, f.estimate)
     none = view.read_run(ros1_output_mcap(), load_clouds=False, reference_topic="/no/such/topic")
     assert not none.has_reference
+
+
+# ------------------------------------------------------------------------------------------------
+# loop closure: /mireg/pose_optimized, /mireg/loops, --loop, --map
+# ------------------------------------------------------------------------------------------------
+
+
+def with_loops(src: Path, dst: Path) -> tuple[Path, dict | None]:
+    """``src`` itself when it has real loop-closure topics, else a copy with made-up ones."""
+    run = view.read_run(src, load_clouds=False)
+    if run.has_optimized and run.loops:
+        return src, None
+    return dst, add_fake_loops.add_loop_topics(src, dst)
+
+
+@pytest.fixture(scope="module")
+def loop_mcap(tmp_path_factory):
+    return with_loops(output_mcap(), tmp_path_factory.mktemp("loops") / "loops.mcap")
+
+
+@pytest.fixture(scope="module")
+def loop_run(loop_mcap):
+    return view.read_run(loop_mcap[0], load_clouds=False)
+
+
+@pytest.fixture(scope="module")
+def loop_saved(tmp_path_factory, loop_mcap):
+    rrd = tmp_path_factory.mktemp("loops_view") / "loops.rrd"
+    proc = run_view(loop_mcap[0], "--save", rrd, "--every", EVERY)
+    assert proc.returncode == 0, proc.stderr
+    return read_rrd(rrd)
+
+
+def test_made_up_optimized_poses_are_the_known_perturbation(loop_mcap, loop_run):
+    info = loop_mcap[1]
+    if info is None:
+        pytest.skip("real loop-closure output: no made-up perturbation to check")
+    offset = np.array(info["offset"])
+    for f in loop_run.frames:
+        np.testing.assert_allclose(f.optimized[:3, 3], f.estimate[:3, 3] + f.index * offset,
+                                   atol=1e-9)
+        np.testing.assert_allclose(f.optimized[:3, :3], f.estimate[:3, :3], atol=1e-12)
+    assert sorted(loop.data["verdict"] for loop in loop_run.loops) == ["accepted", "rejected"]
+
+
+def test_both_trajectories(loop_saved, loop_run):
+    assert loop_run.has_optimized
+    for name, attr in (("estimate", "estimate"), ("optimized", "optimized")):
+        frames = [f for f in loop_run.frames if getattr(f, attr) is not None]
+        strips = values(loop_saved[f"world/trajectory/{name}"], "LineStrips3D:strips")
+        assert [t for t, _ in strips] == [f.log_time for f in frames], name
+        last = np.array(strips[-1][1][0])
+        expected = np.array([getattr(f, attr)[:3, 3] for f in frames])
+        np.testing.assert_allclose(last, expected, atol=1e-5)
+    colours = {name: values(loop_saved[f"world/trajectory/{name}"], "colors")[0][1]
+               for name in ("estimate", "optimized")}
+    assert colours["estimate"] != colours["optimized"]
+
+
+def test_camera_follows_the_optimized_trajectory_by_default(loop_saved, loop_run):
+    """--trajectory auto: clouds and camera are placed by /mireg/pose_optimized."""
+    cams = values(loop_saved["world/camera"], "Transform3D:translation")
+    assert [t for t, _ in cams] == [f.log_time for f in loop_run.frames]
+    for (_, translation), f in zip(cams, loop_run.frames):
+        np.testing.assert_allclose(translation[0], f.optimized[:3, 3], atol=1e-5)
+
+
+def rgba(rgb) -> int:
+    r, g, b = rgb
+    return (r << 24) | (g << 16) | (b << 8) | 0xFF
+
+
+def test_loop_edges_coloured_by_verdict_on_the_optimized_trajectory(loop_saved, loop_run):
+    loops = loop_run.loops
+    assert loops
+    edges = sorted(p for p in loop_saved if p.startswith("world/loops/"))
+    assert edges == [f"world/loops/loop_{loop.number:04d}" for loop in loops]
+    for loop in loops:
+        e = loop_saved[f"world/loops/loop_{loop.number:04d}"]
+        (t, strips), = values(e, "LineStrips3D:strips")
+        assert t == loop.log_time == loop.query.log_time
+        segment = np.array(strips[0])
+        np.testing.assert_allclose(segment, [loop.match.optimized[:3, 3],
+                                             loop.query.optimized[:3, 3]], atol=1e-5)
+        (_, colours), = values(e, "LineStrips3D:colors")
+        assert colours == [rgba([0, 255, 0] if loop.accepted else [255, 0, 0])]
+        (_, labels), = values(e, "LineStrips3D:labels")
+        assert f"inliers {loop.data['inliers']}/" in labels[0]
+        assert loop.data["verdict"] in labels[0]
+        # the message's fields as AnyValues on the same entity (the selection panel)
+        assert values(e, "verdict")[0][1] == [loop.data["verdict"]]
+        assert values(e, "reason")[0][1] == [loop.data["reason"]]
+        assert values(e, "fitness")[0][1] == [pytest.approx(loop.data["fitness"])]
+    texts = [v[0] for _, v in values(loop_saved["log/loops"], "TextLog:text")]
+    assert len(texts) == len(loops)
+
+
+LOOP_PAIR_COLUMN = {"world/loop_pair": "Transform3D:translation", "log/loop_pair": "TextLog:text",
+                    "world/loop_pair/inlier_pairs": "LineStrips3D:strips"}
+
+
+@pytest.mark.parametrize("verdict", ["accepted", "rejected"])
+def test_loop_pair(tmp_path, loop_mcap, loop_run, verdict):
+    loop = next((x for x in loop_run.loops if x.data["verdict"] == verdict), None)
+    if loop is None:
+        pytest.skip(f"no {verdict} loop in this output")
+    rrd = tmp_path / "loop.rrd"
+    proc = run_view(loop_mcap[0], "--save", rrd, "--every", 1000, "--loop", loop.number)
+    assert proc.returncode == 0, proc.stderr
+    saved = read_rrd(rrd)
+    for path in ("world/loop_pair", "world/loop_pair/match", "world/loop_pair/query",
+                 "world/loop_pair/inlier_pairs", "log/loop_pair"):
+        assert saved[path]["rows"] == 1, path
+        assert [t for t, _ in values(saved[path], LOOP_PAIR_COLUMN.get(path, "Points3D:positions"))
+                ] == [loop.query.log_time], path
+    (_, translation), = values(saved["world/loop_pair"], "Transform3D:translation")
+    np.testing.assert_allclose(translation[0], loop.match.optimized[:3, 3], atol=1e-5)
+    (_, query), = values(saved["world/loop_pair/query"], "Points3D:positions")
+    (_, colours), = values(saved["world/loop_pair/query"], "Points3D:colors")
+    assert len(query) > 100 and len(colours) == len(query)
+    assert len(set(colours)) > 1  # coloured by nearest-neighbour distance
+    if loop_mcap[1] is not None:
+        # made-up loops: the query cloud is placed by the odometry, so the clouds overlap
+        (_, pairs), = values(saved["world/loop_pair/inlier_pairs"], "LineStrips3D:strips")
+        assert len(pairs) > 0.5 * len(query) if verdict == "accepted" else len(pairs) > 10
+
+
+def test_loop_out_of_range_is_a_message(loop_mcap, loop_run):
+    proc = run_view(loop_mcap[0], "--save", "/dev/null", "--loop", len(loop_run.loops))
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert f"the log has {len(loop_run.loops)} loop messages" in proc.stderr
+
+
+def write_ply(path: Path, pts: np.ndarray, intensity: np.ndarray) -> None:
+    """A binary little-endian PLY as `mireg map` writes it (float x y z intensity)."""
+    header = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(pts)}\n"
+              "property float x\nproperty float y\nproperty float z\nproperty float intensity\n"
+              "end_header\n").encode()
+    rows = np.concatenate([pts, intensity[:, None]], axis=1).astype("<f4")
+    path.write_bytes(header + rows.tobytes())
+
+
+@pytest.mark.parametrize("ext", ["ply", "npy", "pcd", "mireg"])
+def test_map_file(tmp_path, loop_mcap, ext):
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(-2, 2, size=(500, 3)).astype(np.float32)
+    inten = rng.uniform(0, 100, size=500).astype(np.float32)
+    if ext == "mireg":  # the real `mireg map`, when the binary has it
+        mireg = Path(os.environ.get("MIREG_BIN", REPO / "target/release/mireg"))
+        if not mireg.is_file() or subprocess.run([mireg, "map", "--help"],
+                                                 capture_output=True).returncode != 0:
+            pytest.skip(f"no `mireg map` in {mireg}")
+        path = tmp_path / "map.ply"
+        proc = subprocess.run([mireg, "map", loop_mcap[0], "-o", path], capture_output=True,
+                              text=True, timeout=300)
+        assert proc.returncode == 0, proc.stderr
+        pts, _ = view.load_map(path)
+    else:
+        path = tmp_path / f"map.{ext}"
+        if ext == "ply":
+            write_ply(path, pts, inten)
+        elif ext == "npy":
+            np.save(path, np.concatenate([pts, inten[:, None]], axis=1))
+        else:
+            path.write_bytes(b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
+                             b"WIDTH 500\nHEIGHT 1\nPOINTS 500\nDATA binary\n" + pts.tobytes())
+        got, got_i = view.load_map(path)
+        np.testing.assert_array_equal(got, pts.astype(np.float64))
+        if ext != "pcd":
+            np.testing.assert_array_equal(got_i, inten.astype(np.float64))
+    rrd = tmp_path / "map.rrd"
+    proc = run_view(loop_mcap[0], "--save", rrd, "--every", 1000, "--map", path)
+    assert proc.returncode == 0, proc.stderr
+    saved = read_rrd(rrd)
+    (positions,) = [b.column("Points3D:positions").to_pylist()[0]
+                    for b in saved["world/map"]["batches"]]
+    assert len(positions) == len(pts)
+
+
+def test_coarse_map_from_the_clouds(tmp_path, loop_mcap):
+    rrd = tmp_path / "coarse.rrd"
+    proc = run_view(loop_mcap[0], "--save", rrd, "--every", 1000, "--map-voxel", 0.1,
+                    "--max-points", 2000)
+    assert proc.returncode == 0, proc.stderr
+    saved = read_rrd(rrd)
+    (positions,) = [b.column("Points3D:positions").to_pylist()[0]
+                    for b in saved["world/map"]["batches"]]
+    keys = np.floor(np.array(positions) / 0.1).astype(int)
+    assert len(positions) > 100 and len(np.unique(keys, axis=0)) == len(positions)
+
+
+def test_bad_map_file_is_a_message(tmp_path, loop_mcap):
+    bad = tmp_path / "map.ply"
+    bad.write_bytes(b"not a ply")
+    proc = run_view(loop_mcap[0], "--save", tmp_path / "x.rrd", "--map", bad)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr and "--map" in proc.stderr
+
+
+def test_run_topics_follow_the_pose_namespace():
+    topics = view.run_topics({"pose_topic": "/mireg_2/pose", "stats_topic": "/mireg_2/stats"})
+    assert topics["optimized"] == "/mireg_2/pose_optimized"
+    assert topics["loops"] == "/mireg_2/loops"
+    named = view.run_topics({"pose_topic": "/mireg_2/pose", "loops_topic": "/x/loops"})
+    assert named["loops"] == "/x/loops"
+
+
+def test_ros1_output_with_loops():
+    """The made-up topics on a ROS 1 output: ROS 1 optimised poses decode, loops resolve."""
+    src = ros1_output_mcap()
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path, _ = with_loops(src, Path(tmp, "ros1_loops.mcap"))
+        run = view.read_run(path, load_clouds=False)
+        assert run.has_optimized and len(run.loops) >= 1
+        assert all(f.optimized is not None for f in run.frames)
+        assert all(loop.query is not None and loop.match is not None for loop in run.loops)
+        proc = run_view(path, "--save", Path(tmp, "r.rrd"), "--loop", 0)
+        assert proc.returncode == 0, proc.stderr
+
+
+BLOCK_ROS1 = ("-c", "import runpy, sys; sys.modules['mcap_ros1'] = None; "
+              "sys.modules['mcap_ros1.decoder'] = None; sys.argv = sys.argv[1:]; "
+              "runpy.run_path(sys.argv[0], run_name='__main__')")
+
+
+def test_missing_ros1_package_only_matters_for_ros1_logs(tmp_path):
+    """Without mcap_ros1 a ROS 2 log views as before; a ROS 1 log gets a message, no traceback."""
+    proc = run_view(output_mcap(), "--save", tmp_path / "a.rrd", "--every", 1000,
+                    prefix=BLOCK_ROS1)
+    assert proc.returncode == 0, proc.stderr
+    proc = run_view(ros1_output_mcap(), "--save", tmp_path / "b.rrd", prefix=BLOCK_ROS1)
+    assert proc.returncode == 1, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert "mcap-ros1-support" in proc.stderr
