@@ -18,7 +18,8 @@ fn main() -> mireg::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let input = PathBuf::from(args.first().expect("LOG"));
     let factor = |i: usize, default: f64| -> f64 {
-        args.get(i).map_or(default, |s| s.parse().expect("a number"))
+        args.get(i)
+            .map_or(default, |s| s.parse().expect("a number"))
     };
     let dir = tempfile::tempdir().map_err(|e| mireg::Error::InvalidInput(e.to_string()))?;
     let output = dir.path().join("out.mcap");
@@ -44,7 +45,9 @@ fn main() -> mireg::Result<()> {
     opts.loops = true;
     opts.loop_config = Some(c);
     let s = register_log(&opts)?;
-    let ate = |r: &Option<mireg::register::ReferenceErrors>| r.as_ref().map_or(f64::NAN, |r| r.ate_rmse_m);
+    let ate = |r: &Option<mireg::register::ReferenceErrors>| {
+        r.as_ref().map_or(f64::NAN, |r| r.ate_rmse_m)
+    };
     let l = s.loops.expect("loops ran");
     println!(
         "{} odometry_sigma x{so} loop_sigma x{sl} kernel {} inliers {} fitness {} per_query {}: ATE odometry {:.5} m, optimised {:.5} m; {} keyframes, {} candidates, {} accepted, {} down-weighted; loops {:.3} s of {:.3} s",

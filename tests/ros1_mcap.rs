@@ -64,10 +64,16 @@ fn real_ouster_ros1_log_registers_and_keeps_every_message() {
 
     let (input, output) = (contents(&ouster()), contents(&out));
     assert_superset(&input, &output);
+    let loops = output
+        .messages
+        .iter()
+        .filter(|m| m.0 == "/mireg/loops")
+        .count();
+    assert_eq!(loops, 0, "two frames, no loop candidates");
     assert_eq!(
         output.messages.len(),
-        input.messages.len() + 3 * 2,
-        "ours: /tf, /mireg/pose, /mireg/stats per frame"
+        input.messages.len() + 5 * 2,
+        "ours: /tf, /mireg/pose, /mireg/stats, /mireg/tf_optimized, /mireg/pose_optimized per frame"
     );
 
     // Zero returns: counted by the decoder, checked against a scan of the bytes.

@@ -53,7 +53,11 @@ fn write_trajectory(t: &Trajectory, format: ExportFormat, out: &mut impl Write) 
 
 /// Runs `mireg export`.
 pub(super) fn run_export(args: &ExportArgs) -> Result<()> {
-    let (topic, _) = run_topics(&list_channels(&args.input)?, args.topic.as_deref(), args.odometry);
+    let (topic, _) = run_topics(
+        &list_channels(&args.input)?,
+        args.topic.as_deref(),
+        args.odometry,
+    );
     let t = trajectory::read_mcap_pose_topic(&args.input, &topic)?;
     if t.is_empty() {
         bail!("{}: topic {topic} has no messages", args.input.display());

@@ -1,0 +1,147 @@
+//! Loop closure in `mireg register`, end to end: every accepted loop of the fixture against the
+//! reference trajectory, the optimised trajectory of a log that never revisits a place against
+//! its odometry, and `--no-loops`.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use mireg::pipeline::pose_error;
+use mireg::trajectory::read_mcap_pose_topic;
+use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
+
+#[path = "common/log_contents.rs"]
+mod log_contents;
+use log_contents::contents;
+#[path = "common/synthetic_log.rs"]
+mod synthetic_log;
+
+fn fixture() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/icl_livingroom1.mcap")
+}
+
+/// `mireg ARGS`, which must succeed; its stdout.
+fn mireg_ok(args: &[&str]) -> String {
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_mireg"))
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    String::from_utf8(run.stdout).unwrap()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// Poses of a PoseStamped topic by header stamp.
+fn poses_by_stamp(path: &Path, topic: &str) -> HashMap<i64, Isometry3<f64>> {
+    let t = read_mcap_pose_topic(path, topic).unwrap();
+    t.stamps_ns.iter().copied().zip(t.poses).collect()
+}
+
+/// The `/mireg/loops` messages, decoded.
+fn loops(path: &Path) -> Vec<serde_json::Value> {
+    contents(path)
+        .messages
+        .into_iter()
+        .filter(|m| m.0 == "/mireg/loops")
+        .map(|m| serde_json::from_slice(&m.3).unwrap())
+        .collect()
+}
+
+fn pose_of_json(v: &serde_json::Value) -> Isometry3<f64> {
+    let t: Vec<f64> = serde_json::from_value(v["translation"].clone()).unwrap();
+    let q: Vec<f64> = serde_json::from_value(v["rotation_xyzw"].clone()).unwrap();
+    Isometry3::from_parts(
+        Translation3::new(t[0], t[1], t[2]),
+        UnitQuaternion::from_quaternion(Quaternion::new(q[3], q[0], q[1], q[2])),
+    )
+}
+
+/// Every loop the fixture's run accepts is right: its relative pose within 2° and 2 voxels of
+/// the reference's (the loop precision of 100 %), and each candidate tried is a message
+/// with a verdict; the summary counts them.
+#[test]
+fn every_accepted_loop_of_the_fixture_matches_the_reference() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.mcap");
+    let summary: serde_json::Value = serde_json::from_str(&mireg_ok(&[
+        "register",
+        s(&fixture()),
+        "-o",
+        s(&out),
+        "--json",
+        "--quiet",
+    ]))
+    .unwrap();
+    let voxel = summary["voxel_m"].as_f64().unwrap();
+    let reference = poses_by_stamp(&out, "/ground_truth/pose");
+    let tried = loops(&out);
+    assert_eq!(tried.len() as u64, summary["loops"]["candidates"]);
+    let accepted: Vec<&serde_json::Value> = tried
+        .iter()
+        .filter(|l| l["verdict"] == "accepted")
+        .collect();
+    assert_eq!(accepted.len() as u64, summary["loops"]["accepted"]);
+    assert!(!accepted.is_empty(), "the fixture revisits its room");
+    for l in &accepted {
+        let (q, m) = (
+            l["query_stamp_ns"].as_i64().unwrap(),
+            l["match_stamp_ns"].as_i64().unwrap(),
+        );
+        let truth = reference[&m].inverse() * reference[&q];
+        let (deg, metres) = pose_error(&truth, &pose_of_json(&l["match_from_query"]));
+        assert!(
+            deg < 2.0 && metres < 2.0 * voxel,
+            "loop {} → {}: {deg:.2}°, {metres:.3} m off the reference",
+            l["query_frame"],
+            l["match_frame"]
+        );
+    }
+    for l in &tried {
+        assert!(l["verdict"] == "accepted" || !l["reason"].as_str().unwrap().is_empty());
+    }
+    // The optimised trajectory covers every frame, at the odometry's stamps.
+    let odometry = poses_by_stamp(&out, "/mireg/pose");
+    let optimized = poses_by_stamp(&out, "/mireg/pose_optimized");
+    let mut a: Vec<i64> = odometry.keys().copied().collect();
+    let mut b: Vec<i64> = optimized.keys().copied().collect();
+    a.sort_unstable();
+    b.sort_unstable();
+    assert_eq!(a, b);
+}
+
+/// A log that never returns: the synthetic camera moves away along a line, so no two frames far
+/// apart in path are close in space; whatever loops appearance proposes must agree with the
+/// odometry, and the optimised trajectory equals the odometry within 1 mm and 0.01°.
+/// `--no-loops` writes neither topic.
+#[test]
+fn a_log_without_revisits_keeps_its_odometry() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("line.mcap");
+    synthetic_log::write_log_full(&log, &(0..16).collect::<Vec<_>>(), None, |o| o);
+    let out = dir.path().join("out.mcap");
+    mireg_ok(&["register", s(&log), "-o", s(&out), "--quiet"]);
+    let odometry = poses_by_stamp(&out, "/mireg/pose");
+    let optimized = poses_by_stamp(&out, "/mireg/pose_optimized");
+    assert_eq!(odometry.len(), 16);
+    for (stamp, p) in &odometry {
+        let (deg, metres) = pose_error(p, &optimized[stamp]);
+        assert!(deg < 0.01 && metres < 1e-3, "{stamp}: {deg}°, {metres} m");
+    }
+
+    let bare = dir.path().join("bare.mcap");
+    mireg_ok(&["register", s(&log), "-o", s(&bare), "--quiet", "--no-loops"]);
+    let topics: Vec<String> = contents(&bare).messages.into_iter().map(|m| m.0).collect();
+    assert!(
+        !topics
+            .iter()
+            .any(|t| t == "/mireg/loops" || t == "/mireg/pose_optimized")
+    );
+    // The odometry does not depend on loop closure.
+    assert_eq!(poses_by_stamp(&bare, "/mireg/pose"), odometry);
+}
