@@ -60,8 +60,8 @@ pub struct LoopConfig {
     pub agreement_path_m: f64,
 }
 
-/// Default [`LoopConfig::frames_in_memory`]: 32 prepared frames.
-pub const DEFAULT_FRAMES_IN_MEMORY: usize = 32;
+/// Default [`LoopConfig::frames_in_memory`]: 8 prepared frames.
+pub const DEFAULT_FRAMES_IN_MEMORY: usize = 8;
 
 impl LoopConfig {
     /// The defaults for a log registered at an ICP voxel of `voxel_m` metres: lengths in voxels,
