@@ -33,7 +33,8 @@ def bounds(n: int, k: int, overlap: int) -> list[tuple[int, int | None]]:
 def segment_task(binary: str, log: str, start: int, end: int | None, output: str,
                  mireg_args: list[str], threads: int) -> dict:
     common.maybe_kill_self(f"{log}#{start}")
-    args = ["register", log, "-o", output, "--force", "--quiet", "--copy-window",
+    # No loop closure per segment: stitching joins the segments' odometry (/mireg/pose).
+    args = ["register", log, "-o", output, "--force", "--quiet", "--copy-window", "--no-loops",
             "--start", str(start)]
     if end is not None:
         args += ["--end", str(end)]

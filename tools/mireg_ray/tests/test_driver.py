@@ -95,7 +95,10 @@ def ate_between(binary: str, est: Path, ref: Path, tmp: Path) -> float:
 
 def test_segments_are_stitched_into_the_sequential_trajectory(tmp_path, binary):
     seq = tmp_path / "sequential.mcap"
-    subprocess.run([binary, "register", str(FIXTURE), "-o", str(seq), "--quiet"], check=True)
+    # Against the sequential odometry: stitching joins the segments' odometry (/mireg/pose);
+    # loop closure over the stitched whole is not part of `segments` yet.
+    subprocess.run([binary, "register", str(FIXTURE), "-o", str(seq), "--quiet", "--no-loops"],
+                   check=True)
     out = tmp_path / "stitched.mcap"
     assert cli.main(["segments", str(FIXTURE), "--segments", "3", "--out", str(out),
                      "--local-cpus", "2"]) == 0
