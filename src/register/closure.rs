@@ -11,6 +11,7 @@ use std::ops::ControlFlow;
 use std::time::Instant;
 
 use nalgebra::Isometry3;
+use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::Result;
@@ -81,9 +82,9 @@ pub(super) struct LoopOutcome {
 
 /// The pair settings of loop verification: the run's, with the pairwise fine stage as `mireg
 /// pair` runs it (the odometry's frames draw their fine points for the map instead).
-fn loop_pair_config(pair: &PairConfig) -> PairConfig {
+fn loop_pair_config(pair: &PairConfig, fine_icp: bool) -> PairConfig {
     PairConfig {
-        icp_fine: true,
+        icp_fine: fine_icp,
         icp_fine_points_per_icp_point: refine::FINE_POINTS_PER_ICP_POINT,
         ..pair.clone()
     }
@@ -123,22 +124,28 @@ pub(super) fn close_loops(
         })
         .collect();
 
-    let pair = loop_pair_config(&plan.config.pair);
+    let pair = loop_pair_config(&plan.config.pair, config.fine_icp);
     let mut verified: BTreeMap<(usize, usize), (crate::loops::Verification, f64)> = BTreeMap::new();
     let batches = batches(&candidates, config.frames_in_memory.max(2));
     for batch in &batches {
         let frames: BTreeSet<usize> = batch.iter().flat_map(|c| [c.query, c.matched]).collect();
         let prepared = read_frames(plan, opts, estimates, &frames, &pair)?;
-        for c in batch {
-            let (Some(q), Some(m)) = (prepared.get(&c.query), prepared.get(&c.matched)) else {
-                continue;
-            };
-            let t = Instant::now();
-            let odometry = poses[c.matched].inverse() * poses[c.query];
-            let allowance = config.drift_allowance(travelled[c.query] - travelled[c.matched]);
-            let v = verify(q, m, &odometry, allowance, &pair, &config.verify)?;
-            verified.insert((c.query, c.matched), (v, t.elapsed().as_secs_f64()));
-        }
+        // In parallel over the batch's candidates (each verification is seeded by the pair
+        // settings alone: the same result on any thread count).
+        let results: Vec<_> = batch
+            .par_iter()
+            .filter_map(|c| {
+                let (q, m) = (prepared.get(&c.query)?, prepared.get(&c.matched)?);
+                let t = Instant::now();
+                let odometry = poses[c.matched].inverse() * poses[c.query];
+                let allowance = config.drift_allowance(travelled[c.query] - travelled[c.matched]);
+                Some(
+                    verify(q, m, &odometry, allowance, &pair, &config.verify)
+                        .map(|v| ((c.query, c.matched), (v, t.elapsed().as_secs_f64()))),
+                )
+            })
+            .collect::<Result<_>>()?;
+        verified.extend(results);
     }
 
     let loops: Vec<LoopEdge> = candidates
