@@ -81,7 +81,7 @@ fn main() -> mireg::Result<()> {
 }
 
 /// The run's voxel (from its `mireg` metadata) and its accepted loops.
-fn read_run(path: &PathBuf) -> mireg::Result<(f64, Vec<LoopEdge>)> {
+fn read_run(path: &std::path::Path) -> mireg::Result<(f64, Vec<LoopEdge>)> {
     use mcap::records::Record;
     let mut voxel = None;
     let mut topics = std::collections::HashMap::new();
