@@ -65,8 +65,8 @@ pub struct LoopConfig {
     pub fine_icp: bool,
 }
 
-/// Default [`LoopConfig::frames_in_memory`]: 32 prepared frames.
-pub const DEFAULT_FRAMES_IN_MEMORY: usize = 32;
+/// Default [`LoopConfig::frames_in_memory`]: 16 prepared frames.
+pub const DEFAULT_FRAMES_IN_MEMORY: usize = 16;
 
 impl LoopConfig {
     /// The defaults for a log registered at an ICP voxel of `voxel_m` metres: lengths in voxels,

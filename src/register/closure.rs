@@ -18,8 +18,8 @@ use crate::Result;
 use crate::evaluate::path_distances;
 use crate::geometry::deskew::deskew;
 use crate::loops::{
-    Candidate, Keyframe, LoopConfig, LoopEdge, Source, find_candidates, optimize_trajectory,
-    select_keyframes, verify,
+    Candidate, Keyframe, LoopConfig, LoopEdge, Source, Verification, find_candidates,
+    optimize_trajectory, select_keyframes, verify,
 };
 use crate::pipeline::{PairConfig, PreparedFrame, prepare_frame, refine};
 
@@ -125,28 +125,13 @@ pub(super) fn close_loops(
         .collect();
 
     let pair = loop_pair_config(&plan.config.pair, config.fine_icp);
-    let mut verified: BTreeMap<(usize, usize), (crate::loops::Verification, f64)> = BTreeMap::new();
-    let batches = batches(&candidates, config.frames_in_memory.max(2));
-    for batch in &batches {
-        let frames: BTreeSet<usize> = batch.iter().flat_map(|c| [c.query, c.matched]).collect();
-        let prepared = read_frames(plan, opts, estimates, &frames, &pair)?;
-        // In parallel over the batch's candidates (each verification is seeded by the pair
-        // settings alone: the same result on any thread count).
-        let results: Vec<_> = batch
-            .par_iter()
-            .filter_map(|c| {
-                let (q, m) = (prepared.get(&c.query)?, prepared.get(&c.matched)?);
-                let t = Instant::now();
-                let odometry = poses[c.matched].inverse() * poses[c.query];
-                let allowance = config.drift_allowance(travelled[c.query] - travelled[c.matched]);
-                Some(
-                    verify(q, m, &odometry, allowance, &pair, &config.verify)
-                        .map(|v| ((c.query, c.matched), (v, t.elapsed().as_secs_f64()))),
-                )
-            })
-            .collect::<Result<_>>()?;
-        verified.extend(results);
-    }
+    let verifier = Verifier {
+        poses: &poses,
+        travelled: &travelled,
+        pair: &pair,
+        config,
+    };
+    let (verified, passes) = verify_all(plan, opts, estimates, &candidates, &verifier)?;
 
     let loops: Vec<LoopEdge> = candidates
         .iter()
@@ -189,7 +174,7 @@ pub(super) fn close_loops(
         candidates: candidates.len(),
         accepted: loops.len(),
         down_weighted: weights.values().filter(|w| **w < 0.5).count(),
-        passes: batches.len(),
+        passes,
         graph_iterations: solution.as_ref().map_or(0, |s| s.iterations),
         elapsed_s: start.elapsed().as_secs_f64(),
     };
@@ -205,7 +190,7 @@ fn record(
     c: &Candidate,
     estimates: &[Estimate],
     travelled: &[f64],
-    verified: Option<&(crate::loops::Verification, f64)>,
+    verified: Option<&(Verification, f64)>,
     weights: &HashMap<(usize, usize), f64>,
 ) -> LoopRecord {
     let pose_json = |t: &Isometry3<f64>| {
@@ -250,61 +235,154 @@ fn record(
     }
 }
 
-/// Candidates split into batches whose frames number at most `max_frames` (a candidate needs
-/// both of its frames in memory), in the order of the match frame, so that a frame matched by
-/// many later ones is read once.
-fn batches(candidates: &[Candidate], max_frames: usize) -> Vec<Vec<Candidate>> {
-    let mut sorted = candidates.to_vec();
-    sorted.sort_by_key(|c| (c.matched, c.query));
-    let mut out: Vec<Vec<Candidate>> = Vec::new();
-    let mut frames = BTreeSet::new();
-    for c in sorted {
-        let new =
-            usize::from(!frames.contains(&c.query)) + usize::from(!frames.contains(&c.matched));
-        if frames.len() + new > max_frames && !frames.is_empty() {
-            frames.clear();
-        }
-        if frames.is_empty() {
-            out.push(Vec::new());
-        }
-        frames.insert(c.query);
-        frames.insert(c.matched);
-        out.last_mut().expect("pushed").push(c);
-    }
-    out
+/// What verifying one candidate needs besides its two frames.
+struct Verifier<'a> {
+    poses: &'a [Isometry3<f64>],
+    travelled: &'a [f64],
+    pair: &'a PairConfig,
+    config: &'a LoopConfig,
 }
 
-/// Reads `frames` (indices into `estimates`) from the input again and prepares them for
-/// verification, deskewed as the odometry deskewed them. Frames registered in log-time order are
-/// found by their log time (the n-th cloud of a log time is the n-th frame of it); a cloud that no
-/// longer decodes or is over the point bound is left out.
-fn read_frames(
+/// A verification and its seconds, by (query, match) frame.
+type Verified = BTreeMap<(usize, usize), (Verification, f64)>;
+
+impl Verifier<'_> {
+    fn verify(
+        &self,
+        c: &Candidate,
+        query: &PreparedFrame,
+        matched: &PreparedFrame,
+    ) -> Result<(Verification, f64)> {
+        let t = Instant::now();
+        let odometry = self.poses[c.matched].inverse() * self.poses[c.query];
+        let allowance = self
+            .config
+            .drift_allowance(self.travelled[c.query] - self.travelled[c.matched]);
+        let v = verify(
+            query,
+            matched,
+            &odometry,
+            allowance,
+            self.pair,
+            &self.config.verify,
+        )?;
+        Ok((v, t.elapsed().as_secs_f64()))
+    }
+}
+
+/// Verifies every candidate, reading the input again as often as needed (the passes, returned):
+/// in each pass the frames stream by in file order; a frame some candidate still needs is
+/// prepared, its candidates whose other frame is held are verified at once (in parallel), and it
+/// is held while it has candidates left and there is room ([`LoopConfig::frames_in_memory`]);
+/// a frame is released when its last candidate is done. Candidates whose two frames were never
+/// held together wait for the next pass. Each pass verifies at least the candidates of the first
+/// frame it holds, so the passes end; a log that revisits a few places often needs few.
+fn verify_all(
     plan: &Plan,
     opts: &RegisterOptions,
     estimates: &[Estimate],
-    frames: &BTreeSet<usize>,
+    candidates: &[Candidate],
+    verifier: &Verifier,
+) -> Result<(Verified, usize)> {
+    let capacity = verifier.config.frames_in_memory.max(1);
+    let mut verified = Verified::new();
+    // Candidates that could not be read (a frame that no longer decodes) are left out.
+    let mut remaining: Vec<Candidate> = candidates.to_vec();
+    let mut passes = 0;
+    while !remaining.is_empty() {
+        passes += 1;
+        let mut uses: HashMap<usize, usize> = HashMap::new();
+        for c in &remaining {
+            *uses.entry(c.query).or_default() += 1;
+            *uses.entry(c.matched).or_default() += 1;
+        }
+        let needed: BTreeSet<usize> = uses.keys().copied().collect();
+        let mut held: BTreeMap<usize, PreparedFrame> = BTreeMap::new();
+        let mut done: BTreeSet<(usize, usize)> = BTreeSet::new();
+        let seen =
+            for_each_needed_frame(plan, opts, estimates, &needed, verifier.pair, |k, frame| {
+                // This frame's candidates whose other frame is held.
+                let ready: Vec<&Candidate> = remaining
+                    .iter()
+                    .filter(|c| !done.contains(&(c.query, c.matched)))
+                    .filter(|c| {
+                        (c.query == k && held.contains_key(&c.matched))
+                            || (c.matched == k && held.contains_key(&c.query))
+                    })
+                    .collect();
+                let results: Vec<((usize, usize), (Verification, f64))> = ready
+                    .par_iter()
+                    .map(|c| {
+                        let (q, m) = if c.query == k {
+                            (&frame, &held[&c.matched])
+                        } else {
+                            (&held[&c.query], &frame)
+                        };
+                        verifier.verify(c, q, m).map(|v| ((c.query, c.matched), v))
+                    })
+                    .collect::<Result<_>>()?;
+                for (key, v) in results {
+                    done.insert(key);
+                    verified.insert(key, v);
+                    for f in [key.0, key.1] {
+                        let u = uses.get_mut(&f).expect("counted");
+                        *u -= 1;
+                        if *u == 0 {
+                            held.remove(&f);
+                        }
+                    }
+                }
+                if uses[&k] > 0 && held.len() < capacity {
+                    held.insert(k, frame);
+                }
+                Ok(())
+            })?;
+        let before = remaining.len();
+        // Candidates with a frame that could not be read again: no verification, rejected.
+        remaining.retain(|c| {
+            !done.contains(&(c.query, c.matched))
+                && seen.contains(&c.query)
+                && seen.contains(&c.matched)
+        });
+        if remaining.len() == before {
+            break; // nothing could be verified: the frames are gone
+        }
+    }
+    Ok((verified, passes))
+}
+
+/// Streams the input's clouds once, calling `f(k, prepared)` for each frame `k` in `needed`, prepared for verification (deskewed as the odometry deskewed it);
+/// returns the frames that were prepared. Frames registered in log-time order are found by their
+/// log time (the n-th cloud of a log time is the n-th frame of it); a cloud that no longer
+/// decodes or is over the point bound is left out.
+fn for_each_needed_frame(
+    plan: &Plan,
+    opts: &RegisterOptions,
+    estimates: &[Estimate],
+    needed: &BTreeSet<usize>,
     pair: &PairConfig,
-) -> Result<BTreeMap<usize, PreparedFrame>> {
-    let times: BTreeSet<u64> = frames.iter().map(|&k| estimates[k].log_time).collect();
+    mut f: impl FnMut(usize, PreparedFrame) -> Result<()>,
+) -> Result<BTreeSet<usize>> {
+    let times: BTreeSet<u64> = needed.iter().map(|&k| estimates[k].log_time).collect();
     let mut by_time: HashMap<u64, (Vec<usize>, usize)> = HashMap::new();
     for (k, e) in estimates.iter().enumerate() {
         if times.contains(&e.log_time) {
             by_time.entry(e.log_time).or_default().0.push(k);
         }
     }
-    let mut out = BTreeMap::new();
+    let mut seen = BTreeSet::new();
     plan.input_log.for_each_message_until(|header, data| {
         if !plan.cloud_channels.contains(&header.channel_id)
             || !plan.segment.contains(header.log_time)
         {
             return Ok(ControlFlow::Continue(()));
         }
-        let Some((indices, seen)) = by_time.get_mut(&header.log_time) else {
+        let Some((indices, count)) = by_time.get_mut(&header.log_time) else {
             return Ok(ControlFlow::Continue(()));
         };
-        let k = indices.get(*seen).copied();
-        *seen += 1;
-        if let Some(k) = k.filter(|k| frames.contains(k))
+        let k = indices.get(*count).copied();
+        *count += 1;
+        if let Some(k) = k.filter(|k| needed.contains(k))
             && let Ok(mut cloud) = plan.kind.decode(data)
             && cloud.points.len() <= opts.max_points_per_cloud
         {
@@ -312,14 +390,11 @@ fn read_frames(
                 deskew(&mut cloud.points, &times.seconds, motion, *dt);
             }
             if let Ok(frame) = prepare_frame(&cloud.points, pair) {
-                out.insert(k, frame);
+                seen.insert(k);
+                f(k, frame)?;
             }
         }
-        Ok(if out.len() == frames.len() {
-            ControlFlow::Break(())
-        } else {
-            ControlFlow::Continue(())
-        })
+        Ok(ControlFlow::Continue(()))
     })?;
-    Ok(out)
+    Ok(seen)
 }
