@@ -24,8 +24,8 @@ use crate::loops::{
 use crate::pipeline::{PairConfig, PreparedFrame, prepare_frame, refine};
 
 use super::RegisterOptions;
+use super::frames::Estimate;
 use super::plan::Plan;
-use super::writer::Estimate;
 
 /// One candidate tried: what `/mireg/loops` carries ([`loops_json_schema`]).
 #[derive(Debug, Clone, Serialize)]

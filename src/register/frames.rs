@@ -1,5 +1,6 @@
 //! What the stages of `mireg register` hand each other: a cloud message (reader → prepare), a
-//! prepared frame (prepare → registrar), a registered frame (registrar → writer).
+//! prepared frame (prepare → registrar), a registered frame (registrar → writer), and what the
+//! writer keeps of it for the summary and loop closure.
 
 use nalgebra::Isometry3;
 
@@ -59,4 +60,22 @@ pub(super) struct FrameOut {
     pub(super) prep: FrameTimings,
     pub(super) register_s: f64,
     pub(super) est: FrameEstimate,
+}
+
+/// One frame's estimate as the summary and loop closure need it (a few hundred bytes a frame).
+#[derive(Debug, Clone)]
+pub(super) struct Estimate {
+    /// The cloud's header stamp \[ns\].
+    pub(super) stamp_ns: i64,
+    pub(super) world_from_frame: Isometry3<f64>,
+    pub(super) success: bool,
+    pub(super) inliers: usize,
+    /// The cloud's header (stamp and frame id), log and publish times.
+    pub(super) header: codec::Header,
+    pub(super) log_time: u64,
+    pub(super) publish_time: u64,
+    /// The motion the cloud was deskewed by, if it was ([`super::frames::PreparedMsg`]).
+    pub(super) deskew_motion: Option<(Isometry3<f64>, f64)>,
+    /// The loop-closure descriptor, when computed.
+    pub(super) descriptor: Option<Descriptor>,
 }

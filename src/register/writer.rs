@@ -8,35 +8,17 @@ use std::time::Instant;
 use nalgebra::Isometry3;
 
 use crate::Result;
-use crate::io::codec;
 use crate::io::mcap::log::OutputLog;
-use crate::loops::{Descriptor, LoopConfig};
+use crate::loops::LoopConfig;
 use crate::trajectory::{Trajectory, evaluate};
 
 use super::closure::LoopOutcome;
+use super::frames::Estimate;
 use super::frames::FrameOut;
 use super::output::{Outputs, StampedPose, write_frame, write_loop, write_optimized_pose};
 use super::plan::Plan;
 use super::window::LogWindow;
 use super::{ReferenceErrors, RegisterOptions, RegisterSummary};
-
-/// One frame's estimate as the summary and loop closure need it (a few hundred bytes a frame).
-#[derive(Debug, Clone)]
-pub(super) struct Estimate {
-    /// The cloud's header stamp \[ns\].
-    pub(super) stamp_ns: i64,
-    pub(super) world_from_frame: Isometry3<f64>,
-    pub(super) success: bool,
-    pub(super) inliers: usize,
-    /// The cloud's header (stamp and frame id), log and publish times.
-    pub(super) header: codec::Header,
-    pub(super) log_time: u64,
-    pub(super) publish_time: u64,
-    /// The motion the cloud was deskewed by, if it was ([`super::frames::PreparedMsg`]).
-    pub(super) deskew_motion: Option<(Isometry3<f64>, f64)>,
-    /// The loop-closure descriptor, when computed.
-    pub(super) descriptor: Option<Descriptor>,
-}
 
 /// Writes the frames as they come and keeps what the summary needs.
 pub(super) struct Writer<'a> {
