@@ -4,7 +4,7 @@
 //! accepted and the stage's time.
 //!
 //! ```text
-//! cargo run --release --example loop_settings -- LOG [odometry_sigma=1] [loop_sigma=1] [kernel=1] [inliers=30] [fitness=0.5] [per_query=2] [fine_icp=1]
+//! cargo run --release --example loop_settings -- LOG [odometry_sigma=1] [loop_sigma=1] [kernel=1] [inliers=30] [fitness=0.5] [per_query=2] [fine_icp=0] [keyframe_distance_factor=1]
 //! ```
 //! Sigma factors multiply [`LoopConfig::for_voxel`]'s deviations (translation and rotation).
 
@@ -42,7 +42,8 @@ fn main() -> mireg::Result<()> {
     c.verify.min_inliers = factor(4, c.verify.min_inliers as f64) as usize;
     c.verify.min_fitness = factor(5, c.verify.min_fitness);
     c.candidates.max_per_query = factor(6, c.candidates.max_per_query as f64) as usize;
-    c.fine_icp = factor(7, 1.0) != 0.0;
+    c.fine_icp = factor(7, f64::from(u8::from(c.fine_icp))) != 0.0;
+    c.keyframes.keyframe_distance_m *= factor(8, 1.0);
     opts.loops = true;
     opts.loop_config = Some(c);
     let s = register_log(&opts)?;
@@ -51,13 +52,14 @@ fn main() -> mireg::Result<()> {
     };
     let l = s.loops.expect("loops ran");
     println!(
-        "{} odometry_sigma x{so} loop_sigma x{sl} kernel {} inliers {} fitness {} per_query {} fine {}: ATE odometry {:.5} m, optimised {:.5} m; {} keyframes, {} candidates, {} accepted, {} down-weighted; loops {:.3} s of {:.3} s",
+        "{} odometry_sigma x{so} loop_sigma x{sl} kernel {} inliers {} fitness {} per_query {} fine {} keyframes every {:.3} m: ATE odometry {:.5} m, optimised {:.5} m; {} keyframes, {} candidates, {} accepted, {} down-weighted; loops {:.3} s of {:.3} s",
         input.display(),
         c.kernel_scale,
         c.verify.min_inliers,
         c.verify.min_fitness,
         c.candidates.max_per_query,
         c.fine_icp,
+        c.keyframes.keyframe_distance_m,
         ate(&s.reference),
         ate(&s.reference_optimized),
         l.keyframes,
