@@ -291,3 +291,44 @@ fn choi_error_is_the_mean_squared_displacement_of_the_points() {
     // The exact estimate scores 0.
     assert!(choi_error(&gt, &gt, &info).abs() < 1e-20);
 }
+
+/// `--quick` changes defaults only: explicit `--mus`, `--runs` and `--rankings` win over it.
+#[test]
+fn explicit_flags_win_over_quick() {
+    let out = Command::new(env!("CARGO_BIN_EXE_mireg"))
+        .args([
+            "sweep",
+            concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/icl_livingroom1.mcap"),
+            "--quick",
+            "--csv",
+            "--max-pairs",
+            "2",
+            "--gaps",
+            "10",
+            "--mus=-7",
+            "--runs",
+            "2",
+            "--rankings",
+            "distance",
+        ])
+        .output()
+        .unwrap();
+    let csv = stdout_of_success(out);
+    let rows: Vec<Vec<&str>> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    // One ranking × (uniform, prosac, one Lévy μ).
+    assert_eq!(rows.len(), 3, "{csv}");
+    for r in &rows {
+        assert_eq!(
+            (r[1], r[4], r[5]),
+            ("distance", "2", "2"),
+            "ranking, runs, pairs"
+        );
+        if r[2] == "levy" {
+            assert_eq!(r[3].parse::<f64>().unwrap(), -7.0);
+        }
+    }
+}

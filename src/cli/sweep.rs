@@ -44,27 +44,26 @@ pub struct SweepArgs {
     /// Frame gaps k of the pairs (i, i + k), comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "5,10,20")]
     pub gaps: Vec<usize>,
-    /// Seeded runs per pair and cell (the paper's M).
-    #[arg(long, default_value_t = 20)]
-    pub runs: usize,
+    /// Seeded runs per pair and cell (the paper's M) [default: 20; 3 with --quick].
+    #[arg(long)]
+    pub runs: Option<usize>,
     /// First seed (run r uses seed + r).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Rankings, comma-separated: ratio, distance, count_most (the authors'), count_fewest.
-    #[arg(
-        long,
-        value_delimiter = ',',
-        default_value = "ratio,distance,count_most"
-    )]
-    pub rankings: Vec<String>,
-    /// Lévy locations μ, comma-separated [default: the paper's −1, −50, −1e2 … −1e6].
+    /// Rankings, comma-separated: ratio, distance, count_most (the authors'), count_fewest
+    /// [default: ratio,distance,count_most; ratio,count_most with --quick].
+    #[arg(long, value_delimiter = ',')]
+    pub rankings: Option<Vec<String>>,
+    /// Lévy locations μ, comma-separated [default: the paper's −1, −50, −1e2 … −1e6; −1, −50,
+    /// −1e3, −1e6 with --quick].
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
     pub mus: Option<Vec<f64>>,
-    /// At most this many pairs (evenly spaced over all of them).
+    /// At most this many pairs (evenly spaced over all of them) [default: all; 20 with --quick].
     #[arg(long)]
     pub max_pairs: Option<usize>,
-    /// A quick look (under a minute on the fixture, 2 cores): 3 runs, μ ∈ {−1, −50, −1e3, −1e6},
-    /// rankings ratio and count_most, at most 20 pairs.
+    /// A quick look (under a minute on the fixture, 2 cores): the defaults of --runs, --mus,
+    /// --rankings and --max-pairs become 3 runs, μ ∈ {−1, −50, −1e3, −1e6}, rankings ratio and
+    /// count_most, at most 20 pairs. A flag given explicitly wins.
     #[arg(long)]
     pub quick: bool,
     /// Voxel size [m] [default: the first cloud's median range / 40, as register].
@@ -232,11 +231,8 @@ fn sweep_pairs(
         .iter()
         .map(|p| prepare_frame(p, &pair))
         .collect::<crate::Result<Vec<_>>>()?;
-    let max_pairs = if args.quick {
-        Some(args.max_pairs.unwrap_or(20).min(20))
-    } else {
-        args.max_pairs
-    };
+    // --quick changes the defaults only: an explicit flag wins.
+    let max_pairs = args.max_pairs.or(args.quick.then_some(20));
     if let Some(m) = max_pairs.filter(|&m| m < pairs.len()) {
         let n = pairs.len();
         pairs = (0..m).map(|i| pairs[i * n / m].clone()).collect();
@@ -259,19 +255,24 @@ fn sweep_pairs(
             thresholds.max_te_m
         );
     }
-    let (runs, mus, rankings) = if args.quick {
-        (
-            args.runs.min(3),
-            vec![-1.0, -50.0, -1e3, -1e6],
-            vec!["ratio".to_string(), "count_most".to_string()],
-        )
-    } else {
-        (
-            args.runs,
-            args.mus.clone().unwrap_or_else(|| PAPER_MUS.to_vec()),
-            args.rankings.clone(),
-        )
-    };
+    let (runs, mus, rankings) = (
+        args.runs.unwrap_or(if args.quick { 3 } else { 20 }),
+        args.mus.clone().unwrap_or_else(|| {
+            if args.quick {
+                vec![-1.0, -50.0, -1e3, -1e6]
+            } else {
+                PAPER_MUS.to_vec()
+            }
+        }),
+        args.rankings.clone().unwrap_or_else(|| {
+            let names: &[&str] = if args.quick {
+                &["ratio", "count_most"]
+            } else {
+                &["ratio", "distance", "count_most"]
+            };
+            names.iter().map(|s| s.to_string()).collect()
+        }),
+    );
     let config = SweepConfig {
         dataset: args.dataset.clone().unwrap_or_else(|| {
             args.input
