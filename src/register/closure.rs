@@ -50,6 +50,8 @@ pub(super) struct LoopRecord {
     /// Robust weight of the loop edge at the optimum (0 for a rejected candidate).
     pub(super) weight: f64,
     pub(super) verify_s: f64,
+    /// The pair registration's seconds per stage (matching, ranking, RANSAC, ICP, …).
+    pub(super) timings_s: Option<crate::pipeline::PairTimings>,
 }
 
 /// What loop closure did, in the run's summary.
@@ -232,6 +234,7 @@ fn record(
         odometry_disagreement_deg: verified.map_or(f64::NAN, |(v, _)| v.disagreement_deg),
         weight: weights.get(&(c.query, c.matched)).copied().unwrap_or(0.0),
         verify_s: verified.map_or(0.0, |(_, s)| *s),
+        timings_s: verified.map(|(v, _)| v.pair.timings_s),
     }
 }
 

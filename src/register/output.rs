@@ -403,7 +403,8 @@ pub fn loops_json_schema() -> serde_json::Value {
             },
             "inliers": int, "correspondences": int, "fitness": num, "inlier_rmse_m": num,
             "odometry_disagreement_m": nullable_num, "odometry_disagreement_deg": nullable_num,
-            "weight": num, "verify_s": num
+            "weight": num, "verify_s": num,
+            "timings_s": {"type": ["object", "null"], "additionalProperties": num}
         },
         "required": ["query_frame", "match_frame", "query_stamp_ns", "match_stamp_ns", "found_by",
                      "verdict", "reason", "match_from_query", "inliers", "fitness", "weight"]
