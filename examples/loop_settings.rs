@@ -4,7 +4,7 @@
 //! accepted and the stage's time.
 //!
 //! ```text
-//! cargo run --release --example loop_settings -- LOG [odometry_sigma=1] [loop_sigma=1] [kernel=1] [inliers=30] [fitness=0.5] [per_query=2] [fine_icp=0] [keyframe_distance_factor=1]
+//! cargo run --release --example loop_settings -- LOG [odometry_sigma=1] [loop_sigma=1] [kernel=1] [inliers=30] [fitness=0.5] [per_query=2] [fine_icp=0] [keyframe_distance_factor=1] [redundant_path_voxels=0]
 //! ```
 //! Sigma factors multiply [`LoopConfig::for_voxel`]'s deviations (translation and rotation).
 
@@ -44,6 +44,7 @@ fn main() -> mireg::Result<()> {
     c.candidates.max_per_query = factor(6, c.candidates.max_per_query as f64) as usize;
     c.fine_icp = factor(7, f64::from(u8::from(c.fine_icp))) != 0.0;
     c.keyframes.keyframe_distance_m *= factor(8, 1.0);
+    c.redundant_path_m = factor(9, 0.0) * voxel;
     opts.loops = true;
     opts.loop_config = Some(c);
     let s = register_log(&opts)?;
@@ -52,7 +53,7 @@ fn main() -> mireg::Result<()> {
     };
     let l = s.loops.expect("loops ran");
     println!(
-        "{} odometry_sigma x{so} loop_sigma x{sl} kernel {} inliers {} fitness {} per_query {} fine {} keyframes every {:.3} m: ATE odometry {:.5} m, optimised {:.5} m; {} keyframes, {} candidates, {} accepted, {} down-weighted; loops {:.3} s of {:.3} s",
+        "{} odometry_sigma x{so} loop_sigma x{sl} kernel {} inliers {} fitness {} per_query {} fine {} keyframes every {:.3} m: ATE odometry {:.5} m, optimised {:.5} m; {} keyframes, {} candidates, {} accepted, {} redundant, {} down-weighted; loops {:.3} s of {:.3} s",
         input.display(),
         c.kernel_scale,
         c.verify.min_inliers,
@@ -65,6 +66,7 @@ fn main() -> mireg::Result<()> {
         l.keyframes,
         l.candidates,
         l.accepted,
+        l.redundant,
         l.down_weighted,
         l.elapsed_s,
         s.elapsed_s

@@ -220,9 +220,10 @@ fn print_summary(s: &RegisterSummary) {
     );
     if let Some(l) = &s.loops {
         println!(
-            "loops: {} keyframes, {} candidates tried, {} accepted ({} down-weighted by the pose graph), {:.2} s; optimised poses on {}",
+            "loops: {} keyframes, {} candidates tried ({} more skipped as redundant), {} accepted ({} down-weighted by the pose graph), {:.2} s; optimised poses on {}",
             l.keyframes,
             l.candidates,
+            l.redundant,
             l.accepted,
             l.down_weighted,
             l.elapsed_s,

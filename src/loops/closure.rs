@@ -58,6 +58,12 @@ pub struct LoopConfig {
     /// The agreement test with the odometry applies up to this much path between the two
     /// frames \[m\]; beyond it the drift may be anything and only the robust graph judges.
     pub agreement_path_m: f64,
+    /// A candidate whose two frames are both within this much path \[m\] of an accepted loop's
+    /// is not tried: it would join the same two places again. 0 tries every candidate. Default
+    /// 10 voxels: measured (`examples/loop_settings.rs`), it leaves 10 of KAIST03's 20 candidates
+    /// and 17 of micro211's 50, the loop stage 0.44 → 0.27 s and 0.26 → 0.15 s, the loop-closed
+    /// ATE 2.343 → 2.362 and 1.239 → 1.231 cm.
+    pub redundant_path_m: f64,
     /// Verify with the pairwise fine ICP stage on the frames' input points
     /// ([`crate::pipeline::PairConfig::icp_fine`]). Default `false`: measured
     /// (`examples/loop_settings.rs`), without it KAIST03's loop stage took 0.53 s instead of 1.02 s
@@ -74,7 +80,8 @@ impl LoopConfig {
     /// behaviour. In voxels `v`: keyframes every 2.5 v of path or 10°; place radius 8 v growing
     /// by 2 % of the path between the frames up to 80 v; at least 20 v of path and 5 frames
     /// between the two frames of a loop; agreement with the odometry required up to 200 v of
-    /// path; at most 2 candidates per keyframe. Odometry edges σ = 0.1 v and 0.2° per step; loop
+    /// path; at most 2 candidates per keyframe, none within 10 v of path (both ends) of an accepted
+    /// loop. Odometry edges σ = 0.1 v and 0.2° per step; loop
     /// edges 3× that, 0.3 v and 0.6°.
     ///
     /// Measured (`examples/loop_settings.rs`, docs/LOOPS.md) on the out-and-back logs of
@@ -107,6 +114,7 @@ impl LoopConfig {
             frames_in_memory: DEFAULT_FRAMES_IN_MEMORY,
             agreement_path_m: 200.0 * v,
             fine_icp: false,
+            redundant_path_m: 10.0 * v,
         }
     }
 

@@ -61,6 +61,9 @@ pub struct LoopSummary {
     pub keyframes: usize,
     /// Candidates tried.
     pub candidates: usize,
+    /// Candidates not tried because an accepted loop already joins the same two places
+    /// ([`LoopConfig::redundant_path_m`]).
+    pub redundant: usize,
     /// Loops accepted (edges of the pose graph).
     pub accepted: usize,
     /// Accepted loops whose robust weight at the optimum is below ½ (the graph down-weighted
@@ -133,7 +136,12 @@ pub(super) fn close_loops(
         pair: &pair,
         config,
     };
-    let (verified, passes) = verify_all(plan, opts, estimates, &candidates, &verifier)?;
+    let (verified, skipped, passes) = verify_all(plan, opts, estimates, &candidates, &verifier)?;
+    // Candidates skipped as redundant were not tried: no record, a count.
+    let candidates: Vec<Candidate> = candidates
+        .into_iter()
+        .filter(|c| !skipped.contains(&(c.query, c.matched)))
+        .collect();
 
     let loops: Vec<LoopEdge> = candidates
         .iter()
@@ -174,6 +182,7 @@ pub(super) fn close_loops(
     let summary = LoopSummary {
         keyframes: keyframes.len(),
         candidates: candidates.len(),
+        redundant: skipped.len(),
         accepted: loops.len(),
         down_weighted: weights.values().filter(|w| **w < 0.5).count(),
         passes,
@@ -249,7 +258,22 @@ struct Verifier<'a> {
 /// A verification and its seconds, by (query, match) frame.
 type Verified = BTreeMap<(usize, usize), (Verification, f64)>;
 
+/// What [`verify_all`] returns: the verifications, the candidates skipped as redundant, and the
+/// passes over the input.
+type VerifyOutcome = (Verified, BTreeSet<(usize, usize)>, usize);
+
 impl Verifier<'_> {
+    /// Whether candidate `c` would add nothing to an accepted loop: both of its frames within
+    /// [`LoopConfig::redundant_path_m`] of path of the accepted loop's.
+    fn redundant(&self, c: &Candidate, accepted: &[(usize, usize)]) -> bool {
+        let d = self.config.redundant_path_m;
+        let near = |a: usize, b: usize| (self.travelled[a] - self.travelled[b]).abs() <= d;
+        d > 0.0
+            && accepted
+                .iter()
+                .any(|&(q, m)| near(c.query, q) && near(c.matched, m))
+    }
+
     fn verify(
         &self,
         c: &Candidate,
@@ -286,9 +310,11 @@ fn verify_all(
     estimates: &[Estimate],
     candidates: &[Candidate],
     verifier: &Verifier,
-) -> Result<(Verified, usize)> {
+) -> Result<VerifyOutcome> {
     let capacity = verifier.config.frames_in_memory.max(1);
     let mut verified = Verified::new();
+    let mut accepted: Vec<(usize, usize)> = Vec::new();
+    let mut skipped: BTreeSet<(usize, usize)> = BTreeSet::new();
     // Candidates that could not be read (a frame that no longer decodes) are left out.
     let mut remaining: Vec<Candidate> = candidates.to_vec();
     let mut passes = 0;
@@ -302,8 +328,32 @@ fn verify_all(
         let needed: BTreeSet<usize> = uses.keys().copied().collect();
         let mut held: BTreeMap<usize, PreparedFrame> = BTreeMap::new();
         let mut done: BTreeSet<(usize, usize)> = BTreeSet::new();
-        let seen =
-            for_each_needed_frame(plan, opts, estimates, &needed, verifier.pair, |k, frame| {
+        let seen = for_each_needed_frame(
+            plan,
+            opts,
+            estimates,
+            &needed,
+            verifier.pair,
+            |k, prepare| {
+                // This frame's candidates that an accepted loop makes redundant: not tried.
+                let redundant: Vec<(usize, usize)> = remaining
+                    .iter()
+                    .filter(|c| {
+                        (c.query == k || c.matched == k) && !done.contains(&(c.query, c.matched))
+                    })
+                    .filter(|c| verifier.redundant(c, &accepted))
+                    .map(|c| (c.query, c.matched))
+                    .collect();
+                for key in redundant {
+                    skipped.insert(key);
+                    release(&mut done, &mut uses, &mut held, key);
+                }
+                if uses[&k] == 0 {
+                    return Ok(false);
+                }
+                let Some(frame) = prepare() else {
+                    return Ok(false);
+                };
                 // This frame's candidates whose other frame is held.
                 let ready: Vec<&Candidate> = remaining
                     .iter()
@@ -325,21 +375,18 @@ fn verify_all(
                     })
                     .collect::<Result<_>>()?;
                 for (key, v) in results {
-                    done.insert(key);
-                    verified.insert(key, v);
-                    for f in [key.0, key.1] {
-                        let u = uses.get_mut(&f).expect("counted");
-                        *u -= 1;
-                        if *u == 0 {
-                            held.remove(&f);
-                        }
+                    if v.0.accepted {
+                        accepted.push(key);
                     }
+                    verified.insert(key, v);
+                    release(&mut done, &mut uses, &mut held, key);
                 }
                 if uses[&k] > 0 && held.len() < capacity {
                     held.insert(k, frame);
                 }
-                Ok(())
-            })?;
+                Ok(true)
+            },
+        )?;
         let before = remaining.len();
         // Candidates with a frame that could not be read again: no verification, rejected.
         remaining.retain(|c| {
@@ -351,20 +398,38 @@ fn verify_all(
             break; // nothing could be verified: the frames are gone
         }
     }
-    Ok((verified, passes))
+    Ok((verified, skipped, passes))
 }
 
-/// Streams the input's clouds once, calling `f(k, prepared)` for each frame `k` in `needed`, prepared for verification (deskewed as the odometry deskewed it);
-/// returns the frames that were prepared. Frames registered in log-time order are found by their
-/// log time (the n-th cloud of a log time is the n-th frame of it); a cloud that no longer
-/// decodes or is over the point bound is left out.
+/// Marks candidate `key` done and releases its frames whose last candidate it was.
+fn release(
+    done: &mut BTreeSet<(usize, usize)>,
+    uses: &mut HashMap<usize, usize>,
+    held: &mut BTreeMap<usize, PreparedFrame>,
+    key: (usize, usize),
+) {
+    done.insert(key);
+    for f in [key.0, key.1] {
+        let u = uses.get_mut(&f).expect("counted");
+        *u -= 1;
+        if *u == 0 {
+            held.remove(&f);
+        }
+    }
+}
+
+/// Streams the input's clouds once, calling `f(k, prepare)` for each frame `k` in `needed`;
+/// `prepare()` decodes the cloud and prepares it for verification (deskewed as the odometry
+/// deskewed it), `None` for a cloud that no longer decodes or is over the point bound, and `f`
+/// says whether it was prepared. Returns the frames that were: frames registered in log-time order
+/// are found by their log time (the n-th cloud of a log time is the n-th frame of it).
 fn for_each_needed_frame(
     plan: &Plan,
     opts: &RegisterOptions,
     estimates: &[Estimate],
     needed: &BTreeSet<usize>,
     pair: &PairConfig,
-    mut f: impl FnMut(usize, PreparedFrame) -> Result<()>,
+    mut f: impl FnMut(usize, &mut dyn FnMut() -> Option<PreparedFrame>) -> Result<bool>,
 ) -> Result<BTreeSet<usize>> {
     let times: BTreeSet<u64> = needed.iter().map(|&k| estimates[k].log_time).collect();
     let mut by_time: HashMap<u64, (Vec<usize>, usize)> = HashMap::new();
@@ -385,16 +450,21 @@ fn for_each_needed_frame(
         };
         let k = indices.get(*count).copied();
         *count += 1;
-        if let Some(k) = k.filter(|k| needed.contains(k))
-            && let Ok(mut cloud) = plan.kind.decode(data)
-            && cloud.points.len() <= opts.max_points_per_cloud
-        {
-            if let (Some((motion, dt)), Some(times)) = (&estimates[k].deskew_motion, &cloud.times) {
-                deskew(&mut cloud.points, &times.seconds, motion, *dt);
-            }
-            if let Ok(frame) = prepare_frame(&cloud.points, pair) {
+        if let Some(k) = k.filter(|k| needed.contains(k)) {
+            let mut prepare = || {
+                let mut cloud = plan.kind.decode(data).ok()?;
+                if cloud.points.len() > opts.max_points_per_cloud {
+                    return None;
+                }
+                if let (Some((motion, dt)), Some(times)) =
+                    (&estimates[k].deskew_motion, &cloud.times)
+                {
+                    deskew(&mut cloud.points, &times.seconds, motion, *dt);
+                }
+                prepare_frame(&cloud.points, pair).ok()
+            };
+            if f(k, &mut prepare)? {
                 seen.insert(k);
-                f(k, frame)?;
             }
         }
         Ok(ControlFlow::Continue(()))
