@@ -145,3 +145,22 @@ fn a_log_without_revisits_keeps_its_odometry() {
     // The odometry does not depend on loop closure.
     assert_eq!(poses_by_stamp(&bare, "/mireg/pose"), odometry);
 }
+
+/// The same seed gives the same loop-closed trajectory on one thread and on two (candidates are
+/// verified in parallel).
+#[test]
+fn loop_closure_is_independent_of_the_thread_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |threads: &str| {
+        let out = dir.path().join(format!("out{threads}.mcap"));
+        let status = std::process::Command::new(env!("CARGO_BIN_EXE_mireg"))
+            .args(["register", s(&fixture()), "-o", s(&out), "--quiet"])
+            .env("RAYON_NUM_THREADS", threads)
+            .status()
+            .unwrap();
+        assert!(status.success());
+        let t = read_mcap_pose_topic(&out, "/mireg/pose_optimized").unwrap();
+        (t.stamps_ns, t.poses)
+    };
+    assert_eq!(run("1"), run("2"));
+}
