@@ -266,8 +266,17 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         let config = opts
             .loop_config
             .unwrap_or_else(|| LoopConfig::for_voxel(plan.voxel_m));
-        let outcome = closure::close_loops(&plan, opts, &writer.estimates, &config)?;
-        Some((outcome, config))
+        // The odometry is written: a loop closure that fails costs the loops, not the run.
+        match closure::close_loops(&plan, opts, &writer.estimates, &config) {
+            Ok(outcome) => Some((outcome, config)),
+            Err(e) => {
+                eprintln!(
+                    "mireg: warning: loop closure failed ({e}); {} has the odometry only",
+                    opts.output.display()
+                );
+                None
+            }
+        }
     } else {
         None
     };

@@ -124,7 +124,12 @@ fn read_poses_and_metadata(
 pub fn build_map(input: &Path, opts: &MapOptions) -> Result<(VoxelMap, MapSummary)> {
     let channels = list_channels(input)?;
     let (odometry, optimized) = run_pose_topics(&channels);
-    let has = |t: &str| channels.iter().any(|c| c.topic == t);
+    // A channel without messages (loop closure that failed) is no trajectory.
+    let has = |t: &str| {
+        channels
+            .iter()
+            .any(|c| c.topic == t && c.message_count != Some(0))
+    };
     let pose_topic = match opts.trajectory {
         TrajectoryChoice::Odometry => odometry.clone(),
         TrajectoryChoice::Optimized => optimized,
