@@ -1,11 +1,11 @@
 //! `mireg register`: MCAP log in, MCAP log out. The one module that joins file I/O to the pure
 //! algorithms ([`crate::odometry`]).
 //!
-//! The stages, each in its own file: [`plan`] opens the input and settles the run; then three
-//! overlap, connected by bounded queues: the calling thread streams records ([`reader`], copying
-//! each into the output, and [`writer`], putting out each registered frame), a *prepare* thread
-//! ([`prepare`]) decodes, downsamples and computes features for frame `k + 1` while a *register*
-//! thread ([`registrar`]) registers frame `k` against the local map. Memory is bounded by one
+//! The stages, each in its own file: `plan.rs` opens the input and settles the run; then three
+//! overlap, connected by bounded queues: the calling thread streams records (`reader.rs`, copying
+//! each into the output, and `writer.rs`, putting out each registered frame), a *prepare* thread
+//! (`prepare.rs`) decodes, downsamples and computes features for frame `k + 1` while a *register*
+//! thread (`registrar.rs`) registers frame `k` against the local map. Memory is bounded by one
 //! chunk plus the queue capacity, whatever the log length.
 
 mod closure;
@@ -75,11 +75,11 @@ pub struct RegisterOptions {
     /// [`DEFAULT_MAX_POINTS_PER_CLOUD`].
     pub max_points_per_cloud: usize,
     /// Cloud messages held at most to restore log-time order when the file's chunk index does not
-    /// prove its order ([`Reorder`]); a file whose chunks are time-ordered holds only its current
+    /// prove its order ([`crate::io::log_order::Reorder`]); a file whose chunks are time-ordered holds only its current
     /// chunk's clouds. A cloud that arrives after a later one was registered is an error naming
     /// both log times. Default [`REORDER_WINDOW`].
     pub reorder_window: usize,
-    /// Derive the voxel from the first cloud ([`voxel_for_cloud`]) instead of using
+    /// Derive the voxel from the first cloud ([`crate::pipeline::voxel_for_cloud`]) instead of using
     /// `config.pair.voxel_size_m` (`mireg register` without `--voxel` or a configured voxel).
     /// Default `false`.
     pub derive_voxel: bool,
@@ -97,7 +97,7 @@ pub struct RegisterOptions {
     /// Copy only the input messages whose log time lies in the segment (`--copy-window`),
     /// instead of the whole log. Default `false`.
     pub copy_window_only: bool,
-    /// Close loops after the odometry ([`closure`]): `/mireg/loops`, `/mireg/pose_optimized`
+    /// Close loops after the odometry (`closure.rs`): `/mireg/loops`, `/mireg/pose_optimized`
     /// and its `/tf` variant. Default `true` (`--no-loops` turns it off).
     pub loops: bool,
     /// Loop-closure settings; `None`: [`LoopConfig::for_voxel`] of the run's voxel. Default
@@ -204,8 +204,9 @@ pub struct RegisterSummary {
     pub reference_optimized: Option<ReferenceErrors>,
 }
 
-/// Runs the whole job: the stages [`plan`] → [`reader`] → [`prepare`] → [`registrar`] →
-/// [`writer`], then loop closure ([`closure`]) over the whole trajectory (docs/ARCHITECTURE.md). On any error the output path is left untouched.
+/// Runs the whole job: the stages `plan.rs` → `reader.rs` → `prepare.rs` → `registrar.rs` →
+/// `writer.rs`, then loop closure (`closure.rs`) over the whole trajectory (docs/ARCHITECTURE.md).
+/// On any error the output path is left untouched.
 pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     let start = Instant::now();
     if same_file(&opts.input, &opts.output) {
@@ -245,7 +246,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         // Each registered frame's motion, back to the preparing thread for deskewing (unbounded:
         // one small message per frame, drained as frames are prepared).
         let (motion_tx, motion_rx) = std::sync::mpsc::channel();
-        // Message buffers back from the preparing thread once decoded ([`reader`]).
+        // Message buffers back from the preparing thread once decoded (`reader.rs`).
         let (recycle_tx, recycle_rx) = std::sync::mpsc::channel();
         let prepare = &prepare;
         scope.spawn(move || prepare.run(cloud_rx, prep_tx, motion_rx, recycle_tx));

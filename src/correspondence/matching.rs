@@ -24,7 +24,7 @@ use super::duplicates::Unique;
 use rayon::prelude::*;
 use std::num::NonZeroUsize;
 
-/// Length of an FPFH descriptor (the features' own [`FPFH_BINS`]).
+/// Length of an FPFH descriptor (the features' own [`crate::features::fpfh::FPFH_BINS`]).
 pub use crate::features::fpfh::{FPFH_BINS as FPFH_DIM, Fpfh};
 
 /// Which exact nearest-neighbour search [`match_features_with`] uses.

@@ -211,8 +211,9 @@ pub fn pose_graph(
     })
 }
 
-/// The optimised trajectory: [`pose_graph`] solved by [`optimize`] with the Cauchy kernel at
-/// [`LoopConfig::kernel_scale`]. Without loops the graph is consistent and the trajectory is the
+/// The optimised trajectory: [`pose_graph`] solved by [`optimize`] with the Cauchy kernel, its
+/// scale annealed from [`ANNEALING_START`]`/`[`ANNEALING_FACTOR`] times [`LoopConfig::kernel_scale`]
+/// down to it (one solve per scale, each from the last). Without loops the graph is consistent and the trajectory is the
 /// odometry's, returned as it is (no solve). Returns the poses and, with loops, the solution
 /// (whose `edge_weights` end with one weight per loop, in order).
 ///

@@ -8,7 +8,7 @@
 //! flat: one hash entry (12-byte integer key, 4-byte index) and one 40-byte [`Cell`] per
 //! occupied voxel; no allocation per point.
 //!
-//! [`build`] drives it over a `mireg register` output (the trajectory chosen, clouds streamed
+//! `build.rs` ([`build_map`]) drives it over a `mireg register` output (the trajectory chosen, clouds streamed
 //! from the log).
 
 use std::collections::HashMap;

@@ -1,6 +1,6 @@
 //! MCAP, record by record: [`read`] streams records and the summary in bounded memory,
 //! [`chunk`] decodes one chunk's records, [`record`] parses and checks single records,
-//! [`write`] writes records (chunks, indexes, summary), and [`log`] ties them into the input
+//! [`write`](mod@write) writes records (chunks, indexes, summary), and [`log`] ties them into the input
 //! catalog and the output log that `register` copies input messages into.
 
 pub mod chunk;

@@ -1,11 +1,11 @@
 //! Reading MCAP files whose lengths cannot be trusted: every length, count or size read from the
 //! file is checked against what the file can hold (the rest of the record, the chunk, the file)
-//! or a documented limit ([`MAX_CHUNK_BYTES`]) before it drives an allocation.
+//! or a documented limit ([`crate::io::MAX_CHUNK_BYTES`]) before it drives an allocation.
 //!
-//! [`Source`] reads top-level records of the data section; [`for_each_record`] walks them and the
+//! `Source` reads top-level records of the data section; [`for_each_record`] walks them and the
 //! records inside chunks (the streaming read of `mireg evaluate`/`export`, and the catalogue of a
-//! log without a summary); [`read_summary`] reads the summary section with the same bounds. The
-//! pass-through of `mireg register` ([`super::log`]) reads with [`Source`] too, so every input path
+//! log without a summary); `read_summary` reads the summary section with the same bounds. The
+//! pass-through of `mireg register` ([`super::log`]) reads with `Source` too, so every input path
 //! shares one set of checks.
 
 use std::fs::File;
@@ -215,8 +215,7 @@ pub fn for_each_record(path: &Path, mut f: impl FnMut(Record<'_>) -> Result<()>)
     for_each_record_until(path, |r| f(r).map(|()| std::ops::ControlFlow::Continue(())))
 }
 
-/// [`for_each_record`] that stops as soon as `f` says [`ControlFlow::Break`]
-/// (`std::ops::ControlFlow`), without reading further (e.g. for the first cloud of a log).
+/// [`for_each_record`] that stops as soon as `f` says [`std::ops::ControlFlow::Break`], without reading further (e.g. for the first cloud of a log).
 pub fn for_each_record_until(
     path: &Path,
     mut f: impl FnMut(Record<'_>) -> Result<std::ops::ControlFlow<()>>,
