@@ -10,7 +10,9 @@ reference; RPE = mean over consecutive scored frames of |translation of (dRef^-1
 A loop (query q, match m, estimate match_from_query) is compared with the reference
 ref_m^-1 ref_q: rotation error [deg] and translation error [m] of their difference; it is correct
 when < 2 deg and < 2 voxels (`--voxel`, default mireg's own voxel from its JSON summary). Loop
-precision = correct / accepted.
+precision = correct / accepted. Loop recall (mireg row, in its notes): the fraction of revisits
+-- frames with an earlier frame within 8 voxels in the reference and at least 20 voxels of path
+back -- within 10 voxels of path of a correct accepted loop's query frame (`loop_recall`).
 
 Rows:
 
@@ -117,6 +119,33 @@ def score_loops(loops, reference, voxel):
         lp["correct"] = lp["rot_err_deg"] < LOOP_DEG and lp["trans_err_m"] < LOOP_VOXELS * voxel
         good += lp["correct"]
     return good
+
+
+def loop_recall(loops, reference, stamps, voxel, radius_voxels=8.0, separation_voxels=20.0,
+                cover_voxels=10.0):
+    """Fraction of the log's revisits that correct accepted loops close.
+
+    A frame is a *revisit* when an earlier frame lies within ``radius_voxels`` of it in the
+    reference with at least ``separation_voxels`` of reference path between them (mireg's own
+    candidate radius and separation at zero drift: a revisit any loop detector should find). A
+    revisit is *closed* when a correct accepted loop's query frame lies within ``cover_voxels`` of
+    path of it (mireg skips candidates within 10 voxels of an accepted loop). Returns (closed,
+    revisits)."""
+    pts = [reference[s][:3, 3] for s in stamps if s in reference]
+    kept = [s for s in stamps if s in reference]
+    path = np.concatenate([[0.0], np.cumsum([np.linalg.norm(b - a) for a, b in zip(pts, pts[1:])])])
+    revisits = []
+    for i in range(len(pts)):
+        for j in range(i):
+            if path[i] - path[j] >= separation_voxels * voxel and \
+                    np.linalg.norm(pts[i] - pts[j]) <= radius_voxels * voxel:
+                revisits.append(i)
+                break
+    index = {s: i for i, s in enumerate(kept)}
+    queries = [index[lp["query_stamp_ns"]] for lp in loops
+               if lp.get("correct") and lp["query_stamp_ns"] in index]
+    closed = sum(1 for i in revisits if any(abs(path[i] - path[q]) <= cover_voxels * voxel for q in queries))
+    return closed, len(revisits)
 
 
 # --- mireg -------------------------------------------------------------------------------------------
@@ -322,7 +351,9 @@ def compare(log, args, extra):
             accepted = [lp for lp in loops if lp.get("verdict") == "accepted" and "T" in lp]
             good = score_loops(accepted, reference, voxel)
             loop_cell, prec = len(accepted), (good / len(accepted) if accepted else None)
-            note = f"{traj}; /mireg/loops: {len(loops)} candidates tried, {len(accepted)} accepted"
+            closed, revisits = loop_recall(accepted, reference, stamps, voxel)
+            note = (f"{traj}; /mireg/loops: {len(loops)} candidates tried, {len(accepted)} accepted; "
+                    f"recall {closed}/{revisits} revisits closed")
         else:
             accepted, loop_cell, prec = [], "no topic", None
             note = f"{traj}; no /mireg/loops in the output: odometry only"
