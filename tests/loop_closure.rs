@@ -2,16 +2,17 @@
 //! reference trajectory, the optimised trajectory of a log that never revisits a place against
 //! its odometry, and `--no-loops`.
 
-use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use mireg::pipeline::pose_error;
 use mireg::trajectory::read_mcap_pose_topic;
-use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 
 #[path = "common/log_contents.rs"]
 mod log_contents;
 use log_contents::contents;
+#[path = "common/loop_records.rs"]
+mod loop_records;
+use loop_records::{assert_accepted_loops_match, loops, poses_by_stamp};
 #[path = "common/synthetic_log.rs"]
 mod synthetic_log;
 
@@ -37,31 +38,6 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
-/// Poses of a PoseStamped topic by header stamp.
-fn poses_by_stamp(path: &Path, topic: &str) -> HashMap<i64, Isometry3<f64>> {
-    let t = read_mcap_pose_topic(path, topic).unwrap();
-    t.stamps_ns.iter().copied().zip(t.poses).collect()
-}
-
-/// The `/mireg/loops` messages, decoded.
-fn loops(path: &Path) -> Vec<serde_json::Value> {
-    contents(path)
-        .messages
-        .into_iter()
-        .filter(|m| m.0 == "/mireg/loops")
-        .map(|m| serde_json::from_slice(&m.3).unwrap())
-        .collect()
-}
-
-fn pose_of_json(v: &serde_json::Value) -> Isometry3<f64> {
-    let t: Vec<f64> = serde_json::from_value(v["translation"].clone()).unwrap();
-    let q: Vec<f64> = serde_json::from_value(v["rotation_xyzw"].clone()).unwrap();
-    Isometry3::from_parts(
-        Translation3::new(t[0], t[1], t[2]),
-        UnitQuaternion::from_quaternion(Quaternion::new(q[3], q[0], q[1], q[2])),
-    )
-}
-
 /// Every loop the fixture's run accepts is right: its relative pose within 2° and 2 voxels of
 /// the reference's (the loop precision of 100 %), and each candidate tried is a message
 /// with a verdict; the summary counts them.
@@ -82,26 +58,9 @@ fn every_accepted_loop_of_the_fixture_matches_the_reference() {
     let reference = poses_by_stamp(&out, "/ground_truth/pose");
     let tried = loops(&out);
     assert_eq!(tried.len() as u64, summary["loops"]["candidates"]);
-    let accepted: Vec<&serde_json::Value> = tried
-        .iter()
-        .filter(|l| l["verdict"] == "accepted")
-        .collect();
-    assert_eq!(accepted.len() as u64, summary["loops"]["accepted"]);
-    assert!(!accepted.is_empty(), "the fixture revisits its room");
-    for l in &accepted {
-        let (q, m) = (
-            l["query_stamp_ns"].as_i64().unwrap(),
-            l["match_stamp_ns"].as_i64().unwrap(),
-        );
-        let truth = reference[&m].inverse() * reference[&q];
-        let (deg, metres) = pose_error(&truth, &pose_of_json(&l["match_from_query"]));
-        assert!(
-            deg < 2.0 && metres < 2.0 * voxel,
-            "loop {} → {}: {deg:.2}°, {metres:.3} m off the reference",
-            l["query_frame"],
-            l["match_frame"]
-        );
-    }
+    let accepted = assert_accepted_loops_match(&tried, &reference, voxel);
+    assert_eq!(accepted as u64, summary["loops"]["accepted"]);
+    assert!(accepted > 0, "the fixture revisits its room");
     for l in &tried {
         assert!(l["verdict"] == "accepted" || !l["reason"].as_str().unwrap().is_empty());
     }

@@ -12,6 +12,8 @@ use nalgebra::Isometry3;
 #[path = "common/log_contents.rs"]
 mod log_contents;
 use log_contents::contents;
+#[path = "common/loop_records.rs"]
+mod loop_records;
 #[path = "common/synthetic_log.rs"]
 mod synthetic_log;
 use synthetic_log::{world_from_camera, write_log_full};
@@ -156,7 +158,7 @@ fn stitched_segments_follow_the_sequential_run() {
         segment(d, "s2.mcap", Some(48), None),
     ];
     let out = d.join("stitched.mcap");
-    let s = mireg::register::stitch(&fixture(), &segs, &out, false, "test").unwrap();
+    let s = mireg::register::stitch(&fixture(), &segs, &out, false, "test", false).unwrap();
     assert_eq!((s.frames, s.segments, s.messages_copied), (71, 3, 142));
     assert_eq!(s.seams.len(), 2);
     for seam in &s.seams {
@@ -197,6 +199,7 @@ fn stitched_segments_follow_the_sequential_run() {
         &d.join("g.mcap"),
         false,
         "t",
+        false,
     )
     .unwrap_err()
     .to_string();
@@ -230,7 +233,7 @@ fn stitched_segments_recover_known_motion() {
         run("s2.mcap", Some(8), None),
     ];
     let out = d.join("stitched.mcap");
-    let s = mireg::register::stitch(&log, &segs, &out, false, "test").unwrap();
+    let s = mireg::register::stitch(&log, &segs, &out, false, "test", false).unwrap();
     assert_eq!((s.frames, s.segments), (frames, 3));
     assert_eq!(
         s.seams.iter().map(|m| m.shared_frames).collect::<Vec<_>>(),
@@ -251,4 +254,29 @@ fn stitched_segments_recover_known_motion() {
             "frame {k}: stitched {apart} m from sequential"
         );
     }
+}
+
+/// Loop closure over the stitched whole (`stitch` with loops): candidates across the seams,
+/// every accepted loop right against the fixture's reference, an optimised pose for every frame,
+/// and the summary counting what was tried.
+#[test]
+fn stitched_segments_close_loops_over_the_whole_log() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let segs = vec![
+        segment(d, "s0.mcap", None, Some(40)),
+        segment(d, "s1.mcap", Some(28), None),
+    ];
+    let out = d.join("stitched.mcap");
+    let s = mireg::register::stitch(&fixture(), &segs, &out, false, "test", true).unwrap();
+    let summary = s.loops.expect("loops ran");
+    let tried = loop_records::loops(&out);
+    assert_eq!(tried.len(), summary.candidates);
+    let reference = loop_records::poses_by_stamp(&out, "/ground_truth/pose");
+    let voxel = 0.05;
+    let accepted = loop_records::assert_accepted_loops_match(&tried, &reference, voxel);
+    assert_eq!(accepted, summary.accepted);
+    assert!(accepted > 0);
+    let optimized = loop_records::poses_by_stamp(&out, "/mireg/pose_optimized");
+    assert_eq!(optimized.len(), 71);
 }

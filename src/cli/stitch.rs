@@ -17,6 +17,9 @@ pub struct StitchArgs {
     /// Output MCAP.
     #[arg(short, long)]
     pub output: PathBuf,
+    /// Skip loop closure over the stitched trajectory (on by default, as in `register`).
+    #[arg(long)]
+    pub no_loops: bool,
     /// Replace an existing output.
     #[arg(long)]
     pub force: bool,
@@ -33,6 +36,7 @@ pub(super) fn run_stitch(args: &StitchArgs) -> Result<()> {
         &args.output,
         args.force,
         &super::process::command_line(),
+        !args.no_loops,
     )?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&s)?);
@@ -44,6 +48,12 @@ pub(super) fn run_stitch(args: &StitchArgs) -> Result<()> {
             s.output.display(),
             s.messages_copied
         );
+        if let Some(l) = &s.loops {
+            println!(
+                "  loops over the whole log: {} keyframes, {} candidates tried, {} accepted, {:.2} s",
+                l.keyframes, l.candidates, l.accepted, l.elapsed_s
+            );
+        }
         for seam in &s.seams {
             println!(
                 "  seam {}: {} shared frames, after alignment max {:.4} m / {:.3} deg",

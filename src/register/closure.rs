@@ -18,7 +18,7 @@ use crate::Result;
 use crate::evaluate::path_distances;
 use crate::geometry::deskew::deskew;
 use crate::loops::{
-    Candidate, Keyframe, LoopConfig, LoopEdge, Source, Verification, find_candidates,
+    Candidate, Descriptor, Keyframe, LoopConfig, LoopEdge, Source, Verification, find_candidates,
     optimize_trajectory, select_keyframes, verify,
 };
 use crate::pipeline::{PairConfig, PreparedFrame, prepare_frame, refine};
@@ -245,6 +245,32 @@ fn record(
         verify_s: verified.map_or(0.0, |(_, s)| *s),
         timings_s: verified.map(|(v, _)| v.pair.timings_s),
     }
+}
+
+/// Computes each frame's descriptor by reading the input again (for a trajectory that did not
+/// come with them: the stitched segments of `mireg stitch`); a frame that no longer decodes keeps
+/// none and is no keyframe.
+pub(super) fn describe(
+    plan: &Plan,
+    opts: &RegisterOptions,
+    estimates: &mut [Estimate],
+) -> Result<()> {
+    let needed: BTreeSet<usize> = (0..estimates.len()).collect();
+    let pair = loop_pair_config(&plan.config.pair, false);
+    let mut descriptors = vec![None; estimates.len()];
+    for_each_needed_frame(plan, opts, estimates, &needed, &pair, |k, prepare| {
+        let Some(frame) = prepare() else {
+            return Ok(false);
+        };
+        if !frame.features.is_empty() {
+            descriptors[k] = Some(Descriptor::from_prepared(&frame));
+        }
+        Ok(true)
+    })?;
+    for (e, d) in estimates.iter_mut().zip(descriptors) {
+        e.descriptor = d;
+    }
+    Ok(())
 }
 
 /// What verifying one candidate needs besides its two frames.

@@ -19,12 +19,19 @@ use mcap::records::Record;
 use nalgebra::Isometry3;
 
 use super::CloudKind;
+use super::RegisterOptions;
+use super::closure::{LoopOutcome, close_loops, describe};
 use super::clouds::choose_topic;
+use super::frames::Estimate;
 use super::output::{Outputs, StampedPose, Topics, write_pose};
+use super::plan::Plan;
+use super::writer::{loop_metadata, write_loop_outcome};
 use crate::io::codec::{Time, cdr, pose_stamped_decoder, ros1};
 use crate::io::input_log::InputLog;
 use crate::io::mcap::log::{OutputLog, for_each_record};
 use crate::io::{atomic_file::same_file, format_err};
+use crate::loops::LoopConfig;
+use crate::odometry::OdometryConfig;
 use crate::{Error, Result};
 
 /// A frame of one segment output.
@@ -41,6 +48,8 @@ struct SegFrame {
 /// One segment output, read back.
 struct Segment {
     path: PathBuf,
+    /// Its `mireg` metadata (settings, voxel, topics).
+    meta: BTreeMap<String, String>,
     kind: CloudKind,
     world_frame: String,
     frames: Vec<SegFrame>,
@@ -74,6 +83,8 @@ pub struct StitchSummary {
     pub seams: Vec<Seam>,
     /// Input messages copied.
     pub messages_copied: u64,
+    /// What loop closure over the stitched trajectory did, when it ran.
+    pub loops: Option<super::LoopSummary>,
 }
 
 fn read_segment(path: &Path) -> Result<Segment> {
@@ -165,13 +176,17 @@ fn read_segment(path: &Path) -> Result<Segment> {
     }
     Ok(Segment {
         path: path.to_path_buf(),
+        meta,
         kind,
         world_frame,
         frames,
     })
 }
 
-/// Stitches the segment outputs `segments` (in log order) of `log` into `output`.
+/// Stitches the segment outputs `segments` (in log order) of `log` into `output`; with `loops`,
+/// then closes loops over the whole stitched trajectory, as `register` does over its own
+/// (`/mireg/loops`, `/mireg/pose_optimized`, `/mireg/tf_optimized`), with the first segment's
+/// settings.
 ///
 /// # Errors
 /// [`Error::InvalidInput`] when fewer than one segment is given, two consecutive segments share
@@ -183,6 +198,7 @@ pub fn stitch(
     output: &Path,
     force: bool,
     command_line: &str,
+    loops: bool,
 ) -> Result<StitchSummary> {
     if segments.is_empty() {
         return Err(Error::InvalidInput(
@@ -262,7 +278,7 @@ pub fn stitch(
     };
     let mut out = OutputLog::create(output, force, profile)?;
     out.declare_input(log, &catalog)?;
-    let ch = Outputs::create(&mut out, segs[0].kind, &topics, false)?;
+    let ch = Outputs::create(&mut out, segs[0].kind, &topics, loops)?;
     let copied = input_log.pass_through(&mut out, &Default::default(), None, |_, _, _| Ok(()))?;
     for (k, (segment, f)) in stitched.iter().enumerate() {
         let mut stats = f.stats.clone();
@@ -281,7 +297,15 @@ pub fn stitch(
         let bytes = serde_json::to_vec(&stats).expect("JSON");
         write_pose(&mut out, &ch, &segs[0].world_frame, &pose, &bytes)?;
     }
-    let meta = BTreeMap::from([
+    let closed = if loops {
+        Some(close_stitched(log, output, &segs[0], &stitched)?)
+    } else {
+        None
+    };
+    if let Some((estimates, outcome, _)) = &closed {
+        write_loop_outcome(&mut out, &ch, &segs[0].world_frame, estimates, outcome)?;
+    }
+    let mut meta = BTreeMap::from([
         ("version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
         ("command_line".to_string(), command_line.to_string()),
         ("input".to_string(), log.display().to_string()),
@@ -304,6 +328,9 @@ pub fn stitch(
             serde_json::to_string(&seams).expect("JSON"),
         ),
     ]);
+    if let Some((_, outcome, config)) = &closed {
+        loop_metadata(&mut meta, &topics, outcome, config);
+    }
     out.write_metadata("mireg", meta)?;
     out.finish()?;
     Ok(StitchSummary {
@@ -312,5 +339,73 @@ pub fn stitch(
         segments: segs.len(),
         seams,
         messages_copied: copied,
+        loops: closed.map(|(_, outcome, _)| outcome.summary),
     })
+}
+
+/// Loop closure over the stitched trajectory: the run's plan rebuilt from `log` with the first
+/// segment's recorded settings, each frame's estimate from the stitched poses and statistics,
+/// descriptors from the log read again, then [`super::closure::close_loops`].
+///
+/// NOTE: a frame the segment deskewed is deskewed again by the stitched motion of frame k − 2
+/// (its pose relative to k − 3), which is the segment's own except at a segment's first frames.
+fn close_stitched(
+    log: &Path,
+    output: &Path,
+    first: &Segment,
+    stitched: &[(usize, SegFrame)],
+) -> Result<(Vec<Estimate>, LoopOutcome, LoopConfig)> {
+    let meta = |k: &str| {
+        first.meta.get(k).ok_or_else(|| {
+            format_err(
+                &first.path,
+                format!("its mireg metadata has no {k}, which loop closure needs"),
+            )
+        })
+    };
+    let mut config: OdometryConfig = serde_json::from_str(meta("config")?)
+        .map_err(|e| format_err(&first.path, format!("mireg metadata config: {e}")))?;
+    // The recorded pair settings have their voxels sized already.
+    config.feature_points = 0;
+    let voxel: f64 = meta("voxel_m")?
+        .parse()
+        .map_err(|e| format_err(&first.path, format!("mireg metadata voxel_m: {e}")))?;
+    let opts = RegisterOptions {
+        topic: first.meta.get("topic").cloned(),
+        ..RegisterOptions::new(log, output, config)
+    };
+    let plan = Plan::new(&opts)?;
+    let frames: Vec<&SegFrame> = stitched.iter().map(|(_, f)| f).collect();
+    let mut estimates: Vec<Estimate> = frames
+        .iter()
+        .enumerate()
+        .map(|(k, f)| {
+            let deskewed = f.stats["deskewed"].as_bool().unwrap_or(false);
+            let deskew_motion = (deskewed && k >= 3).then(|| {
+                let (a, b) = (frames[k - 3], frames[k - 2]);
+                (
+                    a.pose.inverse() * b.pose,
+                    (b.stamp_ns - a.stamp_ns) as f64 * 1e-9,
+                )
+            });
+            Estimate {
+                stamp_ns: f.stamp_ns,
+                world_from_frame: f.pose,
+                success: f.stats["success"].as_bool().unwrap_or(true),
+                inliers: f.stats["num_inliers"].as_u64().unwrap_or(0) as usize,
+                header: crate::io::codec::Header {
+                    stamp: Time::from_ns(f.stamp_ns).unwrap_or_default(),
+                    frame_id: f.child_frame.clone(),
+                },
+                log_time: f.log_time,
+                publish_time: f.publish_time,
+                deskew_motion,
+                descriptor: None,
+            }
+        })
+        .collect();
+    describe(&plan, &opts, &mut estimates)?;
+    let loop_config = LoopConfig::for_voxel(voxel);
+    let outcome = close_loops(&plan, &opts, &estimates, &loop_config)?;
+    Ok((estimates, outcome, loop_config))
 }

@@ -85,25 +85,13 @@ impl<'a> Writer<'a> {
     /// variant at the frame's own log time (MCAP readers order by log time; the file holds them
     /// after the odometry's).
     fn write_loops(&self, log: &mut OutputLog, outcome: &LoopOutcome) -> Result<()> {
-        let Some(channels) = &self.outputs.loops else {
-            return Ok(());
-        };
-        for r in &outcome.records {
-            let e = &self.estimates[r.query_frame];
-            let json = serde_json::to_vec(r).expect("JSON of plain values");
-            write_loop(log, channels, e.log_time, e.publish_time, &json)?;
-        }
-        for (e, pose) in self.estimates.iter().zip(&outcome.optimized) {
-            let p = StampedPose {
-                stamp: e.header.stamp,
-                child_frame: &e.header.frame_id,
-                world_from_frame: *pose,
-                log_time: e.log_time,
-                publish_time: e.publish_time,
-            };
-            write_optimized_pose(log, &self.outputs, channels, self.world_frame, &p)?;
-        }
-        Ok(())
+        write_loop_outcome(
+            log,
+            &self.outputs,
+            self.world_frame,
+            &self.estimates,
+            outcome,
+        )
     }
 
     /// Keeps a reference pose for the summary's errors.
@@ -155,23 +143,7 @@ impl<'a> Writer<'a> {
         let mut meta = metadata(&plan, opts);
         if let Some((outcome, config)) = &loops {
             self.write_loops(&mut log, outcome)?;
-            meta.insert(
-                "pose_optimized_topic".to_string(),
-                plan.topics.pose_optimized.clone(),
-            );
-            meta.insert(
-                "tf_optimized_topic".to_string(),
-                plan.topics.tf_optimized.clone(),
-            );
-            meta.insert("loops_topic".to_string(), plan.topics.loops.clone());
-            meta.insert(
-                "loop_config".to_string(),
-                serde_json::to_string(config).expect("loop config JSON"),
-            );
-            meta.insert(
-                "loops".to_string(),
-                serde_json::to_string(&outcome.summary).expect("loop summary JSON"),
-            );
+            loop_metadata(&mut meta, &plan.topics, outcome, config);
         }
         log.write_metadata("mireg", meta)?;
         log.finish()?;
@@ -232,6 +204,63 @@ impl<'a> Writer<'a> {
             reference_optimized,
         })
     }
+}
+
+/// Writes loop closure's outcome for `estimates` (one per frame) on `outputs`' loop channels (none
+/// without them): each candidate tried at its query frame's log time, then every frame's
+/// optimised pose and transform at the frame's own log time.
+pub(super) fn write_loop_outcome(
+    log: &mut OutputLog,
+    outputs: &Outputs,
+    world_frame: &str,
+    estimates: &[Estimate],
+    outcome: &LoopOutcome,
+) -> Result<()> {
+    let Some(channels) = &outputs.loops else {
+        return Ok(());
+    };
+    for r in &outcome.records {
+        let e = &estimates[r.query_frame];
+        let json = serde_json::to_vec(r).expect("JSON of plain values");
+        write_loop(log, channels, e.log_time, e.publish_time, &json)?;
+    }
+    for (e, pose) in estimates.iter().zip(&outcome.optimized) {
+        let p = StampedPose {
+            stamp: e.header.stamp,
+            child_frame: &e.header.frame_id,
+            world_from_frame: *pose,
+            log_time: e.log_time,
+            publish_time: e.publish_time,
+        };
+        write_optimized_pose(log, outputs, channels, world_frame, &p)?;
+    }
+    Ok(())
+}
+
+/// The loop-closure keys of a run's `mireg` metadata: the topics, the settings, the counts.
+pub(super) fn loop_metadata(
+    meta: &mut BTreeMap<String, String>,
+    topics: &super::output::Topics,
+    outcome: &LoopOutcome,
+    config: &LoopConfig,
+) {
+    meta.insert(
+        "pose_optimized_topic".to_string(),
+        topics.pose_optimized.clone(),
+    );
+    meta.insert(
+        "tf_optimized_topic".to_string(),
+        topics.tf_optimized.clone(),
+    );
+    meta.insert("loops_topic".to_string(), topics.loops.clone());
+    meta.insert(
+        "loop_config".to_string(),
+        serde_json::to_string(config).expect("loop config JSON"),
+    );
+    meta.insert(
+        "loops".to_string(),
+        serde_json::to_string(&outcome.summary).expect("loop summary JSON"),
+    );
 }
 
 /// The output's `mireg` metadata record: version, settings, input and topics.

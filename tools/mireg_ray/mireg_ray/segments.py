@@ -5,7 +5,9 @@ Segment i covers clouds ``[i·N/K, (i+1)·N/K + overlap)`` (the last one runs to
 consecutive segments share ``overlap`` frames; each segment's output keeps only its window's
 messages (``--copy-window``) and lives in a temporary directory beside OUT. ``mireg stitch``
 aligns each segment on the last frame it shares with the one before and writes one output that
-copies the whole log, with ``/tf``, ``/mireg/pose`` and ``/mireg/stats`` over all of it.
+copies the whole log, with ``/tf``, ``/mireg/pose`` and ``/mireg/stats`` over all of it, then
+closes loops once over the stitched whole (``/mireg/loops``, ``/mireg/pose_optimized``; the
+segments themselves run with ``--no-loops``).
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ def bounds(n: int, k: int, overlap: int) -> list[tuple[int, int | None]]:
 def segment_task(binary: str, log: str, start: int, end: int | None, output: str,
                  mireg_args: list[str], threads: int) -> dict:
     common.maybe_kill_self(f"{log}#{start}")
-    # No loop closure per segment: stitching joins the segments' odometry (/mireg/pose).
+    # No loop closure per segment: `mireg stitch` closes loops once over the stitched whole.
     args = ["register", log, "-o", output, "--force", "--quiet", "--copy-window", "--no-loops",
             "--start", str(start)]
     if end is not None:

@@ -88,15 +88,15 @@ def test_many_logs_kill_retry_rerun_and_config_change(tmp_path, monkeypatch, bin
 def ate_between(binary: str, est: Path, ref: Path, tmp: Path) -> float:
     tum = tmp / "ref.tum"
     subprocess.run([binary, "export", str(ref), "-o", str(tum), "--format", "tum"], check=True)
-    out = subprocess.run([binary, "evaluate", str(est), "--gt", str(tum), "--gt-format", "tum"],
+    # The odometry of both: stitching joins the segments' odometry (/mireg/pose).
+    out = subprocess.run([binary, "evaluate", str(est), "--odometry", "--gt", str(tum), "--gt-format", "tum"],
                          capture_output=True, text=True, check=True).stdout
     return float(re.search(r"ATE RMSE\s+([0-9.]+) m", out).group(1))
 
 
 def test_segments_are_stitched_into_the_sequential_trajectory(tmp_path, binary):
     seq = tmp_path / "sequential.mcap"
-    # Against the sequential odometry: stitching joins the segments' odometry (/mireg/pose);
-    # loop closure over the stitched whole is not part of `segments` yet.
+    # Against the sequential odometry: stitching joins the segments' odometry (/mireg/pose).
     subprocess.run([binary, "register", str(FIXTURE), "-o", str(seq), "--quiet", "--no-loops"],
                    check=True)
     out = tmp_path / "stitched.mcap"
@@ -107,4 +107,6 @@ def test_segments_are_stitched_into_the_sequential_trajectory(tmp_path, binary):
                                      text=True, check=True).stdout)
     counts = {c["topic"]: c["message_count"] for c in info["channels"]}
     assert counts["/mireg/pose"] == counts["/camera/depth/points"] == 71
+    # ... and `segments` closes loops over the stitched whole.
+    assert counts["/mireg/pose_optimized"] == 71 and counts["/mireg/loops"] > 0
     assert not list(tmp_path.glob(".mireg-segments-*")), "segment outputs removed"
