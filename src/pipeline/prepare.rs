@@ -61,6 +61,32 @@ pub struct PreparedFrame {
 }
 
 impl PreparedFrame {
+    /// A rough count of the heap this frame holds once it has served as a matching and ICP
+    /// target with correspondences searched within `icp_distance_m` \[bytes\]: its feature cloud
+    /// with FPFH (156 B a point), its ICP cloud with normals and search structures (about 100 B a
+    /// point, plus 16 B per column of the radius grid over the cloud's two longest extents: the
+    /// largest part for a LiDAR scan), its drawn input points (24 B a point). For sizing caches,
+    /// not accounting.
+    pub fn approx_bytes(&self, icp_distance_m: f64) -> usize {
+        let features = self.points.len() * (24 + 4 * crate::features::fpfh::FPFH_BINS);
+        let icp = self.icp.as_ref().map_or(0, |t| {
+            let pts = t.points();
+            let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+            for p in pts {
+                for a in 0..3 {
+                    lo[a] = lo[a].min(p[a]);
+                    hi[a] = hi[a].max(p[a]);
+                }
+            }
+            let mut extent: Vec<f64> = (0..3).map(|a| (hi[a] - lo[a]).max(0.0)).collect();
+            extent.sort_by(f64::total_cmp);
+            let r = icp_distance_m.max(1e-6);
+            let columns = ((extent[2] / r + 1.0) * (extent[1] / r + 1.0)).min(1e9) as usize;
+            pts.len() * 100 + columns * 16
+        });
+        features + icp + self.fine.len() * 24
+    }
+
     /// The search structures over this frame's descriptors as a matching target
     /// ([`MatchTarget`]), built on the first call; `None` without descriptors.
     pub fn match_target(&self) -> Option<&MatchTarget> {

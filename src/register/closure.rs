@@ -337,7 +337,8 @@ fn verify_all(
     candidates: &[Candidate],
     verifier: &Verifier,
 ) -> Result<VerifyOutcome> {
-    let capacity = verifier.config.frames_in_memory.max(1);
+    // Sized by the first frame prepared (frames of one log are of a size).
+    let mut capacity: Option<usize> = None;
     let mut verified = Verified::new();
     let mut accepted: Vec<(usize, usize)> = Vec::new();
     let mut skipped: BTreeSet<(usize, usize)> = BTreeSet::new();
@@ -407,7 +408,16 @@ fn verify_all(
                     verified.insert(key, v);
                     release(&mut done, &mut uses, &mut held, key);
                 }
-                if uses[&k] > 0 && held.len() < capacity {
+                let cap = *capacity.get_or_insert_with(|| {
+                    let distance = verifier
+                        .pair
+                        .icp_max_distance_m
+                        .unwrap_or(verifier.pair.voxel_size_m);
+                    let fit =
+                        verifier.config.memory_budget_bytes / frame.approx_bytes(distance).max(1);
+                    fit.clamp(2, verifier.config.frames_in_memory.max(2))
+                });
+                if uses[&k] > 0 && held.len() < cap {
                     held.insert(k, frame);
                 }
                 Ok(true)
