@@ -80,6 +80,14 @@ pub fn newest_mireg_namespace(channels: &[ChannelInfo]) -> Option<String> {
         .map(mireg_namespace)
 }
 
+/// Whether a log has a loop-closed trajectory on `topic` (`…/pose_optimized`): a channel with
+/// messages; one without any, left by a loop closure that failed, is no trajectory.
+pub fn has_optimized_poses(channels: &[ChannelInfo], topic: &str) -> bool {
+    channels
+        .iter()
+        .any(|c| c.topic == topic && c.message_count != Some(0))
+}
+
 /// Reference topic used by `mireg evaluate` when the log has it.
 pub const DEFAULT_GROUND_TRUTH_TOPIC: &str = "/ground_truth/pose";
 /// Default association tolerance \[ns\] (10 ms, `evo`'s default `--t_max_diff`).

@@ -102,14 +102,7 @@ pub(super) fn run_topics(
     let optimized = format!("{ns}/pose_optimized");
     let est = match est_topic {
         Some(t) => t.to_string(),
-        // A channel without messages (loop closure that failed) is no trajectory.
-        None if !odometry
-            && channels
-                .iter()
-                .any(|c| c.topic == optimized && c.message_count != Some(0)) =>
-        {
-            optimized
-        }
+        None if !odometry && trajectory::has_optimized_poses(channels, &optimized) => optimized,
         None => format!("{ns}/pose"),
     };
     (est, format!("{ns}/stats"))

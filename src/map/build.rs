@@ -124,16 +124,12 @@ fn read_poses_and_metadata(
 pub fn build_map(input: &Path, opts: &MapOptions) -> Result<(VoxelMap, MapSummary)> {
     let channels = list_channels(input)?;
     let (odometry, optimized) = run_pose_topics(&channels);
-    // A channel without messages (loop closure that failed) is no trajectory.
-    let has = |t: &str| {
-        channels
-            .iter()
-            .any(|c| c.topic == t && c.message_count != Some(0))
-    };
     let pose_topic = match opts.trajectory {
         TrajectoryChoice::Odometry => odometry.clone(),
         TrajectoryChoice::Optimized => optimized,
-        TrajectoryChoice::Auto if has(&optimized) => optimized,
+        TrajectoryChoice::Auto if trajectory::has_optimized_poses(&channels, &optimized) => {
+            optimized
+        }
         TrajectoryChoice::Auto => odometry.clone(),
     };
     let decode = check_pose_topic(input, &channels, &pose_topic).map_err(|e| match e {
