@@ -347,11 +347,14 @@ fn verify_all(
     let mut passes = 0;
     while !remaining.is_empty() {
         passes += 1;
-        let mut uses: HashMap<usize, usize> = HashMap::new();
-        for c in &remaining {
-            *uses.entry(c.query).or_default() += 1;
-            *uses.entry(c.matched).or_default() += 1;
+        // Each frame's candidates (indices into `remaining`, in its order) and how many are left.
+        let mut of_frame: HashMap<usize, Vec<usize>> = HashMap::new();
+        for (i, c) in remaining.iter().enumerate() {
+            of_frame.entry(c.query).or_default().push(i);
+            of_frame.entry(c.matched).or_default().push(i);
         }
+        let mut uses: HashMap<usize, usize> =
+            of_frame.iter().map(|(&f, cs)| (f, cs.len())).collect();
         let needed: BTreeSet<usize> = uses.keys().copied().collect();
         let mut held: BTreeMap<usize, PreparedFrame> = BTreeMap::new();
         let mut done: BTreeSet<(usize, usize)> = BTreeSet::new();
@@ -363,11 +366,9 @@ fn verify_all(
             verifier.pair,
             |k, prepare| {
                 // This frame's candidates that an accepted loop makes redundant: not tried.
-                let redundant: Vec<(usize, usize)> = remaining
-                    .iter()
-                    .filter(|c| {
-                        (c.query == k || c.matched == k) && !done.contains(&(c.query, c.matched))
-                    })
+                let mine = || of_frame[&k].iter().map(|&i| &remaining[i]);
+                let redundant: Vec<(usize, usize)> = mine()
+                    .filter(|c| !done.contains(&(c.query, c.matched)))
                     .filter(|c| verifier.redundant(c, &accepted))
                     .map(|c| (c.query, c.matched))
                     .collect();
@@ -382,8 +383,7 @@ fn verify_all(
                     return Ok(false);
                 };
                 // This frame's candidates whose other frame is held.
-                let ready: Vec<&Candidate> = remaining
-                    .iter()
+                let ready: Vec<&Candidate> = mine()
                     .filter(|c| !done.contains(&(c.query, c.matched)))
                     .filter(|c| {
                         (c.query == k && held.contains_key(&c.matched))
