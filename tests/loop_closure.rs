@@ -7,6 +7,8 @@ use std::path::{Path, PathBuf};
 use mireg::pipeline::pose_error;
 use mireg::trajectory::read_mcap_pose_topic;
 
+#[path = "common/cli.rs"]
+mod cli;
 #[path = "common/log_contents.rs"]
 mod log_contents;
 use log_contents::contents;
@@ -21,17 +23,8 @@ fn fixture() -> PathBuf {
 }
 
 /// `mireg ARGS`, which must succeed; its stdout.
-fn mireg_ok(args: &[&str]) -> String {
-    let run = std::process::Command::new(env!("CARGO_BIN_EXE_mireg"))
-        .args(args)
-        .output()
-        .unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
-    String::from_utf8(run.stdout).unwrap()
+fn mireg_stdout(args: &[&str]) -> String {
+    String::from_utf8(cli::mireg_ok(args).stdout).unwrap()
 }
 
 fn s(p: &Path) -> &str {
@@ -45,7 +38,7 @@ fn s(p: &Path) -> &str {
 fn every_accepted_loop_of_the_fixture_matches_the_reference() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out.mcap");
-    let summary: serde_json::Value = serde_json::from_str(&mireg_ok(&[
+    let summary: serde_json::Value = serde_json::from_str(&mireg_stdout(&[
         "register",
         s(&fixture()),
         "-o",
@@ -84,7 +77,7 @@ fn a_log_without_revisits_keeps_its_odometry() {
     let log = dir.path().join("line.mcap");
     synthetic_log::write_log_full(&log, &(0..16).collect::<Vec<_>>(), None, |o| o);
     let out = dir.path().join("out.mcap");
-    mireg_ok(&["register", s(&log), "-o", s(&out), "--quiet"]);
+    mireg_stdout(&["register", s(&log), "-o", s(&out), "--quiet"]);
     let odometry = poses_by_stamp(&out, "/mireg/pose");
     let optimized = poses_by_stamp(&out, "/mireg/pose_optimized");
     assert_eq!(odometry.len(), 16);
@@ -94,7 +87,7 @@ fn a_log_without_revisits_keeps_its_odometry() {
     }
 
     let bare = dir.path().join("bare.mcap");
-    mireg_ok(&["register", s(&log), "-o", s(&bare), "--quiet", "--no-loops"]);
+    mireg_stdout(&["register", s(&log), "-o", s(&bare), "--quiet", "--no-loops"]);
     let topics: Vec<String> = contents(&bare).messages.into_iter().map(|m| m.0).collect();
     assert!(
         !topics

@@ -26,24 +26,9 @@ fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/icl_livingroom1.mcap")
 }
 
-/// `mireg ARGS`, run to completion: its output, whatever its exit status.
-fn mireg(args: &[&str]) -> std::process::Output {
-    std::process::Command::new(env!("CARGO_BIN_EXE_mireg"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-/// [`mireg`], which must succeed (its stderr is the failure's message).
-fn mireg_ok(args: &[&str]) -> std::process::Output {
-    let run = mireg(args);
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
-    run
-}
+#[path = "../common/cli.rs"]
+mod cli;
+use cli::{mireg, mireg_ok};
 
 fn options(input: &Path, output: &Path, voxel: f64) -> RegisterOptions {
     let config = OdometryConfig {
