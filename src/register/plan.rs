@@ -33,6 +33,7 @@ pub(super) struct Plan {
     pub(super) topics: Topics,
     /// The reference pose topic and its decoder, when the log has one.
     pub(super) reference: Option<(String, PoseStampedDecoder)>,
+    /// The chunks' time ranges, for the reader's order ([`crate::io::log_order::Reorder`]).
     pub(super) chunk_times: Option<ChunkTimes>,
     /// Clouds on the topic, from the summary (0 when the log has none): the progress bar's length.
     pub(super) total_frames: u64,

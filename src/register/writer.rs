@@ -80,20 +80,6 @@ impl<'a> Writer<'a> {
         Ok(())
     }
 
-    /// Writes loop closure's outcome: each candidate tried on `/mireg/loops` at its query frame's
-    /// log time, then every frame's optimised pose on `/mireg/pose_optimized` and its `/tf`
-    /// variant at the frame's own log time (MCAP readers order by log time; the file holds them
-    /// after the odometry's).
-    fn write_loops(&self, log: &mut OutputLog, outcome: &LoopOutcome) -> Result<()> {
-        write_loop_outcome(
-            log,
-            &self.outputs,
-            self.world_frame,
-            &self.estimates,
-            outcome,
-        )
-    }
-
     /// Keeps a reference pose for the summary's errors.
     pub(super) fn reference_pose(&mut self, stamp_ns: i64, pose: Isometry3<f64>) {
         self.reference.push((stamp_ns, pose));
@@ -142,7 +128,13 @@ impl<'a> Writer<'a> {
         }
         let mut meta = metadata(&plan, opts);
         if let Some((outcome, config)) = &loops {
-            self.write_loops(&mut log, outcome)?;
+            write_loop_outcome(
+                &mut log,
+                &self.outputs,
+                self.world_frame,
+                &self.estimates,
+                outcome,
+            )?;
             loop_metadata(&mut meta, &plan.topics, outcome, config);
         }
         log.write_metadata("mireg", meta)?;
