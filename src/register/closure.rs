@@ -112,7 +112,7 @@ pub(super) fn close_loops(
             let e = &estimates[k];
             Some(Keyframe {
                 frame: k,
-                stamp_ns: u64::try_from(e.stamp_ns).unwrap_or(0),
+                stamp_ns: u64::try_from(e.stamp_ns()).unwrap_or(0),
                 pose: e.world_from_frame,
                 travelled_m: travelled[k],
                 descriptor: e.descriptor?,
@@ -222,8 +222,8 @@ fn record(
     LoopRecord {
         query_frame: c.query,
         match_frame: c.matched,
-        query_stamp_ns: estimates[c.query].stamp_ns,
-        match_stamp_ns: estimates[c.matched].stamp_ns,
+        query_stamp_ns: estimates[c.query].stamp_ns(),
+        match_stamp_ns: estimates[c.matched].stamp_ns(),
         found_by: match c.by {
             Source::Place => "place",
             Source::Appearance => "appearance",

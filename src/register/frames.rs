@@ -16,13 +16,12 @@ pub(super) struct CloudMsg {
     pub(super) data: Vec<u8>,
 }
 
-/// One cloud, decoded and prepared.
-pub(super) struct PreparedMsg {
+/// What the prepare stage learnt of one cloud, carried with it to the writer.
+pub(super) struct CloudInfo {
     /// Why the cloud could not be decoded or prepared (the frame is then empty and flagged).
     pub(super) invalid: Option<(FailureReason, String)>,
-    /// The cloud's time field, and whether its points were deskewed by it.
+    /// The cloud's time field.
     pub(super) time_field: Option<String>,
-    pub(super) deskewed: bool,
     /// The motion (`prev_from_curr`, seconds) the cloud was deskewed by, if it was.
     pub(super) deskew_motion: Option<(Isometry3<f64>, f64)>,
     /// The frame's appearance descriptor, when loop closure is on and the frame has features.
@@ -33,6 +32,18 @@ pub(super) struct PreparedMsg {
     pub(super) publish_time: u64,
     pub(super) header: codec::Header,
     pub(super) decode_s: f64,
+}
+
+impl CloudInfo {
+    /// Whether the cloud's points were deskewed by its time field.
+    pub(super) fn deskewed(&self) -> bool {
+        self.deskew_motion.is_some()
+    }
+}
+
+/// One cloud, decoded and prepared.
+pub(super) struct PreparedMsg {
+    pub(super) cloud: CloudInfo,
     pub(super) frame: PreparedFrame,
 }
 
@@ -45,18 +56,7 @@ pub(super) struct Dropped {
 
 /// One frame registered: what the writer puts out.
 pub(super) struct FrameOut {
-    pub(super) invalid: Option<(FailureReason, String)>,
-    pub(super) time_field: Option<String>,
-    pub(super) deskewed: bool,
-    /// The motion (`prev_from_curr`, seconds) the cloud was deskewed by, if it was.
-    pub(super) deskew_motion: Option<(Isometry3<f64>, f64)>,
-    /// The frame's appearance descriptor, when loop closure is on and the frame has features.
-    pub(super) descriptor: Option<Descriptor>,
-    pub(super) dropped: Dropped,
-    pub(super) log_time: u64,
-    pub(super) publish_time: u64,
-    pub(super) header: codec::Header,
-    pub(super) decode_s: f64,
+    pub(super) cloud: CloudInfo,
     pub(super) prep: FrameTimings,
     pub(super) register_s: f64,
     pub(super) est: FrameEstimate,
@@ -65,8 +65,6 @@ pub(super) struct FrameOut {
 /// One frame's estimate as the summary and loop closure need it (a few hundred bytes a frame).
 #[derive(Debug, Clone)]
 pub(super) struct Estimate {
-    /// The cloud's header stamp \[ns\].
-    pub(super) stamp_ns: i64,
     pub(super) world_from_frame: Isometry3<f64>,
     pub(super) success: bool,
     pub(super) inliers: usize,
@@ -78,4 +76,11 @@ pub(super) struct Estimate {
     pub(super) deskew_motion: Option<(Isometry3<f64>, f64)>,
     /// The loop-closure descriptor, when computed.
     pub(super) descriptor: Option<Descriptor>,
+}
+
+impl Estimate {
+    /// The cloud's header stamp \[ns\].
+    pub(super) fn stamp_ns(&self) -> i64 {
+        self.header.stamp.to_ns()
+    }
 }

@@ -57,17 +57,17 @@ fn frame_stats(out: &FrameOut) -> serde_json::Value {
     let num_inl = p.map_or(0, |p| p.num_inliers);
     json!({
         "frame": e.index,
-        "stamp_ns": out.header.stamp.to_ns(),
+        "stamp_ns": out.cloud.header.stamp.to_ns(),
         "success": e.success,
         "failure_reason": e.failure.map(|f| f.as_str()),
-        "failure_detail": out.invalid.as_ref().map(|i| &i.1),
+        "failure_detail": out.cloud.invalid.as_ref().map(|i| &i.1),
         "fallback": e.fallback.map(|f| match f {
             crate::odometry::Fallback::ConstantVelocityIcp => "constant_velocity_icp",
             crate::odometry::Fallback::ConstantVelocity => "constant_velocity",
         }),
         "num_points": e.num_points,
-        "num_dropped_non_finite": out.dropped.non_finite,
-        "num_dropped_zero": out.dropped.zero,
+        "num_dropped_non_finite": out.cloud.dropped.non_finite,
+        "num_dropped_zero": out.cloud.dropped.zero,
         "num_points_downsampled": e.num_points_downsampled,
         "num_correspondences": num_corr,
         "num_inliers": num_inl,
@@ -77,8 +77,8 @@ fn frame_stats(out: &FrameOut) -> serde_json::Value {
         "fitness": p.map_or(0.0, |p| p.fitness),
         "inlier_rmse_m": p.map_or(0.0, |p| p.inlier_rmse_m),
         "icp_iterations": p.map_or(0, |p| p.icp_iterations) + e.fallback_icp_iterations,
-        "deskewed": out.deskewed,
-        "time_field": out.time_field,
+        "deskewed": out.cloud.deskewed(),
+        "time_field": out.cloud.time_field,
         "map_guess": e.map.map(|m| m.guess.as_str()),
         "map_used": e.map.is_some_and(|m| m.used),
         "map_fitness": e.map.map(|m| m.fitness),
@@ -88,7 +88,7 @@ fn frame_stats(out: &FrameOut) -> serde_json::Value {
         "map_fine_icp_iterations": e.map.map(|m| m.fine_iterations),
         "map_points": e.map.map(|m| m.map_points),
         "timings_s": {
-            "decode": out.decode_s,
+            "decode": out.cloud.decode_s,
             "downsample": out.prep.downsample,
             "normals": out.prep.normals,
             "features": out.prep.features,
@@ -282,11 +282,11 @@ pub(super) fn write_frame(
 ) -> Result<()> {
     let stats = serde_json::to_vec(&frame_stats(out)).expect("JSON of plain values");
     let pose = StampedPose {
-        stamp: out.header.stamp,
-        child_frame: &out.header.frame_id,
+        stamp: out.cloud.header.stamp,
+        child_frame: &out.cloud.header.frame_id,
         world_from_frame: out.est.world_from_frame,
-        log_time: out.log_time,
-        publish_time: out.publish_time,
+        log_time: out.cloud.log_time,
+        publish_time: out.cloud.publish_time,
     };
     write_pose(log, ch, world_frame, &pose, &stats)
 }

@@ -16,7 +16,7 @@ use crate::pipeline::{FailureReason, PrepareScratch, prepare_frame, prepare_fram
 use crate::{Error, Result};
 
 use super::DeskewMode;
-use super::frames::{CloudMsg, Dropped, PreparedMsg};
+use super::frames::{CloudInfo, CloudMsg, Dropped, PreparedMsg};
 use super::motions::Motions;
 use super::plan::Plan;
 
@@ -144,17 +144,18 @@ impl Prepare<'_> {
             Err(invalid) => prepare_frame(&[], &config.pair).map(|f| (f, Some(invalid))),
         }
         .map(|(frame, invalid)| PreparedMsg {
-            descriptor: (self.descriptors && invalid.is_none() && !frame.features.is_empty())
-                .then(|| Descriptor::from_prepared(&frame)),
-            invalid,
-            time_field,
-            deskewed: deskew_motion.is_some(),
-            deskew_motion,
-            dropped,
-            log_time: msg.log_time,
-            publish_time: msg.publish_time,
-            header,
-            decode_s,
+            cloud: CloudInfo {
+                descriptor: (self.descriptors && invalid.is_none() && !frame.features.is_empty())
+                    .then(|| Descriptor::from_prepared(&frame)),
+                invalid,
+                time_field,
+                deskew_motion,
+                dropped,
+                log_time: msg.log_time,
+                publish_time: msg.publish_time,
+                header,
+                decode_s,
+            },
             frame,
         })
     }

@@ -47,25 +47,16 @@ pub(super) fn run(
             let prep = m.frame.timings;
             let t = Instant::now();
             let mut est = on_pool(|| odometry.push(m.frame))?;
-            if let Some((reason, _)) = &m.invalid {
+            if let Some((reason, _)) = &m.cloud.invalid {
                 est.failure = Some(*reason);
             }
             // The motion and its duration, for deskewing a later frame.
-            let stamp = m.header.stamp.to_ns();
+            let stamp = m.cloud.header.stamp.to_ns();
             let dt = previous_stamp.map_or(f64::NAN, |p| (stamp - p) as f64 * 1e-9);
             previous_stamp = Some(stamp);
             let _ = motions.send((k, est.prev_from_curr, dt));
             Ok(FrameOut {
-                invalid: m.invalid,
-                time_field: m.time_field,
-                deskewed: m.deskewed,
-                deskew_motion: m.deskew_motion,
-                descriptor: m.descriptor,
-                dropped: m.dropped,
-                log_time: m.log_time,
-                publish_time: m.publish_time,
-                header: m.header,
-                decode_s: m.decode_s,
+                cloud: m.cloud,
                 prep,
                 register_s: t.elapsed().as_secs_f64(),
                 est,

@@ -389,7 +389,6 @@ fn close_stitched(
                 )
             });
             Estimate {
-                stamp_ns: f.stamp_ns,
                 world_from_frame: f.pose,
                 success: f.stats["success"].as_bool().unwrap_or(true),
                 inliers: f.stats["num_inliers"].as_u64().unwrap_or(0) as usize,

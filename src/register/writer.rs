@@ -64,15 +64,14 @@ impl<'a> Writer<'a> {
         let out = r?;
         write_frame(log, &self.outputs, self.world_frame, &out)?;
         self.estimates.push(Estimate {
-            stamp_ns: out.header.stamp.to_ns(),
             world_from_frame: out.est.world_from_frame,
             success: out.est.success,
             inliers: out.est.pair.as_ref().map_or(0, |p| p.num_inliers),
-            header: out.header,
-            log_time: out.log_time,
-            publish_time: out.publish_time,
-            deskew_motion: out.deskew_motion,
-            descriptor: out.descriptor,
+            header: out.cloud.header,
+            log_time: out.cloud.log_time,
+            publish_time: out.cloud.publish_time,
+            deskew_motion: out.cloud.deskew_motion,
+            descriptor: out.cloud.descriptor,
         });
         if let Some(bar) = &self.progress {
             bar.inc(1);
@@ -157,7 +156,7 @@ impl<'a> Writer<'a> {
         let reference_poses = std::mem::take(&mut self.reference);
         let odometry: Vec<(i64, Isometry3<f64>)> = estimates
             .iter()
-            .map(|e| (e.stamp_ns, e.world_from_frame))
+            .map(|e| (e.stamp_ns(), e.world_from_frame))
             .collect();
         let reference = plan
             .reference
@@ -168,7 +167,7 @@ impl<'a> Writer<'a> {
                 let optimized: Vec<(i64, Isometry3<f64>)> = estimates
                     .iter()
                     .zip(&outcome.optimized)
-                    .map(|(e, p)| (e.stamp_ns, *p))
+                    .map(|(e, p)| (e.stamp_ns(), *p))
                     .collect();
                 reference_errors(t, &optimized, reference_poses)
             }
