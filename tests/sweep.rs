@@ -13,22 +13,27 @@ fn stdout_of_success(out: std::process::Output) -> String {
     String::from_utf8(out.stdout).unwrap()
 }
 
-fn sweep_csv(threads: &str) -> String {
+/// `mireg sweep` on the fixture with `args` (after --quick --csv --gaps 10) on `threads`
+/// threads: its CSV.
+fn fixture_sweep(args: &[&str], threads: &str) -> String {
     let out = Command::new(env!("CARGO_BIN_EXE_mireg"))
         .args([
             "sweep",
             concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/icl_livingroom1.mcap"),
             "--quick",
             "--csv",
-            "--max-pairs",
-            "4",
             "--gaps",
             "10",
         ])
+        .args(args)
         .env("RAYON_NUM_THREADS", threads)
         .output()
         .unwrap();
     stdout_of_success(out)
+}
+
+fn sweep_csv(threads: &str) -> String {
+    fixture_sweep(&["--max-pairs", "4"], threads)
 }
 
 /// The CSV without its timing column.
@@ -295,25 +300,18 @@ fn choi_error_is_the_mean_squared_displacement_of_the_points() {
 /// `--quick` changes defaults only: explicit `--mus`, `--runs` and `--rankings` win over it.
 #[test]
 fn explicit_flags_win_over_quick() {
-    let out = Command::new(env!("CARGO_BIN_EXE_mireg"))
-        .args([
-            "sweep",
-            concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/icl_livingroom1.mcap"),
-            "--quick",
-            "--csv",
+    let csv = fixture_sweep(
+        &[
             "--max-pairs",
             "2",
-            "--gaps",
-            "10",
             "--mus=-7",
             "--runs",
             "2",
             "--rankings",
             "distance",
-        ])
-        .output()
-        .unwrap();
-    let csv = stdout_of_success(out);
+        ],
+        "2",
+    );
     let rows: Vec<Vec<&str>> = csv
         .lines()
         .skip(1)
