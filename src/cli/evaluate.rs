@@ -21,7 +21,7 @@ pub enum TrajectoryFormat {
 }
 
 /// Arguments of `mireg evaluate`.
-#[derive(Debug, Args)]
+#[derive(Debug, Clone, Args)]
 pub struct EvaluateArgs {
     /// MCAP written by `mireg register` (estimate on --est-topic, flags on /mireg/stats).
     pub input: PathBuf,
@@ -308,15 +308,11 @@ fn evaluate_to_stdout(args: &EvaluateArgs) -> Result<()> {
     // The loop-closed trajectory chosen by default: the odometry's errors beside it.
     let odometry = if args.est_topic.is_none() && estimate.ends_with("/pose_optimized") {
         let odometry_args = EvaluateArgs {
-            input: args.input.clone(),
-            gt_topic: args.gt_topic.clone(),
-            gt: args.gt.clone(),
-            gt_format: args.gt_format,
             est_topic: None,
             odometry: true,
-            max_dt: args.max_dt,
             csv: false,
             json: false,
+            ..args.clone()
         };
         let topic = run_topics(&channels, None, true).0;
         Some((evaluate_log(&odometry_args)?.0, topic))
