@@ -7,7 +7,7 @@ use crate::Result;
 use crate::io::codec::{PoseStampedDecoder, pose_stamped_decoder};
 use crate::io::input_log::InputLog;
 use crate::io::log_order::ChunkTimes;
-use crate::io::mcap::log::{ChannelInfo, InputCatalog};
+use crate::io::mcap::log::InputCatalog;
 use crate::odometry::OdometryConfig;
 use crate::pipeline::{feature_voxel_for_cloud, voxel_for_cloud, with_feature_voxel};
 
@@ -49,12 +49,20 @@ impl Plan {
         let (input_log, catalog) = InputLog::open(input)?;
         let channels = catalog.channel_infos();
         let (topic, kind) = choose_topic(input, &channels, opts.topic.as_deref())?;
+        let ids_of = |t: Option<&str>| -> Vec<u16> {
+            channels
+                .iter()
+                .filter(|c| Some(c.topic.as_str()) == t)
+                .map(|c| c.id)
+                .collect()
+        };
+        let cloud_channels = ids_of(Some(&topic));
         let mut config = opts.config.clone();
         let mut voxel_source = "configured";
         // The first cloud sizes the voxel (unless configured) and the feature voxel (unless
         // --feature-points 0); without either, it is not read twice.
         let first = if opts.derive_voxel || config.feature_points > 0 {
-            first_usable_cloud(&input_log, &channels, &topic, kind)?
+            first_usable_cloud(&input_log, &cloud_channels, kind)?
         } else {
             None
         };
@@ -88,14 +96,6 @@ impl Plan {
             .filter(|c| c.topic == topic)
             .filter_map(|c| c.message_count)
             .sum::<u64>();
-        let ids_of = |t: Option<&str>| -> Vec<u16> {
-            channels
-                .iter()
-                .filter(|c| Some(c.topic.as_str()) == t)
-                .map(|c| c.id)
-                .collect()
-        };
-        let cloud_channels = ids_of(Some(&topic));
         let reference_channels = ids_of(reference.as_ref().map(|r| r.0.as_str()));
         let segment = LogWindow::resolve(&input_log, &cloud_channels, opts.start, opts.end)?;
         Ok(Self {
@@ -126,20 +126,14 @@ impl Plan {
     }
 }
 
-/// The first cloud on `topic` that decodes to at least 3 finite, non-zero points (one that
+/// The first cloud on the channels `ids` that decodes to at least 3 finite, non-zero points (one that
 /// [`voxel_for_cloud`] can size); `None` when none does.
 fn first_usable_cloud(
     input: &InputLog,
-    channels: &[ChannelInfo],
-    topic: &str,
+    ids: &[u16],
     kind: CloudKind,
 ) -> Result<Option<Vec<nalgebra::Point3<f64>>>> {
     use std::ops::ControlFlow::{Break, Continue};
-    let ids: Vec<u16> = channels
-        .iter()
-        .filter(|c| c.topic == topic)
-        .map(|c| c.id)
-        .collect();
     let mut first = None;
     input.for_each_message_until(|header, data| {
         if ids.contains(&header.channel_id)
