@@ -106,6 +106,13 @@ fn every_kind_of_bag_gives_the_poses_of_the_same_frames_in_mcap() {
         "icl4_mcap",
         "icl4_db3",
         "icl4_split",
+        "icl4_mcap_zstd_file",
+        "icl4_mcap_zstd_message",
+        "icl4_db3_zstd_file",
+        "icl4_db3_zstd_message",
+        // A compressed storage file given on its own.
+        "icl4_mcap_zstd_file/icl4_mcap_zstd_file.mcap.zstd",
+        "icl4_db3_zstd_file/icl4_db3_zstd_file.db3.zstd",
         "icl4_none.bag",
         "icl4_bz2.bag",
         "icl4_lz4.bag",
@@ -122,7 +129,16 @@ fn every_kind_of_bag_gives_the_poses_of_the_same_frames_in_mcap() {
 fn ros2_bags_keep_every_source_message_byte_for_byte() {
     let want = source_messages();
     assert_eq!(want.len(), 2 * FRAMES);
-    for input in ["icl4_mcap", "icl4_db3", "icl4_split"] {
+    for input in [
+        "icl4_mcap",
+        "icl4_db3",
+        "icl4_split",
+        // Compressed bags: the output holds the messages decompressed, as the source's bytes.
+        "icl4_mcap_zstd_file",
+        "icl4_mcap_zstd_message",
+        "icl4_db3_zstd_file",
+        "icl4_db3_zstd_message",
+    ] {
         let out = register(&bags().join(input));
         assert_eq!(input_messages_of(&out), want, "{input}");
     }
@@ -228,6 +244,35 @@ fn truncated_bags_corrupt_databases_and_missing_metadata_are_clear_errors() {
     db[100..8192].fill(0xff);
     std::fs::write(broken.join("icl4_db3.db3"), &db).unwrap();
     assert_fails_cleanly(&broken, &["icl4_db3.db3", "SQLite"]);
+
+    // A file-compressed bag whose zstd file was cut short, and a message-compressed one whose
+    // metadata claims a format rosbag2 does not write.
+    let cut_zstd = dir.path().join("cut_zstd");
+    std::fs::create_dir(&cut_zstd).unwrap();
+    let src = bags().join("icl4_db3_zstd_file");
+    std::fs::copy(src.join("metadata.yaml"), cut_zstd.join("metadata.yaml")).unwrap();
+    let z = std::fs::read(src.join("icl4_db3_zstd_file.db3.zstd")).unwrap();
+    std::fs::write(
+        cut_zstd.join("icl4_db3_zstd_file.db3.zstd"),
+        &z[..z.len() / 2],
+    )
+    .unwrap();
+    assert_fails_cleanly(&cut_zstd, &["icl4_db3_zstd_file.db3.zstd", "zstd"]);
+    let lz4 = dir.path().join("lz4_message");
+    std::fs::create_dir(&lz4).unwrap();
+    let src = bags().join("icl4_mcap_zstd_message");
+    let meta = std::fs::read_to_string(src.join("metadata.yaml")).unwrap();
+    std::fs::write(
+        lz4.join("metadata.yaml"),
+        meta.replace("compression_format: zstd", "compression_format: lz4"),
+    )
+    .unwrap();
+    std::fs::copy(
+        src.join("icl4_mcap_zstd_message.mcap"),
+        lz4.join("icl4_mcap_zstd_message.mcap"),
+    )
+    .unwrap();
+    assert_fails_cleanly(&lz4, &["metadata.yaml", "compression_format \"lz4\""]);
 
     // A directory without metadata.yaml, and metadata naming a missing file.
     let no_meta = dir.path().join("no_meta");

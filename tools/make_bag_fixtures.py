@@ -24,6 +24,10 @@ with the default ``--frames 4``):
   uncompressed), ``icl4_db3/`` (storage sqlite3) -- the source's CDR bytes copied unchanged
   (``Writer.write`` takes the serialised bytes), timestamps = log_time; type definitions and RIHS01
   hashes from rosbags' ROS 2 jazzy typestore; no QoS profiles.
+* compressed rosbag2 bags, the same messages with rosbags' zstd compression:
+  ``icl4_mcap_zstd_file/`` and ``icl4_db3_zstd_file/`` (``compression_mode: file``: each storage
+  file compressed whole, ``icl4_..._0.mcap.zstd`` / ``.db3.zstd``), ``icl4_mcap_zstd_message/`` and
+  ``icl4_db3_zstd_message/`` (``compression_mode: message``: each message's bytes a zstd frame).
 * ``icl4_split/``: one rosbag2 sqlite3 bag in two files. rosbags cannot split a bag, so each half
   (the first frames // 2 frames' messages, then the rest: frames 0-1 and 2-3 by default) is written
   as its own bag by rosbags, the two .db3 files are moved into icl4_split/ as ``icl4_split_0.db3`` /
@@ -58,6 +62,7 @@ from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import StoragePlugin
+from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 from ruamel.yaml import YAML
@@ -154,8 +159,11 @@ def write_ros1(path, compression, msgs, stamps, ts1, ts2, chunk_threshold):
     return len([c for c in writer.chunks if c.pos != -1])
 
 
-def write_ros2(path, storage, msgs, ts2):
-    with Writer2(path, version=ROSBAG2_VERSION, storage_plugin=storage) as writer:
+def write_ros2(path, storage, msgs, ts2, compression=None):
+    writer = Writer2(path, version=ROSBAG2_VERSION, storage_plugin=storage)
+    if compression is not None:
+        writer.set_compression(compression, CompressionFormat.ZSTD)
+    with writer:
         conns = {CLOUD_TOPIC: writer.add_connection(CLOUD_TOPIC, CLOUD_TYPE, typestore=ts2),
                  POSE_TOPIC: writer.add_connection(POSE_TOPIC, POSE_TYPE, typestore=ts2)}
         for topic, log_time, cdr in msgs:
@@ -259,14 +267,19 @@ def main():
         sys.exit("--frames must be at least 2 (the split bag has two halves)")
     prefix = f"icl{args.frames}"
     ros1 = [(f"{prefix}_{kind}.bag", compression) for kind, compression in ROS1_COMPRESSIONS]
-    ros2 = ((f"{prefix}_mcap", StoragePlugin.MCAP), (f"{prefix}_db3", StoragePlugin.SQLITE3))
+    ros2 = ((f"{prefix}_mcap", StoragePlugin.MCAP, None),
+            (f"{prefix}_db3", StoragePlugin.SQLITE3, None))
+    file_mode, message_mode = CompressionMode.FILE, CompressionMode.MESSAGE
+    ros2 += tuple((f"{prefix}_{kind}_zstd_{mode.name.lower()}", storage, mode)
+                  for kind, storage in (("mcap", StoragePlugin.MCAP), ("db3", StoragePlugin.SQLITE3))
+                  for mode in (file_mode, message_mode))
     split = f"{prefix}_split"
 
     ts1 = get_typestore(Stores.ROS1_NOETIC)
     ts2 = get_typestore(Stores.ROS2_JAZZY)
     msgs, stamps = read_source(args.src, args.frames)
     args.out.mkdir(parents=True, exist_ok=True)
-    for name in [n for n, _ in ros1] + [n for n, _ in ros2] + [split]:
+    for name in [n for n, _ in ros1] + [n for n, _, _ in ros2] + [split]:
         target = args.out / name
         if target.is_dir():
             shutil.rmtree(target)
@@ -279,14 +292,14 @@ def main():
         if chunks < 3:
             sys.exit(f"{name}: only {chunks} chunks; lower --chunk-threshold")
         print(f"{name}: {chunks} chunks")
-    for name, storage in ros2:
-        write_ros2(args.out / name, storage, msgs, ts2)
+    for name, storage, compression in ros2:
+        write_ros2(args.out / name, storage, msgs, ts2, compression)
     with tempfile.TemporaryDirectory() as tmp:
         write_split(args.out / split, msgs, stamps, ts2, Path(tmp))
 
     for name, _ in ros1:
         print(f"{name}: read back {verify(args.out / name, msgs, stamps, ts1, ts2, True)}")
-    for name in [n for n, _ in ros2] + [split]:
+    for name in [n for n, _, _ in ros2] + [split]:
         print(f"{name}/: read back {verify(args.out / name, msgs, stamps, ts1, ts2, False)}")
 
     total = 0

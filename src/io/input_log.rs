@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 
 use mcap::records::{MessageHeader, Record};
 
+use super::bag::compression::{Compression, ZSTD_MAGIC};
 use super::bag::ros1::{self, Bag};
 use super::bag::rosbag2::{Rosbag2, Storage};
 use super::log_order::ChunkTimes;
@@ -22,10 +23,10 @@ use super::mcap::read::for_each_record_until;
 use crate::{Error, Result};
 
 /// What `register` accepts, for messages.
-pub const ACCEPTED: &str = "mireg register reads an MCAP file (.mcap), a ROS 1 bag (.bag), or a ROS 2 bag directory (metadata.yaml with .mcap or .db3 files)";
+pub const ACCEPTED: &str = "mireg register reads an MCAP file (.mcap), a ROS 1 bag (.bag), or a ROS 2 bag directory (metadata.yaml with .mcap or .db3 files, maybe zstd-compressed)";
 
 /// The first bytes of every SQLite 3 database.
-const SQLITE_MAGIC: &[u8] = b"SQLite format 3\0";
+pub(crate) const SQLITE_MAGIC: &[u8] = b"SQLite format 3\0";
 
 /// An opened input log.
 #[derive(Debug)]
@@ -41,7 +42,8 @@ pub enum InputLog {
 impl InputLog {
     /// Opens `path` as whichever container it is: a directory with a `metadata.yaml` (or that
     /// `metadata.yaml` itself) is a ROS 2 bag (one of a single MCAP file is read as that MCAP file); a file starting with `#ROSBAG`
-    /// is a ROS 1 bag; an SQLite database is a rosbag2 `.db3` file on its own; anything else is
+    /// is a ROS 1 bag; an SQLite database is a rosbag2 `.db3` file on its own, and a zstd file a
+    /// compressed rosbag2 storage file on its own (`x.mcap.zstd`, `x.db3.zstd`); anything else is
     /// read as MCAP (whose reader names what is wrong with a file that is not one).
     ///
     /// # Errors
@@ -77,7 +79,9 @@ impl InputLog {
                 )));
             }
             let mut bag = Rosbag2::open(path)?;
-            if let (Storage::Mcap, [file]) = (bag.storage, bag.files.as_slice()) {
+            if let (Storage::Mcap, Compression::None, [file]) =
+                (bag.storage, bag.compression, bag.files.as_slice())
+            {
                 // One MCAP file: read it as such, so that its chunks are copied byte for byte.
                 let catalog = InputCatalog::read(file)?;
                 return Ok((InputLog::Mcap(file.clone()), catalog));
@@ -100,6 +104,12 @@ impl InputLog {
         if starts_with(path, SQLITE_MAGIC)? {
             // A rosbag2 `.db3` file on its own.
             let mut bag = Rosbag2::single_db3(path)?;
+            let catalog = bag.catalog()?;
+            return Ok((InputLog::Rosbag2(bag), catalog));
+        }
+        if starts_with(path, &ZSTD_MAGIC)? {
+            // A zstd-compressed rosbag2 storage file on its own (`x.mcap.zstd`, `x.db3.zstd`).
+            let mut bag = Rosbag2::single_compressed(path)?;
             let catalog = bag.catalog()?;
             return Ok((InputLog::Rosbag2(bag), catalog));
         }

@@ -13,7 +13,8 @@
 //!   name and every message are kept even though no reader can decode them without the
 //!   definition (docs/INPUTS.md).
 //!
-//! SQLite files are opened read-only: nothing the user gave us is ever altered.
+//! SQLite files are opened read-only: nothing the user gave us is ever altered. Compressed bags
+//! (`compression_mode: file` or `message`, zstd) are read through [`super::compression`].
 
 use std::collections::BTreeMap;
 use std::ops::ControlFlow;
@@ -22,6 +23,7 @@ use std::path::{Path, PathBuf};
 use mcap::records::{Channel, MessageHeader, Record};
 use rusqlite::{Connection as Db, OpenFlags};
 
+use super::compression::{Compression, MessageDecompressor, decompress_file};
 use crate::io::codec::cdr;
 use crate::io::mcap::log::InputCatalog;
 use crate::io::mcap::read::for_each_record_until;
@@ -48,6 +50,11 @@ pub struct Rosbag2 {
     size: u64,
     /// Per file: its channel (MCAP) or topic (SQLite) id → our channel id.
     channel_maps: Vec<BTreeMap<i64, u16>>,
+    /// How the bag is compressed. With [`Compression::File`], `files` are the decompressed
+    /// copies in `decompressed`.
+    pub compression: Compression,
+    /// The temporary directory of a file-compressed bag's decompressed files (shared by clones).
+    decompressed: Option<std::sync::Arc<tempfile::TempDir>>,
 }
 
 fn format_err(path: &Path, detail: impl Into<String>) -> Error {
@@ -69,14 +76,15 @@ fn unquote(v: &str) -> String {
     v.to_string()
 }
 
-/// The two keys of a rosbag2 `metadata.yaml` we need: `storage_identifier`, and the list
-/// `relative_file_paths` (block or flow style), plus `compression_mode`. A small reader for
-/// the layout rosbag2 (and rosbags) write, not a YAML parser.
+/// The keys of a rosbag2 `metadata.yaml` we need: `storage_identifier`, the list
+/// `relative_file_paths` (block or flow style), `compression_mode` and `compression_format`. A
+/// small reader for the layout rosbag2 (and rosbags) write, not a YAML parser.
 #[derive(Debug, Default, PartialEq, Eq)]
 pub(crate) struct Metadata {
     storage_identifier: Option<String>,
     relative_file_paths: Vec<String>,
     compression_mode: String,
+    compression_format: String,
 }
 
 pub(crate) fn parse_metadata(text: &str) -> Metadata {
@@ -89,6 +97,8 @@ pub(crate) fn parse_metadata(text: &str) -> Metadata {
             m.storage_identifier = Some(unquote(v));
         } else if let Some(v) = t.strip_prefix("compression_mode:") {
             m.compression_mode = unquote(v);
+        } else if let Some(v) = t.strip_prefix("compression_format:") {
+            m.compression_format = unquote(v);
         } else if let Some(v) = t.strip_prefix("relative_file_paths:") {
             let v = v.trim();
             if let Some(inner) = v.strip_prefix('[').and_then(|v| v.strip_suffix(']')) {
@@ -116,24 +126,21 @@ pub(crate) fn parse_metadata(text: &str) -> Metadata {
 }
 
 impl Rosbag2 {
-    /// Reads `dir/metadata.yaml` and checks that every file it names exists.
+    /// Reads `dir/metadata.yaml` and checks that every file it names exists; the files of a
+    /// file-compressed bag are decompressed into a temporary directory.
     ///
     /// # Errors
     /// [`Error::Format`] naming `metadata.yaml` when it lists no files, names an unknown storage
-    /// or a compressed bag, or names a file that is missing.
+    /// or compression, or names a file that is missing; naming a compressed file that is corrupt.
     pub fn open(dir: &Path) -> Result<Self> {
         let meta_path = dir.join("metadata.yaml");
         let text = crate::io::read_text(&meta_path)?;
         let meta = parse_metadata(&text);
-        if !meta.compression_mode.is_empty() && meta.compression_mode != "none" {
-            return Err(format_err(
-                &meta_path,
-                format!(
-                    "compression_mode {}: compressed ROS 2 bags are not supported; `ros2 bag decompress` (or `ros2 bag convert`) writes an uncompressed copy",
-                    meta.compression_mode
-                ),
-            ));
-        }
+        let compression = Compression::from_metadata(
+            &meta_path,
+            &meta.compression_mode,
+            &meta.compression_format,
+        )?;
         if meta.relative_file_paths.is_empty() {
             return Err(format_err(
                 &meta_path,
@@ -155,9 +162,10 @@ impl Rosbag2 {
                 ));
             }
             // Older metadata may omit it: the files' extension says.
-            None if files
-                .iter()
-                .all(|f| f.extension().is_some_and(|e| e == "db3")) =>
+            None if files.iter().all(|f| {
+                let name = f.to_string_lossy();
+                name.ends_with(".db3") || name.ends_with(".db3.zstd")
+            }) =>
             {
                 Storage::Sqlite3
             }
@@ -175,13 +183,59 @@ impl Rosbag2 {
                 }
             }
         }
-        Ok(Self {
+        let mut bag = Self {
             dir: dir.to_path_buf(),
             storage,
             files,
             size,
             channel_maps: Vec::new(),
-        })
+            compression,
+            decompressed: None,
+        };
+        if compression == Compression::File {
+            bag.decompress_files()?;
+        }
+        Ok(bag)
+    }
+
+    /// Replaces `files` by their decompressed copies in a new temporary directory.
+    fn decompress_files(&mut self) -> Result<()> {
+        let temp = tempfile::Builder::new()
+            .prefix(".mireg-bag-")
+            .tempdir()
+            .map_err(|e| crate::io::io_err(&std::env::temp_dir(), e))?;
+        for f in &mut self.files {
+            *f = decompress_file(f, temp.path())?;
+        }
+        self.decompressed = Some(std::sync::Arc::new(temp));
+        Ok(())
+    }
+
+    /// A zstd-compressed storage file given on its own (`x.mcap.zstd`, `x.db3.zstd`), read as a
+    /// file-compressed bag of that one file; what it holds (SQLite 3 or MCAP) is read from its
+    /// decompressed first bytes.
+    pub fn single_compressed(path: &Path) -> Result<Self> {
+        let size = std::fs::metadata(path)
+            .map_err(|e| crate::io::io_err(path, e))?
+            .len();
+        let mut bag = Self {
+            dir: path.parent().unwrap_or(Path::new(".")).to_path_buf(),
+            storage: Storage::Mcap,
+            files: vec![path.to_path_buf()],
+            size,
+            channel_maps: Vec::new(),
+            compression: Compression::File,
+            decompressed: None,
+        };
+        bag.decompress_files()?;
+        let mut head = [0u8; 16];
+        let n = std::fs::File::open(&bag.files[0])
+            .and_then(|mut f| super::ros1::read_up_to(&mut f, &mut head))
+            .map_err(|e| crate::io::io_err(&bag.files[0], e))?;
+        if head[..n] == crate::io::input_log::SQLITE_MAGIC[..] {
+            bag.storage = Storage::Sqlite3;
+        }
+        Ok(bag)
     }
 
     /// A single `.db3` file given on its own, read as a bag of that one file.
@@ -198,6 +252,8 @@ impl Rosbag2 {
             files: vec![path.to_path_buf()],
             size,
             channel_maps: Vec::new(),
+            compression: Compression::None,
+            decompressed: None,
         })
     }
 
@@ -227,14 +283,20 @@ impl Rosbag2 {
     }
 
     /// Calls `f` on every message of every file, file after file, each file in its own order
-    /// (MCAP: file order; SQLite: by timestamp), with the header on our channel ids, until `f`
-    /// breaks. [`catalog`](Self::catalog) must have been read.
+    /// (MCAP: file order; SQLite: by timestamp), with the header on our channel ids and the
+    /// message's bytes (decompressed in a message-compressed bag), until `f` breaks.
+    /// [`catalog`](Self::catalog) must have been read.
     pub fn for_each_message(
         &self,
         mut f: impl FnMut(&MessageHeader, &[u8]) -> Result<ControlFlow<()>>,
     ) -> Result<()> {
         assert_eq!(self.channel_maps.len(), self.files.len(), "catalog() first");
+        let mut unzip = MessageDecompressor::default();
         for (file, map) in self.files.iter().zip(&self.channel_maps) {
+            let mut f = |h: &MessageHeader, data: &[u8]| match self.compression {
+                Compression::Message => f(h, unzip.decompress(file, h.log_time, data)?),
+                Compression::None | Compression::File => f(h, data),
+            };
             let flow = match self.storage {
                 Storage::Mcap => mcap_messages(file, map, &mut f)?,
                 Storage::Sqlite3 => sqlite_messages(file, map, &mut f)?,

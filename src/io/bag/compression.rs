@@ -1,0 +1,194 @@
+//! Compressed ROS 2 bags: rosbag2's `compression_mode` with `compression_format: zstd`.
+//!
+//! - `file`: every storage file is one zstd stream (`x.mcap.zstd`, `x.db3.zstd`). It is
+//!   decompressed once, streaming (memory bounded by zstd's window, at most 128 MiB by the format
+//!   and a few MiB as rosbag2 writes it), into a temporary directory
+//!   (`$TMPDIR`, removed when the bag is dropped), because SQLite and the MCAP summary need a
+//!   seekable file. The user's files are only read.
+//! - `message`: every message's bytes are one zstd frame, decompressed as the message is read
+//!   into one reused buffer.
+//!
+//! A zstd file given on its own (`mireg register x.mcap.zstd`) is read as a bag of that one file in
+//! `file` mode ([`super::rosbag2::Rosbag2::single_compressed`]).
+
+use std::fs::File;
+use std::io::{BufReader, BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+
+use crate::io::{MAX_CHUNK_BYTES, format_err, io_err};
+use crate::{Error, Result};
+
+/// The first bytes of every zstd frame (RFC 8878 §3.1.1), little-endian 0xFD2FB528.
+pub const ZSTD_MAGIC: [u8; 4] = [0x28, 0xb5, 0x2f, 0xfd];
+
+/// How a bag's data is compressed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Compression {
+    /// Not compressed.
+    None,
+    /// Each storage file is one zstd stream.
+    File,
+    /// Each message's bytes are one zstd frame.
+    Message,
+}
+
+impl Compression {
+    /// The compression `metadata.yaml` (at `meta_path`) declares with `compression_mode` and
+    /// `compression_format` (empty when absent).
+    ///
+    /// # Errors
+    /// [`Error::Format`] naming `meta_path` and the field for a mode other than none, file or
+    /// message, or a format other than zstd (the only one rosbag2 ships).
+    pub fn from_metadata(meta_path: &Path, mode: &str, format: &str) -> Result<Self> {
+        let mode = match mode.to_ascii_lowercase().as_str() {
+            "" | "none" => return Ok(Self::None),
+            "file" => Self::File,
+            "message" => Self::Message,
+            other => {
+                return Err(format_err(
+                    meta_path,
+                    format!("compression_mode {other:?} is not one of none, file, message"),
+                ));
+            }
+        };
+        if !format.eq_ignore_ascii_case("zstd") {
+            return Err(format_err(
+                meta_path,
+                format!(
+                    "compression_format {format:?} is not supported (zstd, the format rosbag2 writes)"
+                ),
+            ));
+        }
+        Ok(mode)
+    }
+}
+
+fn zstd_err(path: &Path, what: &str, e: impl std::fmt::Display) -> Error {
+    format_err(path, format!("zstd {what}: {e} (corrupt or truncated?)"))
+}
+
+/// Decompresses the zstd file `src` into `dir`, as its name without the `.zstd` suffix; returns
+/// the new file's path. Streaming: memory is bounded by zstd's window, not by the file.
+///
+/// # Errors
+/// [`Error::Format`] naming `src` when it is not zstd or its stream is corrupt or cut short;
+/// [`Error::Io`] for reading `src` or writing into `dir`.
+pub fn decompress_file(src: &Path, dir: &Path) -> Result<PathBuf> {
+    let name = src
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let inner = name.strip_suffix(".zstd").unwrap_or(&name);
+    let dst = dir.join(if inner.is_empty() { "file" } else { inner });
+    let input = File::open(src).map_err(|e| io_err(src, e))?;
+    let mut decoder = zstd::stream::read::Decoder::new(BufReader::with_capacity(1 << 16, input))
+        .map_err(|e| io_err(src, e))?;
+    let out = File::create(&dst).map_err(|e| io_err(&dst, e))?;
+    let mut out = BufWriter::with_capacity(1 << 20, out);
+    let mut buf = vec![0u8; 1 << 20];
+    loop {
+        let n = match decoder.read(&mut buf) {
+            Ok(0) => break,
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(zstd_err(src, "stream", e)),
+        };
+        out.write_all(&buf[..n]).map_err(|e| io_err(&dst, e))?;
+    }
+    out.flush().map_err(|e| io_err(&dst, e))?;
+    Ok(dst)
+}
+
+/// Decompresses message-mode bags' messages, one zstd frame each, into one reused buffer.
+#[derive(Default)]
+pub struct MessageDecompressor {
+    buf: Vec<u8>,
+}
+
+impl MessageDecompressor {
+    /// The bytes of the zstd frame `data`, a message of `file` at log time `t_ns`; at most
+    /// [`MAX_CHUNK_BYTES`] of them.
+    ///
+    /// # Errors
+    /// [`Error::Format`] naming `file` and the message's time when `data` is not a whole zstd
+    /// frame or decompresses to more than the limit.
+    pub fn decompress(&mut self, file: &Path, t_ns: u64, data: &[u8]) -> Result<&[u8]> {
+        let bad = |e: String| {
+            format_err(
+                file,
+                format!("message at {t_ns} ns: zstd message compression: {e}"),
+            )
+        };
+        if !data.starts_with(&ZSTD_MAGIC) {
+            return Err(bad("not a zstd frame".into()));
+        }
+        self.buf.clear();
+        let mut decoder = zstd::stream::read::Decoder::with_buffer(data)
+            .map_err(|e| bad(e.to_string()))?
+            .single_frame();
+        let n = (&mut decoder)
+            .take(MAX_CHUNK_BYTES + 1)
+            .read_to_end(&mut self.buf)
+            .map_err(|e| bad(format!("{e} (corrupt or truncated?)")))?;
+        if n as u64 > MAX_CHUNK_BYTES {
+            return Err(bad(format!("more than {MAX_CHUNK_BYTES} bytes")));
+        }
+        Ok(&self.buf)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn modes_and_formats() {
+        let p = Path::new("metadata.yaml");
+        assert_eq!(
+            Compression::from_metadata(p, "", "").unwrap(),
+            Compression::None
+        );
+        assert_eq!(
+            Compression::from_metadata(p, "FILE", "zstd").unwrap(),
+            Compression::File
+        );
+        assert_eq!(
+            Compression::from_metadata(p, "message", "zstd").unwrap(),
+            Compression::Message
+        );
+        let e = Compression::from_metadata(p, "message", "lz4").unwrap_err();
+        assert!(e.to_string().contains("compression_format \"lz4\""), "{e}");
+        let e = Compression::from_metadata(p, "storage", "zstd").unwrap_err();
+        assert!(e.to_string().contains("compression_mode \"storage\""), "{e}");
+    }
+
+    #[test]
+    fn message_frames_round_trip_and_bad_frames_fail() {
+        let msg: Vec<u8> = (0..10_000u32).flat_map(|i| (i % 251).to_le_bytes()).collect();
+        let frame = zstd::bulk::compress(&msg, 3).unwrap();
+        let mut d = MessageDecompressor::default();
+        assert_eq!(d.decompress(Path::new("b"), 5, &frame).unwrap(), &msg[..]);
+        let e = d
+            .decompress(Path::new("b"), 5, &frame[..frame.len() / 2])
+            .unwrap_err();
+        assert!(e.to_string().contains("message at 5 ns"), "{e}");
+        let e = d.decompress(Path::new("b"), 6, &msg).unwrap_err();
+        assert!(e.to_string().contains("not a zstd frame"), "{e}");
+    }
+
+    #[test]
+    fn files_decompress_streaming_and_cut_files_fail() {
+        let dir = tempfile::tempdir().unwrap();
+        let data: Vec<u8> = (0..3_000_000u32).map(|i| (i / 7) as u8).collect();
+        let z = dir.path().join("a.db3.zstd");
+        std::fs::write(&z, zstd::encode_all(&data[..], 3).unwrap()).unwrap();
+        let out = tempfile::tempdir().unwrap();
+        let got = decompress_file(&z, out.path()).unwrap();
+        assert_eq!(got.file_name().unwrap(), "a.db3");
+        assert_eq!(std::fs::read(&got).unwrap(), data);
+        let bytes = std::fs::read(&z).unwrap();
+        std::fs::write(&z, &bytes[..bytes.len() - 10]).unwrap();
+        let e = decompress_file(&z, out.path()).unwrap_err();
+        assert!(e.to_string().contains("a.db3.zstd"), "{e}");
+    }
+}
