@@ -260,12 +260,19 @@ def main():
     ap.add_argument("--src", type=Path, default=DEFAULT_SRC, help="source MCAP [%(default)s]")
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output directory [%(default)s]")
     ap.add_argument("--frames", type=int, default=4, help="clouds to take [%(default)s]")
+    ap.add_argument("--cloud-topic", default=CLOUD_TOPIC,
+                    help="cloud topic of the source, kept in the bags [%(default)s]; with --prefix, "
+                         "for benchmark bags of other logs (e.g. /os1_cloud_node/points of "
+                         "tools/make_kaist03_mcap.py's log)")
+    ap.add_argument("--prefix", default=None,
+                    help="name prefix of the written bags [icl{frames}]")
     ap.add_argument("--chunk-threshold", type=int, default=100_000,
                     help="ROS 1 chunk threshold, uncompressed bytes [%(default)s]")
     args = ap.parse_args()
+    globals()["CLOUD_TOPIC"] = args.cloud_topic
     if args.frames < 2:
         sys.exit("--frames must be at least 2 (the split bag has two halves)")
-    prefix = f"icl{args.frames}"
+    prefix = args.prefix or f"icl{args.frames}"
     ros1 = [(f"{prefix}_{kind}.bag", compression) for kind, compression in ROS1_COMPRESSIONS]
     ros2 = ((f"{prefix}_mcap", StoragePlugin.MCAP, None),
             (f"{prefix}_db3", StoragePlugin.SQLITE3, None))
