@@ -159,12 +159,17 @@ mod tests {
         let e = Compression::from_metadata(p, "message", "lz4").unwrap_err();
         assert!(e.to_string().contains("compression_format \"lz4\""), "{e}");
         let e = Compression::from_metadata(p, "storage", "zstd").unwrap_err();
-        assert!(e.to_string().contains("compression_mode \"storage\""), "{e}");
+        assert!(
+            e.to_string().contains("compression_mode \"storage\""),
+            "{e}"
+        );
     }
 
     #[test]
     fn message_frames_round_trip_and_bad_frames_fail() {
-        let msg: Vec<u8> = (0..10_000u32).flat_map(|i| (i % 251).to_le_bytes()).collect();
+        let msg: Vec<u8> = (0..10_000u32)
+            .flat_map(|i| (i % 251).to_le_bytes())
+            .collect();
         let frame = zstd::bulk::compress(&msg, 3).unwrap();
         let mut d = MessageDecompressor::default();
         assert_eq!(d.decompress(Path::new("b"), 5, &frame).unwrap(), &msg[..]);
