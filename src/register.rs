@@ -38,6 +38,7 @@ use std::sync::mpsc::sync_channel;
 use std::time::Instant;
 
 use crate::io::atomic_file::same_file;
+use crate::io::damage::{Damage, ReadPolicy};
 use crate::io::mcap::log::OutputLog;
 use crate::loops::LoopConfig;
 use crate::odometry::{Odometry, OdometryConfig};
@@ -103,6 +104,9 @@ pub struct RegisterOptions {
     /// Loop-closure settings; `None`: [`LoopConfig::for_voxel`] of the run's voxel. Default
     /// `None`.
     pub loop_config: Option<LoopConfig>,
+    /// How a damaged input is treated (`--strict`, `--skip-corrupt`). Default: a log cut short
+    /// is read up to its last whole message, a corrupt chunk is an error.
+    pub read_policy: ReadPolicy,
 }
 
 impl RegisterOptions {
@@ -128,6 +132,7 @@ impl RegisterOptions {
             end: None,
             copy_window_only: false,
             loops: true,
+            read_policy: ReadPolicy::default(),
             loop_config: None,
         }
     }
@@ -202,6 +207,9 @@ pub struct RegisterSummary {
     pub loops: Option<LoopSummary>,
     /// The optimised trajectory's errors against the reference, when both exist.
     pub reference_optimized: Option<ReferenceErrors>,
+    /// What was wrong with the input and read anyway (a cut-off log, skipped corrupt chunks);
+    /// `None` when nothing was.
+    pub input_damage: Option<Damage>,
 }
 
 /// Runs the whole job: the stages `plan.rs` → `reader.rs` → `prepare.rs` → `registrar.rs` →

@@ -192,10 +192,15 @@ fn a_bag_whose_index_was_never_written_is_scanned() {
     assert_eq!(poses(&register(&unindexed)), want);
 }
 
+/// `register --strict` on `input` fails with an error holding every needle, and leaves nothing.
 fn assert_fails_cleanly(input: &Path, needles: &[&str]) {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out.mcap");
-    let e = register_log(&options(input, &out)).unwrap_err().to_string();
+    let strict = RegisterOptions {
+        read_policy: mireg::io::damage::ReadPolicy::STRICT,
+        ..options(input, &out)
+    };
+    let e = register_log(&strict).unwrap_err().to_string();
     for n in needles {
         assert!(e.contains(n), "error {e:?} should mention {n:?}");
     }

@@ -6,6 +6,7 @@ use clap::Args;
 
 use std::path::{Path, PathBuf};
 
+use crate::io::damage::ReadPolicy;
 use crate::odometry::OdometryConfig;
 use crate::register::{RegisterOptions, RegisterSummary, default_output, register_log};
 
@@ -86,6 +87,17 @@ pub struct RegisterArgs {
     /// MI-RANSAC + ICP, then a robust pose graph (docs/LOOPS.md).
     #[arg(long)]
     pub no_loops: bool,
+    /// Refuse a log that was cut off (no footer or summary, a last record or chunk that stops
+    /// short). By default such a log is read up to its last whole message, the messages of the
+    /// chunk being written when it stopped included, and the summary says where it was cut
+    /// (docs/INPUTS.md, "Damaged logs").
+    #[arg(long)]
+    pub strict: bool,
+    /// Skip a chunk whose CRC does not match or that does not decompress (naming it in the
+    /// summary and the output's metadata) instead of failing. Its messages are lost; the rest of
+    /// the log is read.
+    #[arg(long)]
+    pub skip_corrupt: bool,
     /// Replace an existing output file.
     #[arg(long)]
     pub force: bool,
@@ -140,6 +152,10 @@ pub(super) fn run_register(args: &RegisterArgs) -> Result<()> {
         copy_window_only: args.copy_window,
         loops: !args.no_loops,
         loop_config: None,
+        read_policy: ReadPolicy {
+            strict: args.strict,
+            skip_corrupt: args.skip_corrupt,
+        },
     };
     if opts.copy_window_only && opts.start.is_none() && opts.end.is_none() {
         return Err(crate::Error::InvalidInput(
@@ -148,6 +164,14 @@ pub(super) fn run_register(args: &RegisterArgs) -> Result<()> {
         .into());
     }
     let summary = register_log(&opts)?;
+    if let Some(d) = &summary.input_damage {
+        // On stderr, even with --quiet or --json: the user should know the log is damaged.
+        eprintln!(
+            "mireg: warning: {}: damaged, read anyway: {} (--strict refuses such a log)",
+            opts.input.display(),
+            d.describe()
+        );
+    }
     if args.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else if !args.quiet {

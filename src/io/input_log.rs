@@ -19,7 +19,8 @@ use super::bag::ros1::{self, Bag};
 use super::bag::rosbag2::{Rosbag2, Storage};
 use super::log_order::ChunkTimes;
 use super::mcap::log::{InputCatalog, OutputLog, pass_through};
-use super::mcap::read::for_each_record_until;
+use super::mcap::read::for_each_record_with;
+use crate::io::damage::{Damage, ReadPolicy};
 use crate::{Error, Result};
 
 /// What `register` accepts, for messages.
@@ -28,11 +29,30 @@ pub const ACCEPTED: &str = "mireg register reads an MCAP file (.mcap), a ROS 1 b
 /// The first bytes of every SQLite 3 database.
 pub(crate) const SQLITE_MAGIC: &[u8] = b"SQLite format 3\0";
 
+/// An MCAP input: its path, how damage is treated, and what was found wrong with it.
+#[derive(Debug)]
+pub struct McapInput {
+    /// The file.
+    pub path: PathBuf,
+    /// How damage is treated when reading it.
+    pub policy: ReadPolicy,
+    /// What was wrong with it (cut short, corrupt chunks skipped), found when it was opened.
+    pub damage: Damage,
+}
+
+impl McapInput {
+    /// Whether its chunks can be copied byte for byte: it is whole and no corrupt chunk is to be
+    /// skipped (a skipped chunk must not reach the output).
+    fn copies_chunks(&self) -> bool {
+        !self.damage.any() && !self.policy.skip_corrupt
+    }
+}
+
 /// An opened input log.
 #[derive(Debug)]
 pub enum InputLog {
     /// An MCAP file.
-    Mcap(PathBuf),
+    Mcap(McapInput),
     /// A ROS 1 bag (format 2.0).
     Bag(Bag),
     /// A ROS 2 bag directory.
@@ -51,6 +71,13 @@ impl InputLog {
     /// special file, saying once what is wrong and what is accepted; the containers' errors for
     /// malformed files.
     pub fn open(path: &Path) -> Result<(Self, InputCatalog)> {
+        Self::open_with(path, ReadPolicy::default())
+    }
+
+    /// [`open`](Self::open) with damage treated by `policy` ([`crate::io::mcap::salvage`]):
+    /// by default an MCAP file cut short is read up to its last whole record, and
+    /// [`damage`](Self::damage) says where it was cut.
+    pub fn open_with(path: &Path, policy: ReadPolicy) -> Result<(Self, InputCatalog)> {
         let meta = match std::fs::metadata(path) {
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
                 return Err(Error::InvalidInput(format!(
@@ -69,7 +96,7 @@ impl InputLog {
         if meta.is_file() && path.file_name().is_some_and(|n| n == "metadata.yaml") {
             // A ROS 2 bag named by its metadata file: the bag is the directory.
             let dir = path.parent().filter(|p| !p.as_os_str().is_empty());
-            return Self::open(dir.unwrap_or(Path::new(".")));
+            return Self::open_with(dir.unwrap_or(Path::new(".")), policy);
         }
         if meta.is_dir() {
             if !path.join("metadata.yaml").is_file() {
@@ -83,8 +110,7 @@ impl InputLog {
                 (bag.storage, bag.compression, bag.files.as_slice())
             {
                 // One MCAP file: read it as such, so that its chunks are copied byte for byte.
-                let catalog = InputCatalog::read(file)?;
-                return Ok((InputLog::Mcap(file.clone()), catalog));
+                return Self::open_mcap(file, policy);
             }
             let catalog = bag.catalog()?;
             return Ok((InputLog::Rosbag2(bag), catalog));
@@ -97,7 +123,7 @@ impl InputLog {
             )));
         }
         if starts_with(path, &ros1::MAGIC[..9])? {
-            let bag = Bag::open(path)?;
+            let bag = Bag::open_with(path, policy)?;
             let catalog = bag.catalog();
             return Ok((InputLog::Bag(bag), catalog));
         }
@@ -113,15 +139,34 @@ impl InputLog {
             let catalog = bag.catalog()?;
             return Ok((InputLog::Rosbag2(bag), catalog));
         }
-        let catalog = InputCatalog::read(path)?;
-        Ok((InputLog::Mcap(path.to_path_buf()), catalog))
+        Self::open_mcap(path, policy)
+    }
+
+    fn open_mcap(path: &Path, policy: ReadPolicy) -> Result<(Self, InputCatalog)> {
+        let (catalog, damage) = InputCatalog::read_with(path, policy)?;
+        let input = McapInput {
+            path: path.to_path_buf(),
+            policy,
+            damage,
+        };
+        Ok((InputLog::Mcap(input), catalog))
+    }
+
+    /// What was wrong with the input and read anyway; `None` when nothing was.
+    pub fn damage(&self) -> Option<&Damage> {
+        match self {
+            InputLog::Mcap(m) => Some(&m.damage),
+            InputLog::Bag(bag) => Some(bag.damage()),
+            InputLog::Rosbag2(_) => None,
+        }
+        .filter(|d| d.any())
     }
 
     /// The chunks' time ranges, for restoring log-time order ([`ChunkTimes`]); only MCAP files
     /// have them.
     pub fn chunk_times(&self) -> Result<Option<ChunkTimes>> {
         match self {
-            InputLog::Mcap(path) => ChunkTimes::read(path),
+            InputLog::Mcap(m) => ChunkTimes::read(&m.path),
             InputLog::Bag(_) | InputLog::Rosbag2(_) => Ok(None),
         }
     }
@@ -133,10 +178,11 @@ impl InputLog {
         mut f: impl FnMut(&MessageHeader, &[u8]) -> Result<ControlFlow<()>>,
     ) -> Result<()> {
         match self {
-            InputLog::Mcap(path) => for_each_record_until(path, |r| match r {
+            InputLog::Mcap(m) => for_each_record_with(&m.path, m.policy, |r| match r {
                 Record::Message { header, data } => f(&header, &data),
                 _ => Ok(ControlFlow::Continue(())),
-            }),
+            })
+            .map(|_| ()),
             InputLog::Bag(bag) => {
                 bag.for_each_message(|conn, t, data| f(&bag_header(conn, t), data))
             }
@@ -159,8 +205,10 @@ impl InputLog {
         mut on_message: impl FnMut(&mut OutputLog, &MessageHeader, &[u8]) -> Result<()>,
     ) -> Result<u64> {
         let input_bytes = match (self, &only) {
-            (InputLog::Mcap(path), None) => return pass_through(path, log, wanted, on_message),
-            (InputLog::Mcap(path), Some(_)) => std::fs::metadata(path).map_or(0, |m| m.len()),
+            (InputLog::Mcap(m), None) if m.copies_chunks() => {
+                return pass_through(&m.path, log, wanted, on_message);
+            }
+            (InputLog::Mcap(m), _) => m.damage.file_size,
             (InputLog::Bag(bag), _) => bag.size(),
             (InputLog::Rosbag2(bag), _) => bag.size(),
         };
@@ -181,14 +229,16 @@ impl InputLog {
             log.write_behind()
         };
         match self {
-            InputLog::Mcap(path) => for_each_record_until(path, |r| {
-                match r {
-                    Record::Message { header, data } => copy(log, &header, &data)?,
-                    r @ (Record::Metadata(_) | Record::Attachment { .. }) => log.copy(&r)?,
-                    _ => {}
-                }
-                Ok(ControlFlow::Continue(()))
-            })?,
+            InputLog::Mcap(m) => {
+                for_each_record_with(&m.path, m.policy, |r| {
+                    match r {
+                        Record::Message { header, data } => copy(log, &header, &data)?,
+                        r @ (Record::Metadata(_) | Record::Attachment { .. }) => log.copy(&r)?,
+                        _ => {}
+                    }
+                    Ok(ControlFlow::Continue(()))
+                })?;
+            }
             InputLog::Bag(bag) => bag.for_each_message(|conn, t, data| {
                 copy(log, &bag_header(conn, t), data)?;
                 Ok(ControlFlow::Continue(()))

@@ -8,6 +8,7 @@ pub mod atomic_file;
 pub mod bag;
 pub mod cloud_file;
 pub mod codec;
+pub mod damage;
 pub mod input_log;
 pub mod log_order;
 pub mod mcap;

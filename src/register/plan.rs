@@ -46,7 +46,7 @@ pub(super) struct Plan {
 impl Plan {
     pub(super) fn new(opts: &RegisterOptions) -> Result<Self> {
         let input = &opts.input;
-        let (input_log, catalog) = InputLog::open(input)?;
+        let (input_log, catalog) = InputLog::open_with(input, opts.read_policy)?;
         let channels = catalog.channel_infos();
         let (topic, kind) = choose_topic(input, &channels, opts.topic.as_deref())?;
         let ids_of = |t: Option<&str>| -> Vec<u16> {

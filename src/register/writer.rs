@@ -193,6 +193,7 @@ impl<'a> Writer<'a> {
             pose_optimized_topic: loops.is_some().then(|| plan.topics.pose_optimized.clone()),
             loops: loops.map(|(outcome, _)| outcome.summary),
             reference_optimized,
+            input_damage: plan.input_log.damage().cloned(),
         })
     }
 }
@@ -276,6 +277,12 @@ fn metadata(plan: &Plan, opts: &RegisterOptions) -> BTreeMap<String, String> {
     meta.insert("pose_topic".to_string(), plan.topics.pose.clone());
     meta.insert("stats_topic".to_string(), plan.topics.stats.clone());
     meta.insert("tf_topic".to_string(), plan.topics.tf.clone());
+    if let Some(d) = plan.input_log.damage() {
+        meta.insert(
+            "input_damage".to_string(),
+            serde_json::to_string(d).expect("damage JSON"),
+        );
+    }
     if plan.segment != LogWindow::ALL {
         meta.insert(
             "segment".to_string(),

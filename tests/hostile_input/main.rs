@@ -77,6 +77,14 @@ fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/icl_livingroom1.mcap")
 }
 
+/// [`options`] that refuse a damaged log (`--strict`).
+fn strict(input: &Path, output: &Path) -> RegisterOptions {
+    RegisterOptions {
+        read_policy: mireg::io::damage::ReadPolicy::STRICT,
+        ..options(input, output)
+    }
+}
+
 fn options(input: &Path, output: &Path) -> RegisterOptions {
     let config = OdometryConfig {
         pair: PairConfig {
@@ -244,12 +252,19 @@ fn record_length_past_the_end_is_an_error_not_an_abort() {
     assert!(largest < MODEST, "allocated {largest} bytes at once");
     for r in results
         .into_iter()
-        .chain([register_log(&options(&cut, &out)).map(|_| ())])
+        .chain([register_log(&strict(&cut, &out)).map(|_| ())])
     {
         let e = r.unwrap_err().to_string();
         assert!(e.contains("cut.mcap") && e.contains("claims"), "{e}");
     }
     assert!(!out.exists());
+    // Read as a log cut short (the default): the messages before the lie, the lie named.
+    let (summary, largest) = largest_allocation(|| register_log(&options(&cut, &out)));
+    assert!(largest < MODEST, "allocated {largest} bytes at once");
+    let damage = summary.unwrap().input_damage.expect("damage reported");
+    assert_eq!(damage.cut_at, Some(at as u64));
+    assert!(damage.cut_reason.unwrap().contains("claims"));
+    assert!(out.exists());
 }
 
 /// A 27 KB log whose attachment name claims 4 GiB made the mcap crate's parser reserve 4 GiB (the
@@ -290,9 +305,10 @@ fn a_string_longer_than_its_record_is_refused_before_allocation() {
     assert_eq!(topics, ["/points", "/ground_truth/pose", "/notes"]);
 }
 
-/// Every cut of a valid log at a record boundary, and inside each record, is an error naming the
-/// file (or, once the data section is complete, a full output): never a panic or an output left
-/// by an error.
+/// Every cut of a valid log at a record boundary, and inside each record, is with `--strict` an
+/// error naming the file (or, once the data section is complete, a full output); by default it is
+/// read as far as it goes, or, when that holds no cloud to register, an error naming the file.
+/// Never a panic or an output left by an error.
 #[test]
 fn truncation_at_every_record_boundary_fails_cleanly() {
     let dir = tempfile::tempdir().unwrap();
@@ -309,13 +325,28 @@ fn truncation_at_every_record_boundary_fails_cleanly() {
             std::fs::write(&input, &bytes[..cut]).unwrap();
             let _ = std::fs::remove_file(&out);
             let scanned = for_each_record(&input, |_| Ok(()));
-            let registered = register_log(&options(&input, &out));
+            let registered = register_log(&strict(&input, &out));
             if cut < data_end {
                 let e = scanned.unwrap_err().to_string();
                 assert!(e.contains("cut.mcap"), "cut at {cut}: {e}");
                 let e = registered.unwrap_err().to_string();
                 assert!(e.contains("cut.mcap"), "cut at {cut}: {e}");
                 assert!(!out.exists(), "cut at {cut}: output left behind");
+                match register_log(&options(&input, &out)) {
+                    Ok(summary) => {
+                        let damage = summary.input_damage.expect("damage reported");
+                        assert!(
+                            damage.cut_at.is_some_and(|c| c <= cut as u64),
+                            "cut at {cut}"
+                        );
+                        assert!(out.exists(), "cut at {cut}");
+                    }
+                    Err(e) => {
+                        let e = e.to_string();
+                        assert!(e.contains("cut.mcap"), "cut at {cut}: {e}");
+                        assert!(!out.exists(), "cut at {cut}: output left behind");
+                    }
+                }
             } else {
                 assert!(scanned.is_ok() && registered.is_ok(), "cut at {cut}");
             }

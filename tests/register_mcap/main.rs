@@ -241,6 +241,7 @@ fn no_partial_files(dir: &Path) {
     );
 }
 
+/// With `--strict` (a cut log is read as far as it goes by default: tests/salvage.rs).
 #[test]
 fn truncated_and_corrupt_logs_fail_cleanly() {
     let dir = tempfile::tempdir().unwrap();
@@ -255,9 +256,11 @@ fn truncated_and_corrupt_logs_fail_cleanly() {
     std::fs::write(&corrupt, &flipped).unwrap();
     for input in [&truncated, &corrupt] {
         let out = dir.path().join("out.mcap");
-        let err = register_log(&options(input, &out, 0.05))
-            .unwrap_err()
-            .to_string();
+        let strict = RegisterOptions {
+            read_policy: mireg::io::damage::ReadPolicy::STRICT,
+            ..options(input, &out, 0.05)
+        };
+        let err = register_log(&strict).unwrap_err().to_string();
         assert!(
             err.contains(&input.display().to_string()),
             "error does not name the file: {err}"

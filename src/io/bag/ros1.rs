@@ -8,7 +8,14 @@
 //! (0x04)), then at the index offset every connection again and one chunk info (0x06) per chunk.
 //!
 //! The catalogue (connections and message counts) comes from the index; a bag whose index was
-//! never written (`index_pos` 0: the recorder was killed) is scanned once instead. Every length
+//! never written (`index_pos` 0: the recorder was killed) is scanned once instead.
+//!
+//! A bag cut short (a power loss or crash while recording: the index missing or cut, a last
+//! record or chunk that stops short) is read, unless [`ReadPolicy::strict`], up to its last whole
+//! record, and the messages of a chunk cut short are recovered from the compressed bytes that
+//! reached the disk (bz2 and lz4 decode block by block) up to its last whole record; [`Damage`]
+//! says where it was cut. With [`ReadPolicy::skip_corrupt`] a chunk that does not decompress is
+//! skipped and named instead of failing the read. Every length
 //! read from the file is checked against what remains of the file or the chunk, and a chunk's
 //! declared uncompressed size against [`MAX_CHUNK_BYTES`], before it drives an allocation.
 //!
@@ -25,6 +32,7 @@ use std::path::{Path, PathBuf};
 use mcap::records::Channel;
 
 use crate::io::codec::ros1;
+use crate::io::damage::{Damage, ReadPolicy};
 use crate::io::mcap::log::InputCatalog;
 use crate::io::mcap::write::SchemaRecord;
 use crate::io::{MAX_CHUNK_BYTES, io_err};
@@ -74,6 +82,13 @@ pub struct Bag {
     data_start: u64,
     /// Offset of the index (0 when the bag has none); records from here on are not data.
     index_pos: u64,
+    /// Where the data records end: the index, or the end of the file when the index is missing,
+    /// or the start of the record the file cuts short.
+    data_end: u64,
+    /// How damage is treated.
+    policy: ReadPolicy,
+    /// What was found wrong when the bag was opened.
+    damage: Damage,
     /// Connections by id.
     pub connections: BTreeMap<u32, Connection>,
     /// Messages per connection (from the chunk infos, or the scan).
@@ -133,13 +148,19 @@ impl Bag {
     }
 
     /// Opens `path`, checks the format and reads the catalogue (from the index, or by one scan
-    /// when the bag has none).
+    /// when the bag has none); a bag cut short is read up to its last whole message
+    /// ([`Bag::open_with`] with the default [`ReadPolicy`]).
     ///
     /// # Errors
     /// [`Error::Format`] naming the file and the offset for anything that is not a well-formed
-    /// bag 2.0 (another version, a truncated file, an index beyond the end, a connection id
-    /// above 65 535).
+    /// bag 2.0 (another version, a connection id above 65 535, a corrupt chunk).
     pub fn open(path: &Path) -> Result<Self> {
+        Self::open_with(path, ReadPolicy::default())
+    }
+
+    /// [`Bag::open`] with damage treated by `policy`: with [`ReadPolicy::strict`], a truncated
+    /// file or an index beyond the end is an error too.
+    pub fn open_with(path: &Path, policy: ReadPolicy) -> Result<Self> {
         let file = File::open(path).map_err(|e| io_err(path, e))?;
         let size = file.metadata().map_err(|e| io_err(path, e))?.len();
         let mut r = BufReader::with_capacity(1 << 16, file);
@@ -161,6 +182,9 @@ impl Bag {
             size,
             data_start: 0,
             index_pos: 0,
+            data_end: size,
+            policy,
+            damage: Damage::new(size),
             connections: BTreeMap::new(),
             message_counts: BTreeMap::new(),
         };
@@ -173,45 +197,84 @@ impl Bag {
         }
         bag.index_pos = u64_field(&header, "index_pos").map_err(|e| bag.err(header.offset, e))?;
         bag.data_start = pos;
-        if bag.index_pos == 0 {
-            bag.scan_catalog(&mut r, pos)?;
-        } else {
-            if bag.index_pos < pos || bag.index_pos >= size {
+        if bag.index_pos != 0 && (bag.index_pos < pos || bag.index_pos >= size) {
+            if policy.strict {
                 return Err(bag.err(
                     header.offset,
                     format!(
-                        "the index is at offset {}, beyond the file's {size} bytes: the bag is truncated (rosbag reindex rebuilds its index)",
+                        "the index is at offset {}, beyond the file's {size} bytes: the bag is truncated (rosbag reindex rebuilds its index; without --strict mireg reads what is there)",
                         bag.index_pos
                     ),
                 ));
             }
-            bag.read_index(&mut r)?;
+            // Cut after the data or inside it: the data records run to the end of the file.
+            bag.index_pos = 0;
+        }
+        if bag.index_pos == 0 || policy.skip_corrupt {
+            // No index, or every chunk is to be decompressed once to find the corrupt ones.
+            bag.data_end = if bag.index_pos == 0 {
+                size
+            } else {
+                bag.index_pos
+            };
+            bag.scan_catalog(&mut r, pos)?;
+        } else {
+            bag.data_end = bag.index_pos;
+            if let Some(cut) = bag.read_index(&mut r)? {
+                // The index stops short, so its counts do not cover every chunk; the data
+                // before it is whole.
+                bag.connections.clear();
+                bag.message_counts.clear();
+                bag.scan_catalog(&mut r, pos)?;
+                bag.damage
+                    .cut(cut.offset, format!("the index {}", cut.reason));
+            }
         }
         Ok(bag)
     }
 
-    /// Reads the record at `*pos` (`None` at the end of the file), its data into `buf` (whose
-    /// allocation is reused: pass the previous record's data back).
-    fn read_record(
-        &self,
-        r: &mut BufReader<File>,
-        pos: &mut u64,
-        buf: Vec<u8>,
-    ) -> Result<Option<RawRecord>> {
+    /// What was wrong with the bag and read anyway (nothing when it is whole).
+    pub fn damage(&self) -> &Damage {
+        &self.damage
+    }
+
+    /// The record at `*pos`, or the end of the file, or how the file cuts it short (with the
+    /// part of it that is there when its header is whole). Lengths that no cut explains (a
+    /// header beyond [`MAX_HEADER_BYTES`], fields that do not parse) are errors.
+    fn next_record(&self, r: &mut BufReader<File>, pos: &mut u64, buf: Vec<u8>) -> Result<Next> {
         let offset = *pos;
         if offset == self.size {
-            return Ok(None);
+            return Ok(Next::End);
         }
         let remain = self.size - offset;
+        let cut = |reason: String, partial: Option<RawRecord>| {
+            Ok(Next::Cut(Cut {
+                offset,
+                reason,
+                partial,
+            }))
+        };
+        if remain < 4 {
+            return cut(
+                "the file ends inside the record (truncated bag?)".into(),
+                None,
+            );
+        }
         let header_len = u64::from(read_u32(r, &self.path, offset)?);
-        if header_len > u64::from(MAX_HEADER_BYTES) || header_len + 8 > remain {
+        if header_len > u64::from(MAX_HEADER_BYTES) {
             return Err(self.err(
                 offset,
+                format!("record header claims {header_len} bytes, more than the limit of {MAX_HEADER_BYTES}"),
+            ));
+        }
+        if header_len + 8 > remain {
+            return cut(
                 format!(
                     "record header claims {header_len} bytes; with the two lengths that is {} bytes, and {remain} remain (truncated bag?)",
                     header_len + 8
                 ),
-            ));
+                None,
+            );
         }
         let mut header = vec![0u8; header_len as usize];
         r.read_exact(&mut header)
@@ -219,28 +282,44 @@ impl Bag {
         let fields = parse_fields(&header).map_err(|e| self.err(offset, e))?;
         let data_len = u64::from(read_u32(r, &self.path, offset)?);
         let left = remain - 8 - header_len;
-        if data_len > left {
-            return Err(self.err(
-                offset,
-                format!("record data claims {data_len} bytes, {left} remain (truncated bag?)"),
-            ));
-        }
         let mut rec = RawRecord {
             offset,
             fields,
             data: buf,
         };
         rec.data.clear();
-        // Read without zero-filling first; `data_len` fits in what remains of the file.
+        // Read without zero-filling first; at most what remains of the file.
         (&mut *r)
-            .take(data_len)
+            .take(data_len.min(left))
             .read_to_end(&mut rec.data)
             .map_err(|e| io_err(&self.path, e))?;
+        if data_len > left {
+            return cut(
+                format!("record data claims {data_len} bytes, {left} remain (truncated bag?)"),
+                Some(rec),
+            );
+        }
         if rec.data.len() as u64 != data_len {
             return Err(self.err(offset, "the file ends inside the record (truncated bag?)"));
         }
         *pos = offset + 8 + header_len + data_len;
-        Ok(Some(rec))
+        Ok(Next::Whole(rec))
+    }
+
+    /// Reads the record at `*pos` (`None` at the end of the file), its data into `buf` (whose
+    /// allocation is reused: pass the previous record's data back); a record the file cuts short
+    /// is an error.
+    fn read_record(
+        &self,
+        r: &mut BufReader<File>,
+        pos: &mut u64,
+        buf: Vec<u8>,
+    ) -> Result<Option<RawRecord>> {
+        match self.next_record(r, pos, buf)? {
+            Next::Whole(rec) => Ok(Some(rec)),
+            Next::End => Ok(None),
+            Next::Cut(cut) => Err(self.err(cut.offset, cut.reason)),
+        }
     }
 
     fn add_connection(&mut self, rec: &RawRecord, data: &[u8]) -> Result<()> {
@@ -284,12 +363,21 @@ impl Bag {
         Ok(())
     }
 
-    /// The index: every connection and chunk info from `index_pos` to the end.
-    fn read_index(&mut self, r: &mut BufReader<File>) -> Result<()> {
+    /// The index: every connection and chunk info from `index_pos` to the end; how the file
+    /// cuts it short, unless [`ReadPolicy::strict`] makes that an error.
+    fn read_index(&mut self, r: &mut BufReader<File>) -> Result<Option<Cut>> {
         r.seek(SeekFrom::Start(self.index_pos))
             .map_err(|e| io_err(&self.path, e))?;
         let mut pos = self.index_pos;
-        while let Some(rec) = self.read_record(r, &mut pos, Vec::new())? {
+        loop {
+            let rec = match self.next_record(r, &mut pos, Vec::new())? {
+                Next::Whole(rec) => rec,
+                Next::End => return Ok(None),
+                Next::Cut(cut) if self.policy.strict => {
+                    return Err(self.err(cut.offset, cut.reason));
+                }
+                Next::Cut(cut) => return Ok(Some(cut)),
+            };
             match rec.op() {
                 Some(op::CONNECTION) => self.add_connection(&rec, &rec.data)?,
                 Some(op::CHUNK_INFO) => {
@@ -305,14 +393,17 @@ impl Bag {
                 _ => {}
             }
         }
-        Ok(())
     }
 
-    /// The catalogue of a bag without an index: one pass over every chunk.
+    /// The catalogue of a bag without an index: one pass over every chunk, which also finds
+    /// where the file is cut and the chunks to skip ([`Bag::damage`]).
     fn scan_catalog(&mut self, r: &mut BufReader<File>, start: u64) -> Result<()> {
+        r.seek(SeekFrom::Start(start))
+            .map_err(|e| io_err(&self.path, e))?;
         let mut conns = Vec::new();
         let mut counts: BTreeMap<u32, u64> = BTreeMap::new();
-        self.walk(r, start, &mut |rec, data| {
+        let mut skipped = Vec::new();
+        let cut = self.walk(r, start, &mut skipped, &mut |rec, data| {
             match rec {
                 Inner::Connection(rec) => conns.push((rec, data.to_vec())),
                 Inner::Message { conn, .. } => *counts.entry(conn).or_default() += 1,
@@ -323,41 +414,74 @@ impl Bag {
             self.add_connection(&rec, &data)?;
         }
         self.message_counts = counts;
+        self.damage.skipped_chunks = skipped;
+        if let Some((cut, partial_messages)) = cut {
+            self.data_end = cut.offset;
+            self.damage.cut(cut.offset, cut.reason);
+            self.damage.partial_messages = partial_messages;
+        }
         Ok(())
     }
 
     /// Calls `f` on every connection and message record of every chunk from `start`, in file
-    /// order, until it breaks.
-    fn walk(&self, r: &mut BufReader<File>, start: u64, f: &mut InnerVisitor<'_>) -> Result<()> {
-        let end = if self.index_pos == 0 {
-            self.size
-        } else {
-            self.index_pos
-        };
+    /// order, until it breaks. Corrupt chunks skipped ([`ReadPolicy::skip_corrupt`]) are added to
+    /// `skipped`. Returns where the file cuts the data short, unless strict, with the messages
+    /// recovered from a chunk cut short.
+    fn walk(
+        &self,
+        r: &mut BufReader<File>,
+        start: u64,
+        skipped: &mut Vec<(u64, String)>,
+        f: &mut InnerVisitor<'_>,
+    ) -> Result<Option<(Cut, u64)>> {
+        let end = self.data_end;
         let mut pos = start;
         // Both buffers are reused from chunk to chunk.
         let (mut chunk, mut spare) = (Vec::new(), Vec::new());
-        while pos < end {
-            let Some(rec) = self.read_record(r, &mut pos, std::mem::take(&mut spare))? else {
-                break;
+        // A cut is met at `data_end` when this is not the pass that found it.
+        while pos < end || (pos == self.data_end && self.damage.cut_at == Some(pos)) {
+            let rec = match self.next_record(r, &mut pos, std::mem::take(&mut spare))? {
+                Next::Whole(rec) => rec,
+                Next::End => break,
+                Next::Cut(cut) if self.policy.strict => {
+                    return Err(self.err(cut.offset, cut.reason));
+                }
+                Next::Cut(cut) => {
+                    let messages = match &cut.partial {
+                        Some(rec) if rec.op() == Some(op::CHUNK) => {
+                            let records = partial_chunk(rec);
+                            self.walk_chunk(rec, &records, true, f)?.1
+                        }
+                        _ => 0,
+                    };
+                    return Ok(Some((cut, messages)));
+                }
             };
             match rec.op() {
                 Some(op::CHUNK) => {
-                    let records = self.decompress(&rec, &mut chunk)?;
-                    if self.walk_chunk(&rec, records, f)?.is_break() {
-                        return Ok(());
+                    let records = match self.decompress(&rec, &mut chunk) {
+                        Ok(records) => records,
+                        Err(Error::Format { detail, .. }) if self.policy.skip_corrupt => {
+                            skipped.push((rec.offset, detail));
+                            spare = rec.data;
+                            continue;
+                        }
+                        Err(e) => return Err(e),
+                    };
+                    if self.walk_chunk(&rec, records, false, f)?.0.is_break() {
+                        return Ok(None);
                     }
                 }
                 Some(op::CONNECTION) => {
                     if f(Inner::Connection(rec.clone_header()), &rec.data)?.is_break() {
-                        return Ok(());
+                        return Ok(None);
                     }
                 }
                 Some(op::MSG_DATA) => {
                     let (conn, time_ns) =
                         message_fields(&rec).map_err(|e| self.err(rec.offset, e))?;
                     if f(Inner::Message { conn, time_ns }, &rec.data)?.is_break() {
-                        return Ok(());
+                        return Ok(None);
                     }
                 }
                 Some(op::INDEX_DATA | op::CHUNK_INFO | op::BAG_HEADER) => {}
@@ -368,16 +492,19 @@ impl Bag {
             }
             spare = rec.data;
         }
-        Ok(())
+        Ok(None)
     }
 
-    /// The records inside one decompressed chunk.
+    /// The records inside one decompressed chunk, and how many were messages. When `partial`
+    /// (the first bytes of a chunk the file cuts short), the records stop quietly at the first
+    /// that is not whole.
     fn walk_chunk(
         &self,
         chunk_rec: &RawRecord,
         mut b: &[u8],
+        partial: bool,
         f: &mut InnerVisitor<'_>,
-    ) -> Result<ControlFlow<()>> {
+    ) -> Result<(ControlFlow<()>, u64)> {
         let in_chunk = |at: usize, e: String| {
             self.err(
                 chunk_rec.offset,
@@ -385,35 +512,45 @@ impl Bag {
             )
         };
         let total = b.len();
+        let mut messages = 0;
         while !b.is_empty() {
             let at = total - b.len();
-            let (header, rest) = split_len_prefixed(b).map_err(|e| in_chunk(at, e))?;
-            let (data, rest) = split_len_prefixed(rest).map_err(|e| in_chunk(at, e))?;
-            b = rest;
+            let parsed = split_len_prefixed(b).and_then(|(header, rest)| {
+                let (data, rest) = split_len_prefixed(rest)?;
+                let fields = parse_fields(header)?;
+                Ok((fields, data, rest))
+            });
+            let (fields, data, rest) = match parsed {
+                Ok(p) => p,
+                Err(_) if partial => break,
+                Err(e) => return Err(in_chunk(at, e)),
+            };
             let rec = RawRecord {
                 offset: chunk_rec.offset,
-                fields: parse_fields(header).map_err(|e| in_chunk(at, e))?,
+                fields,
                 data: Vec::new(),
             };
-            let flow = match rec.op() {
+            let inner = match rec.op() {
                 Some(op::MSG_DATA) => {
-                    let (conn, time_ns) = message_fields(&rec).map_err(|e| in_chunk(at, e))?;
-                    f(Inner::Message { conn, time_ns }, data)?
+                    message_fields(&rec).map(|(conn, time_ns)| Inner::Message { conn, time_ns })
                 }
-                Some(op::CONNECTION) => f(Inner::Connection(rec), data)?,
-                Some(other) => {
-                    return Err(in_chunk(
-                        at,
-                        format!("op 0x{other:02x} does not belong in a chunk"),
-                    ));
-                }
-                None => return Err(in_chunk(at, "record without an op field".into())),
+                Some(op::CONNECTION) => Ok(Inner::Connection(rec)),
+                Some(other) => Err(format!("op 0x{other:02x} does not belong in a chunk")),
+                None => Err("record without an op field".into()),
             };
+            let inner = match inner {
+                Ok(inner) => inner,
+                Err(_) if partial => break,
+                Err(e) => return Err(in_chunk(at, e)),
+            };
+            messages += u64::from(matches!(inner, Inner::Message { .. }));
+            b = rest;
+            let flow = f(inner, data)?;
             if flow.is_break() {
-                return Ok(flow);
+                return Ok((flow, messages));
             }
         }
-        Ok(ControlFlow::Continue(()))
+        Ok((ControlFlow::Continue(()), messages))
     }
 
     /// A chunk's records: its data itself when uncompressed, else decompressed into `out`; the
@@ -481,7 +618,8 @@ impl Bag {
             .map_err(|e| io_err(&self.path, e))?;
         let path = &self.path;
         let connections = &self.connections;
-        self.walk(&mut r, self.data_start, &mut |rec, data| match rec {
+        let mut skipped = Vec::new();
+        self.walk(&mut r, self.data_start, &mut skipped, &mut |rec, data| match rec {
             Inner::Message { conn, time_ns } => {
                 if !connections.contains_key(&conn) {
                     return Err(Error::Format {
@@ -495,6 +633,7 @@ impl Bag {
             }
             Inner::Connection(_) => Ok(ControlFlow::Continue(())),
         })
+        .map(|_| ())
     }
 
     /// Total size of the bag file, in bytes.
@@ -553,6 +692,54 @@ impl Bag {
         cat.message_counts = Some(counts);
         cat
     }
+}
+
+/// The next record of the file, as [`Bag::next_record`] finds it.
+enum Next {
+    Whole(RawRecord),
+    End,
+    Cut(Cut),
+}
+
+/// A record the file cuts short.
+struct Cut {
+    /// Where the record starts.
+    offset: u64,
+    /// What is missing, e.g. "record data claims 2000 bytes, 1000 remain (truncated bag?)".
+    reason: String,
+    /// The record with the part of its data that is there, when its header is whole.
+    partial: Option<RawRecord>,
+}
+
+/// The records that the first bytes of a chunk cut short decode to: its data itself when
+/// uncompressed, else what bz2 or lz4 decode before the stream stops (both decode block by
+/// block), at most its declared size (and [`MAX_CHUNK_BYTES`]). Nothing for other compressions.
+fn partial_chunk(rec: &RawRecord) -> Vec<u8> {
+    let size = u32_field(rec, "size")
+        .map_or(0, u64::from)
+        .min(MAX_CHUNK_BYTES);
+    let mut out = Vec::new();
+    let mut read_all = |mut r: Box<dyn Read + '_>| {
+        let mut buf = vec![0u8; 1 << 16];
+        while (out.len() as u64) < size {
+            match r.read(&mut buf) {
+                Ok(0) | Err(_) => break,
+                Ok(n) => out.extend_from_slice(&buf[..n]),
+            }
+        }
+    };
+    match rec.field("compression") {
+        Some(b"none") => out.extend_from_slice(&rec.data),
+        Some(b"bz2") => read_all(Box::new(bzip2::read::BzDecoder::new(&rec.data[..]))),
+        Some(b"lz4") => {
+            if let Ok(d) = lz4::Decoder::new(&rec.data[..]) {
+                read_all(Box::new(d));
+            }
+        }
+        _ => {}
+    }
+    out.truncate(size as usize);
+    out
 }
 
 /// What [`Bag::walk`] calls on each inner record and its data.

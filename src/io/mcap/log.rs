@@ -18,9 +18,10 @@ use std::sync::mpsc::{Sender, channel};
 use mcap::records::{Channel, MessageHeader, Metadata, Record};
 
 pub use super::read::for_each_record;
-use super::read::{mcap_err, read_summary};
+use super::read::{for_each_record_with, mcap_err, read_summary};
 use super::write::{McapWriter, SchemaRecord};
 use crate::io::atomic_file::PendingFile;
+use crate::io::damage::{Damage, ReadPolicy};
 use crate::io::io_err;
 use crate::{Error, Result};
 
@@ -54,10 +55,19 @@ pub struct InputCatalog {
 }
 
 impl InputCatalog {
-    /// The catalogue of `path`.
+    /// The catalogue of `path`; a log cut short or corrupt is an error.
     pub fn read(path: &Path) -> Result<Self> {
+        Self::read_with(path, ReadPolicy::STRICT).map(|(cat, _)| cat)
+    }
+
+    /// The catalogue of `path` under `policy`, and what was wrong with the file (nothing when it
+    /// has a summary and `policy` does not ask for corrupt chunks to be skipped: the summary is
+    /// written last, so a file that has one was not cut; a corrupt chunk is then found when it is
+    /// read).
+    pub fn read_with(path: &Path, policy: ReadPolicy) -> Result<(Self, Damage)> {
         let mut cat = Self::default();
-        if let Some(summary) = read_summary(path)?.filter(|s| !s.channels.is_empty()) {
+        let summary = read_summary(path)?.filter(|s| !s.channels.is_empty());
+        if let Some(summary) = summary.filter(|_| !policy.skip_corrupt) {
             let schemas = summary
                 .schemas
                 .values()
@@ -85,11 +95,12 @@ impl InputCatalog {
                 );
             }
             cat.message_counts = summary.stats.map(|s| s.channel_message_counts);
-            return Ok(cat);
+            let size = std::fs::metadata(path).map_err(|e| io_err(path, e))?.len();
+            return Ok((cat, Damage::new(size)));
         }
         // No summary (e.g. a log cut short while recording): one pass over the records.
         let mut counts: BTreeMap<u16, u64> = BTreeMap::new();
-        for_each_record(path, |record| {
+        let damage = for_each_record_with(path, policy, |record| {
             match record {
                 Record::Schema { header, data } => {
                     cat.schemas.entry(header.id).or_insert(SchemaRecord {
@@ -106,13 +117,13 @@ impl InputCatalog {
                 }
                 _ => {}
             }
-            Ok(())
+            Ok(std::ops::ControlFlow::Continue(()))
         })?;
         for &id in cat.channels.keys() {
             counts.entry(id).or_default();
         }
         cat.message_counts = Some(counts);
-        Ok(cat)
+        Ok((cat, damage))
     }
 
     /// The channels with their schemas' names and encodings, by id.

@@ -18,6 +18,8 @@ use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader, SummaryRead
 
 use super::chunk::{self, ChunkDecoder};
 use super::record::{check_lengths, parse_record};
+use super::salvage::decompress_prefix;
+use crate::io::damage::{Damage, ReadPolicy};
 use crate::io::{MAX_CHUNK_BYTES, io_err};
 use crate::{Error, Result};
 
@@ -218,19 +220,63 @@ pub fn for_each_record(path: &Path, mut f: impl FnMut(Record<'_>) -> Result<()>)
 /// [`for_each_record`] that stops as soon as `f` says [`std::ops::ControlFlow::Break`], without reading further (e.g. for the first cloud of a log).
 pub fn for_each_record_until(
     path: &Path,
-    mut f: impl FnMut(Record<'_>) -> Result<std::ops::ControlFlow<()>>,
+    f: impl FnMut(Record<'_>) -> Result<std::ops::ControlFlow<()>>,
 ) -> Result<()> {
+    for_each_record_with(path, ReadPolicy::STRICT, f).map(|_| ())
+}
+
+/// [`for_each_record_until`] under `policy` ([`super::salvage`]): unless it is strict, a log
+/// that stops short is read up to its last whole record, the records of a chunk cut short
+/// included, and the returned [`Damage`] says where it was cut; with `skip_corrupt`, a chunk that
+/// fails its CRC or does not decompress is skipped and listed.
+pub fn for_each_record_with(
+    path: &Path,
+    policy: ReadPolicy,
+    mut f: impl FnMut(Record<'_>) -> Result<std::ops::ControlFlow<()>>,
+) -> Result<Damage> {
     use std::ops::ControlFlow::Break;
     let mut src = Source::open(path, 1 << 20)?;
+    let mut damage = Damage::new(src.size);
+    let salvage = !policy.strict;
     let mut decoder = ChunkDecoder::new().map_err(|e| mcap_err(path, "reading MCAP records", e))?;
     let mut body = Vec::new();
     loop {
+        let left = src.size - src.pos;
+        if salvage && left < 9 {
+            let reason = if left == 0 {
+                "the file ends without a data-end record".to_string()
+            } else {
+                format!(
+                    "the file ends {left} bytes into the opcode and length of a record at offset {}",
+                    src.pos
+                )
+            };
+            damage.cut(src.pos, reason);
+            return Ok(damage);
+        }
         let (opcode, len) = src.prefix()?;
         let offset = src.pos - 9;
+        if salvage && len > src.size - src.pos {
+            let left = src.size - src.pos;
+            if opcode == op::CHUNK {
+                damage.partial_messages = salvage_chunk(&mut src, &mut f)?;
+            }
+            let what = match opcode {
+                op::CHUNK => "the chunk".to_string(),
+                _ => format!("the record (opcode 0x{opcode:02x})"),
+            };
+            damage.cut(
+                offset,
+                format!(
+                    "{what} at offset {offset} claims {len} bytes, the file holds {left} of them"
+                ),
+            );
+            return Ok(damage);
+        }
         match opcode {
             op::DATA_END => {
                 src.body(opcode, len, &mut body)?;
-                return Ok(());
+                return Ok(damage);
             }
             op::FOOTER => {
                 return Err(mcap_err(
@@ -246,13 +292,24 @@ pub fn for_each_record_until(
                 body.extend_from_slice(&head);
                 src.append(opcode, len - head.len() as u64, &mut body)?;
                 let in_chunk = |e: String| mcap_err(path, &format!("chunk at offset {offset}"), e);
-                let (_, records) = decoder.decode(&body).map_err(in_chunk)?;
+                let records = match decoder.decode(&body) {
+                    Ok((_, records)) => records,
+                    Err(e) if policy.skip_corrupt => {
+                        damage.skipped_chunks.push((offset, e));
+                        continue;
+                    }
+                    Err(e) => {
+                        return Err(in_chunk(format!(
+                            "{e} (--skip-corrupt skips corrupt chunks)"
+                        )));
+                    }
+                };
                 for r in chunk::records(records) {
                     let (_, opcode, b) = r.map_err(in_chunk)?;
                     chunk::check_chunk_opcode(opcode).map_err(in_chunk)?;
                     let record = parse_record(opcode, b).map_err(in_chunk)?;
                     if let Break(()) = f(record)? {
-                        return Ok(());
+                        return Ok(damage);
                     }
                 }
             }
@@ -261,11 +318,53 @@ pub fn for_each_record_until(
                 let record = parse_record(opcode, &body)
                     .map_err(|e| mcap_err(path, &format!("record at offset {offset}"), e))?;
                 if let Break(()) = f(record)? {
-                    return Ok(());
+                    return Ok(damage);
                 }
             }
         }
     }
+}
+
+/// The whole records at the start of a chunk that the file cuts short (its opcode and length
+/// read, the rest of the file its body's first bytes), handed to `f`; returns how many were
+/// messages. Nothing when even the chunk's header is cut.
+fn salvage_chunk(
+    src: &mut Source<'_>,
+    f: &mut impl FnMut(Record<'_>) -> Result<std::ops::ControlFlow<()>>,
+) -> Result<u64> {
+    let left = src.size - src.pos;
+    let mut rest = Vec::new();
+    src.append(op::CHUNK, left, &mut rest)?;
+    let Some((header, data)) = partial_chunk_header(&rest) else {
+        return Ok(0);
+    };
+    let records = decompress_prefix(&header, data);
+    let mut messages = 0;
+    for r in chunk::records(&records) {
+        let Ok((_, opcode, b)) = r else { break };
+        if chunk::check_chunk_opcode(opcode).is_err() {
+            break;
+        }
+        let Ok(record) = parse_record(opcode, b) else {
+            break;
+        };
+        messages += u64::from(matches!(record, Record::Message { .. }));
+        if f(record)?.is_break() {
+            break;
+        }
+    }
+    Ok(messages)
+}
+
+/// The header of a chunk record whose body is cut short to `body`, and the compressed bytes
+/// after it that are there.
+pub(crate) fn partial_chunk_header(body: &[u8]) -> Option<(ChunkHeader, &[u8])> {
+    const FIXED: usize = 8 + 8 + 8 + 4; // start and end time, uncompressed size, CRC
+    let name_len = u32::from_le_bytes(body.get(FIXED..FIXED + 4)?.try_into().ok()?) as usize;
+    let head_len = FIXED + 4 + name_len + 8;
+    let head = body.get(..head_len)?;
+    let header = ChunkHeader::read_le(&mut std::io::Cursor::new(head)).ok()?;
+    Some((header, &body[head_len..]))
 }
 
 /// The summary section of `path`; `None` when the file has none or it cannot be read (a log cut

@@ -1,0 +1,84 @@
+//! Logs as damaged recordings leave them, whatever the container: cut off by a power loss or a
+//! crash (no end record, index or summary; a last record or chunk that stops short), or with
+//! corrupt chunks (a CRC mismatch, a compressed stream that does not decode).
+//!
+//! [`ReadPolicy`] says how such damage is treated and [`Damage`] reports what was found. The
+//! containers salvage in their own way: MCAP in [`super::mcap::salvage`] and
+//! [`super::mcap::read`], ROS 1 bags in [`super::bag::ros1`].
+
+/// How damaged input is treated. The default salvages a cut-off log and fails on a corrupt
+/// chunk.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ReadPolicy {
+    /// A log that stops short is an error (`--strict`), as it was before salvage existed.
+    pub strict: bool,
+    /// A chunk whose CRC does not match or that does not decompress is skipped, and named in
+    /// the damage report, instead of being an error (`--skip-corrupt`).
+    pub skip_corrupt: bool,
+}
+
+impl ReadPolicy {
+    /// Every damage is an error: for reading our own outputs, which are never cut.
+    pub const STRICT: ReadPolicy = ReadPolicy {
+        strict: true,
+        skip_corrupt: false,
+    };
+}
+
+/// What was wrong with an input that was read anyway.
+#[derive(Debug, Clone, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Damage {
+    /// Size of the input in bytes.
+    pub file_size: u64,
+    /// Offset in bytes where the log was cut: the start of the first record that is not whole
+    /// (or the end of the file when it stops between records); `None` when it was not cut.
+    pub cut_at: Option<u64>,
+    /// How the log stops, e.g. "the chunk at offset 4242 claims 2429226 bytes, 1000 remain".
+    pub cut_reason: Option<String>,
+    /// Messages recovered from the chunk that was cut (not checked by its CRC).
+    pub partial_messages: u64,
+    /// Corrupt chunks skipped (`--skip-corrupt`): their offsets and what was wrong.
+    pub skipped_chunks: Vec<(u64, String)>,
+}
+
+impl Damage {
+    /// No damage yet, for a file of `file_size` bytes.
+    pub fn new(file_size: u64) -> Self {
+        Self {
+            file_size,
+            ..Self::default()
+        }
+    }
+
+    /// Whether anything was wrong.
+    pub fn any(&self) -> bool {
+        self.cut_at.is_some() || !self.skipped_chunks.is_empty()
+    }
+
+    /// Records that the log stops at `offset` for `reason`.
+    pub fn cut(&mut self, offset: u64, reason: String) {
+        self.cut_at = Some(offset);
+        self.cut_reason = Some(reason);
+    }
+
+    /// One line for the summary, e.g. "the log stops at byte 1217846: the chunk at offset 1380
+    /// claims 2429270 bytes, the file holds 1216457 of them; 70 messages recovered from that
+    /// chunk".
+    pub fn describe(&self) -> String {
+        let mut parts = Vec::new();
+        if let Some(reason) = &self.cut_reason {
+            let mut s = format!("the log stops at byte {}: {reason}", self.file_size);
+            if self.partial_messages > 0 {
+                s += &format!(
+                    "; {} messages recovered from that chunk",
+                    self.partial_messages
+                );
+            }
+            parts.push(s);
+        }
+        for (offset, what) in &self.skipped_chunks {
+            parts.push(format!("corrupt chunk at offset {offset} skipped: {what}"));
+        }
+        parts.join("; ")
+    }
+}
