@@ -38,6 +38,7 @@ use std::sync::mpsc::sync_channel;
 use std::time::Instant;
 
 use crate::io::atomic_file::same_file;
+use crate::io::codec::livox::LivoxTags;
 use crate::io::damage::{Damage, ReadPolicy};
 use crate::io::mcap::log::OutputLog;
 use crate::loops::LoopConfig;
@@ -107,6 +108,9 @@ pub struct RegisterOptions {
     /// How a damaged input is treated (`--strict`, `--skip-corrupt`). Default: a log cut short
     /// is read up to its last whole message, a corrupt chunk is an error.
     pub read_policy: ReadPolicy,
+    /// Which Livox `CustomMsg` points are kept, by their tag (`--livox-tags`). Default
+    /// [`LivoxTags::DropNoise`]; no effect on other clouds.
+    pub livox_tags: LivoxTags,
 }
 
 impl RegisterOptions {
@@ -133,6 +137,7 @@ impl RegisterOptions {
             copy_window_only: false,
             loops: true,
             read_policy: ReadPolicy::default(),
+            livox_tags: LivoxTags::default(),
             loop_config: None,
         }
     }
@@ -230,7 +235,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     // get ids above them.
     log.declare_input(&opts.input, &plan.catalog)?;
     let family = match opts.output_messages {
-        OutputMessages::Auto => plan.kind,
+        OutputMessages::Auto => plan.kind.family(),
         OutputMessages::Ros2 => CloudKind::Ros2,
         OutputMessages::Ros1 => CloudKind::Ros1,
         OutputMessages::Foxglove => CloudKind::Foxglove,

@@ -311,3 +311,152 @@ fn register_deskews_from_the_fourth_frame_and_says_so() {
     assert!(e.contains("--deskew on") && e.contains("plain.mcap"), "{e}");
     assert!(!out.exists());
 }
+
+/// A forward-looking sensor (100° wide, like a Livox) sweeping left to right over each 100 ms
+/// frame while it moves at a varying 1.5–2.5 m/s and 10–30°/s: each point is measured from the
+/// pose at its own time, so the clouds are truly skewed, and the constant velocity deskewing
+/// assumes is never quite right. Registered with deskewing, the worst frame's motion error must
+/// be at most half (translation) and three quarters (rotation) of the same log's registered
+/// without deskewing. (Before the motion for deskewing was taken between mean point times, the stamps'
+/// poses absorbed each deskew's error and fed it to the next, and the motions oscillated.)
+#[test]
+fn deskewing_a_truly_skewed_log_recovers_its_motion_without_oscillating() {
+    use mireg::register::{DeskewMode, RegisterOptions, register_log};
+    let dir = tempfile::tempdir().unwrap();
+    let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(7);
+    let room: Vec<Point3<f64>> = (0..12000)
+        .map(|_| {
+            let (u, v): (f64, f64) = (rng.random_range(-8.0..8.0), rng.random_range(-1.0..3.0));
+            match rng.random_range(0..6u32) {
+                0 => Point3::new(u, 8.0, v),
+                1 => Point3::new(u, -8.0, v),
+                2 => Point3::new(8.0, u, v),
+                3 => Point3::new(-8.0, u, v),
+                4 => Point3::new(u * 0.2 + 3.0, u * 0.1 - 2.0, v), // a slanted pillar
+                _ => Point3::new(u, rng.random_range(-8.0..8.0), -1.0),
+            }
+        })
+        .collect();
+    // World = the first frame's sensor frame. Frame k moves by a constant body twist over its
+    // 100 ms, a different one each frame.
+    let twist = |k: usize| {
+        let k = k as f64;
+        let yaw = (20.0 + 10.0 * (0.7 * k).cos()).to_radians() * SCAN_S;
+        let speed = 2.0 + 0.5 * (0.9 * k).sin();
+        (
+            Vector3::new(0.0, 0.0, yaw),
+            Vector3::new(speed * SCAN_S, 0.0, 0.0),
+        )
+    };
+    let step = |k: usize, share: f64| {
+        let (omega, v) = twist(k);
+        mireg::geometry::deskew::exp_twist(&(omega * share), &(v * share))
+    };
+    let mut stamps = vec![Isometry3::identity()];
+    for k in 0..FRAMES as usize {
+        stamps.push(stamps[k] * step(k, 1.0));
+    }
+    const FRAMES: u64 = 14;
+    let mut out = std::io::Cursor::new(Vec::new());
+    let mut w = mcap::WriteOptions::new()
+        .profile("ros2")
+        .create(&mut out)
+        .unwrap();
+    let schema = w
+        .add_schema(
+            cdr::POINT_CLOUD2_SCHEMA_NAME,
+            "ros2msg",
+            cdr::POINT_CLOUD2_SCHEMA.as_bytes(),
+        )
+        .unwrap();
+    let ch = w
+        .add_channel(schema, "/points", "cdr", &Default::default())
+        .unwrap();
+    for k in 0..FRAMES {
+        let t = 1_000_000_000 + k * 100_000_000;
+        let (mut pts, mut times) = (Vec::new(), Vec::new());
+        for p in &room {
+            let q = stamps[k as usize].inverse() * p;
+            // The sweep crosses the field of view from left to right in 100 ms.
+            let share = (0.5 - q.y.atan2(q.x) / 100f64.to_radians()).clamp(0.0, 1.0);
+            if q.x > 0.0 && share > 0.0 && share < 1.0 {
+                pts.push((stamps[k as usize] * step(k as usize, share)).inverse() * p);
+                times.push(share * 1e8);
+            }
+        }
+        let stamp = codec::Time::from_ns(t as i64).unwrap();
+        let mut msg = cloud_with_time("t", 6, stamp, &times);
+        let data_start = msg.len() - 1 - 16 * pts.len();
+        for (i, p) in pts.iter().enumerate() {
+            for (j, c) in [p.x, p.y, p.z].iter().enumerate() {
+                let at = data_start + 16 * i + 4 * j;
+                msg[at..at + 4].copy_from_slice(&(*c as f32).to_le_bytes());
+            }
+        }
+        let header = mcap::records::MessageHeader {
+            channel_id: ch,
+            sequence: k as u32,
+            log_time: t,
+            publish_time: t,
+        };
+        w.write_to_known_channel(&header, &msg).unwrap();
+    }
+    w.finish().unwrap();
+    drop(w);
+    let input = dir.path().join("skewed.mcap");
+    std::fs::write(&input, out.into_inner()).unwrap();
+    // The worst frame-to-frame error (m, degrees) from frame 4 on, the first deskewed frames
+    // having settled.
+    let errors = |mode: DeskewMode| -> (f64, f64) {
+        let output = dir.path().join("out.mcap");
+        let config = mireg::odometry::OdometryConfig {
+            pair: mireg::pipeline::PairConfig {
+                voxel_size_m: 0.1,
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let opts = RegisterOptions {
+            force: true,
+            deskew: mode,
+            loops: false,
+            ..RegisterOptions::new(&input, &output, config)
+        };
+        register_log(&opts).unwrap();
+        let (mut pose_channel, mut poses) = (None, Vec::new());
+        mireg::io::mcap::read::for_each_record(&output, |r| {
+            match r {
+                mcap::records::Record::Channel(c) if c.topic == "/mireg/pose" => {
+                    pose_channel = Some(c.id)
+                }
+                mcap::records::Record::Message { header, data }
+                    if Some(header.channel_id) == pose_channel =>
+                {
+                    poses.push(cdr::decode_pose_stamped(&data).unwrap().1)
+                }
+                _ => {}
+            }
+            Ok(())
+        })
+        .unwrap();
+        assert_eq!(poses.len(), FRAMES as usize);
+        poses
+            .windows(2)
+            .enumerate()
+            .skip(4)
+            .map(|(k, p)| {
+                let e = step(k, 1.0).inverse() * (p[0].inverse() * p[1]);
+                (e.translation.vector.norm(), e.rotation.angle().to_degrees())
+            })
+            .fold((0.0, 0.0), |(t, r), (et, er)| {
+                (f64::max(t, et), f64::max(r, er))
+            })
+    };
+    let (on, off) = (errors(DeskewMode::Auto), errors(DeskewMode::Off));
+    // Measured: deskewed 2.0 cm and 0.33°, raw 4.7 cm and 0.55°; with the motions between
+    // stamps, deskewed 14 cm and 1.4°.
+    assert!(
+        on.0 < 0.5 * off.0 && on.1 < 0.75 * off.1,
+        "deskewed: {on:?}, raw: {off:?}"
+    );
+}

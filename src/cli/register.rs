@@ -6,6 +6,7 @@ use clap::Args;
 
 use std::path::{Path, PathBuf};
 
+use crate::io::codec::livox::LivoxTags;
 use crate::io::damage::ReadPolicy;
 use crate::odometry::OdometryConfig;
 use crate::register::{RegisterOptions, RegisterSummary, default_output, register_log};
@@ -98,6 +99,12 @@ pub struct RegisterArgs {
     /// the log is read.
     #[arg(long)]
     pub skip_corrupt: bool,
+    /// Which points of a Livox `CustomMsg` log are kept, by their `tag` byte: `drop-noise` drops
+    /// the points Livox tags as high- or moderate-confidence noise (rain, dust, fog, edge
+    /// stray returns), `keep-all` keeps every point, `first-returns` keeps returns 0 and 1 as
+    /// FAST-LIO does (docs/INPUTS.md, "Livox").
+    #[arg(long, value_enum, default_value_t = LivoxTags::DropNoise)]
+    pub livox_tags: LivoxTags,
     /// Replace an existing output file.
     #[arg(long)]
     pub force: bool,
@@ -156,6 +163,7 @@ pub(super) fn run_register(args: &RegisterArgs) -> Result<()> {
             strict: args.strict,
             skip_corrupt: args.skip_corrupt,
         },
+        livox_tags: args.livox_tags,
     };
     if opts.copy_window_only && opts.start.is_none() && opts.end.is_none() {
         return Err(crate::Error::InvalidInput(

@@ -3,6 +3,7 @@
 
 use std::path::Path;
 
+use crate::io::codec::livox::{self, LivoxTags};
 use crate::io::codec::{self, cdr, foxglove, ros1};
 use crate::io::mcap::log::ChannelInfo;
 use crate::{Error, Result};
@@ -16,6 +17,10 @@ pub(super) enum CloudKind {
     Ros1,
     /// `foxglove.PointCloud`, protobuf (its `pose` applied).
     Foxglove,
+    /// Livox `CustomMsg` (`livox_ros_driver2/msg/CustomMsg`), cdr, with its points kept by tag.
+    LivoxRos2(LivoxTags),
+    /// Livox `CustomMsg` (`livox_ros_driver/CustomMsg`), ros1, with its points kept by tag.
+    LivoxRos1(LivoxTags),
 }
 
 const FOXGLOVE_POINT_CLOUD: &str = "foxglove.PointCloud";
@@ -32,6 +37,10 @@ pub(super) fn cloud_kind(c: &ChannelInfo) -> Option<CloudKind> {
         && c.message_encoding == foxglove::MESSAGE_ENCODING
     {
         Some(CloudKind::Foxglove)
+    } else if livox::is_custom_msg(&c.schema_name) && c.message_encoding == cdr::MESSAGE_ENCODING {
+        Some(CloudKind::LivoxRos2(LivoxTags::default()))
+    } else if livox::is_custom_msg(&c.schema_name) && c.message_encoding == ros1::MESSAGE_ENCODING {
+        Some(CloudKind::LivoxRos1(LivoxTags::default()))
     } else {
         None
     }
@@ -40,9 +49,27 @@ pub(super) fn cloud_kind(c: &ChannelInfo) -> Option<CloudKind> {
 impl CloudKind {
     /// The MCAP profile of a log whose clouds are of this kind (and so of ours).
     pub(super) fn profile(self) -> &'static str {
-        match self {
+        match self.family() {
             CloudKind::Ros1 => "ros1",
-            CloudKind::Ros2 | CloudKind::Foxglove => "ros2",
+            _ => "ros2",
+        }
+    }
+
+    /// The message family of our outputs for clouds of this kind: Livox clouds are ROS clouds.
+    pub(super) fn family(self) -> CloudKind {
+        match self {
+            CloudKind::LivoxRos2(_) => CloudKind::Ros2,
+            CloudKind::LivoxRos1(_) => CloudKind::Ros1,
+            other => other,
+        }
+    }
+
+    /// This kind with Livox points kept by `tags` (no change for other kinds).
+    pub(super) fn with_livox_tags(self, tags: LivoxTags) -> CloudKind {
+        match self {
+            CloudKind::LivoxRos2(_) => CloudKind::LivoxRos2(tags),
+            CloudKind::LivoxRos1(_) => CloudKind::LivoxRos1(tags),
+            other => other,
         }
     }
 
@@ -64,21 +91,19 @@ impl CloudKind {
             CloudKind::Ros2 => cdr::decode_point_cloud2_reusing(payload, points),
             CloudKind::Ros1 => ros1::decode_point_cloud2_reusing(payload, points),
             CloudKind::Foxglove => foxglove::decode_foxglove_point_cloud_reusing(payload, points),
+            CloudKind::LivoxRos2(tags) => livox::decode_cdr_reusing(payload, points, tags),
+            CloudKind::LivoxRos1(tags) => livox::decode_ros1_reusing(payload, points, tags),
         }
     }
 }
 
 /// The cloud messages `register` reads, for error messages.
-const CLOUD_TYPES: &str =
-    "sensor_msgs/PointCloud2 in ros1 or cdr, or foxglove.PointCloud in protobuf";
+const CLOUD_TYPES: &str = "sensor_msgs/PointCloud2 or livox_ros_driver(2)/CustomMsg in ros1 or cdr, or foxglove.PointCloud in protobuf";
 
 /// How to turn a point message mireg does not read into one it does, for the types users meet.
 fn conversion_hint(schema_name: &str) -> Option<&'static str> {
     let name = schema_name.replace("/msg/", "/");
     Some(match name.as_str() {
-        "livox_ros_driver/CustomMsg" | "livox_ros_driver2/CustomMsg" => {
-            "Livox's own point format is not supported; record the driver's PointCloud2 output instead (xfer_format 0 in the livox_ros_driver launch file), or republish the log's CustomMsg as sensor_msgs/PointCloud2 and record that"
-        }
         "sensor_msgs/PointCloud" => {
             "the old sensor_msgs/PointCloud is not supported; convert it to PointCloud2 (ROS 1 point_cloud_converter, or sensor_msgs::convertPointCloudToPointCloud2)"
         }

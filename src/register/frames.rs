@@ -24,6 +24,10 @@ pub(super) struct CloudInfo {
     pub(super) time_field: Option<String>,
     /// The motion (`prev_from_curr`, seconds) the cloud was deskewed by, if it was.
     pub(super) deskew_motion: Option<(Isometry3<f64>, f64)>,
+    /// The mean of the deskewed points' times, seconds after the header stamp (0 when not
+    /// deskewed): the instant the registration of a cloud deskewed by a slightly wrong motion
+    /// is least biased at (`registrar.rs`).
+    pub(super) deskew_mean_s: f64,
     /// The frame's appearance descriptor, when loop closure is on and the frame has features.
     pub(super) descriptor: Option<Descriptor>,
     /// Points dropped by the decoder: non-finite, and zero returns of an organised cloud.
@@ -52,6 +56,8 @@ pub(super) struct PreparedMsg {
 pub(super) struct Dropped {
     pub(super) non_finite: usize,
     pub(super) zero: usize,
+    /// Livox points dropped by their tag.
+    pub(super) tag: usize,
 }
 
 /// One frame registered: what the writer puts out.

@@ -30,6 +30,7 @@ pub fn stats_json_schema() -> serde_json::Value {
             "failure_reason": {"type": ["string", "null"]},
             "failure_detail": {"type": ["string", "null"]}, "fallback": {"type": ["string", "null"]},
             "num_points": int, "num_dropped_non_finite": int, "num_dropped_zero": int,
+            "num_dropped_livox_tag": int,
             "num_points_downsampled": int, "num_correspondences": int,
             "num_inliers": int, "inlier_ratio": num, "hypotheses": int,
             "best_found_at": {"type": ["integer", "null"]}, "fitness": num, "inlier_rmse_m": num,
@@ -68,6 +69,7 @@ fn frame_stats(out: &FrameOut) -> serde_json::Value {
         "num_points": e.num_points,
         "num_dropped_non_finite": out.cloud.dropped.non_finite,
         "num_dropped_zero": out.cloud.dropped.zero,
+        "num_dropped_livox_tag": out.cloud.dropped.tag,
         "num_points_downsampled": e.num_points_downsampled,
         "num_correspondences": num_corr,
         "num_inliers": num_inl,
@@ -204,7 +206,7 @@ fn pose_channels(
     pose_topic: &str,
 ) -> Result<(u16, u16)> {
     Ok(match kind {
-        CloudKind::Ros2 => (
+        CloudKind::Ros2 | CloudKind::LivoxRos2(_) => (
             log.add_channel(
                 tf_topic,
                 cdr::TF_MESSAGE_SCHEMA_NAME,
@@ -220,7 +222,7 @@ fn pose_channels(
                 cdr::MESSAGE_ENCODING,
             )?,
         ),
-        CloudKind::Ros1 => {
+        CloudKind::Ros1 | CloudKind::LivoxRos1(_) => {
             // The channel metadata the ROS 1 profile (and `mcap convert` from a bag) writes.
             let meta = |topic: &str, md5: &str| {
                 BTreeMap::from([
@@ -353,11 +355,11 @@ fn encode_pose(kind: CloudKind, world_frame: &str, p: &StampedPose<'_>) -> (Vec<
         transform: world_from_frame,
     }];
     match kind {
-        CloudKind::Ros2 => (
+        CloudKind::Ros2 | CloudKind::LivoxRos2(_) => (
             cdr::encode_pose_stamped(&header, &world_from_frame),
             cdr::encode_tf_message(&transforms),
         ),
-        CloudKind::Ros1 => (
+        CloudKind::Ros1 | CloudKind::LivoxRos1(_) => (
             ros1::encode_pose_stamped(&header, &world_from_frame),
             ros1::encode_tf_message(&transforms),
         ),

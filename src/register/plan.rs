@@ -49,6 +49,7 @@ impl Plan {
         let (input_log, catalog) = InputLog::open_with(input, opts.read_policy)?;
         let channels = catalog.channel_infos();
         let (topic, kind) = choose_topic(input, &channels, opts.topic.as_deref())?;
+        let kind = kind.with_livox_tags(opts.livox_tags);
         let ids_of = |t: Option<&str>| -> Vec<u16> {
             channels
                 .iter()

@@ -79,9 +79,11 @@ impl Prepare<'_> {
         let t = Instant::now();
         let decoded = kind.decode_reusing(&msg.data, std::mem::take(&mut carry.spare_points));
         let (mut time_field, mut deskew_motion, mut fatal) = (None, None, None);
+        let mut deskew_mean_s = 0.0;
         let dropped = decoded.as_ref().map_or(Dropped::default(), |c| Dropped {
             non_finite: c.num_dropped_non_finite,
             zero: c.num_dropped_zero,
+            tag: c.num_dropped_tag,
         });
         // The message bytes are not needed past decoding: don't hold them through prepare.
         let _ = recycle.send(msg.data);
@@ -113,6 +115,7 @@ impl Prepare<'_> {
                     {
                         deskew(&mut cloud.points, &times.seconds, &motion, dt);
                         deskew_motion = Some((motion, dt));
+                        deskew_mean_s = mean(&times.seconds);
                     }
                 } else if self.deskew_mode == DeskewMode::On {
                     let detail = format!(
@@ -150,6 +153,7 @@ impl Prepare<'_> {
                 invalid,
                 time_field,
                 deskew_motion,
+                deskew_mean_s,
                 dropped,
                 log_time: msg.log_time,
                 publish_time: msg.publish_time,
@@ -175,4 +179,13 @@ fn stamp_of_log_time(log_time: u64) -> codec::Time {
         .ok()
         .and_then(codec::Time::from_ns)
         .unwrap_or_default()
+}
+
+/// The mean of `v` (0 when empty).
+fn mean(v: &[f64]) -> f64 {
+    if v.is_empty() {
+        0.0
+    } else {
+        v.iter().sum::<f64>() / v.len() as f64
+    }
 }

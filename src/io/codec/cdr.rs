@@ -268,6 +268,11 @@ impl<'a> WireRead<'a> for CdrReader<'a> {
         Ok(i32::from_le_bytes(self.array(field)?))
     }
 
+    /// Reads an aligned `uint64`.
+    fn u64(&mut self, field: &str) -> Result<u64, DecodeError> {
+        Ok(u64::from_le_bytes(self.array(field)?))
+    }
+
     /// Reads an aligned `float64`.
     fn f64(&mut self, field: &str) -> Result<f64, DecodeError> {
         Ok(f64::from_le_bytes(self.array(field)?))
@@ -377,7 +382,7 @@ impl WireWrite for CdrWriter {
 // std_msgs/Header
 // ---------------------------------------------------------------------------------------------
 
-fn read_header(r: &mut CdrReader<'_>, prefix: &str) -> Result<Header, DecodeError> {
+pub(crate) fn read_header(r: &mut CdrReader<'_>, prefix: &str) -> Result<Header, DecodeError> {
     let sec = r.i32(&format!("{prefix}stamp.sec"))?;
     let nanosec = r.u32(&format!("{prefix}stamp.nanosec"))?;
     let frame_id = r.string(&format!("{prefix}frame_id"))?;

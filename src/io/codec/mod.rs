@@ -3,7 +3,8 @@
 //!
 //! - [`cdr`]: ROS 2 (`cdr` messages, `ros2msg` schemas);
 //! - [`ros1`]: ROS 1 (`ros1` messages, `ros1msg` schemas), as in ROS 1 bags and ROS 1 MCAP logs;
-//! - [`foxglove`]: Foxglove's well-known protobuf messages.
+//! - [`foxglove`]: Foxglove's well-known protobuf messages;
+//! - [`livox`]: Livox's `CustomMsg` point message, in either ROS encoding.
 //!
 //! Containers (MCAP files, ROS 1 bags, ROS 2 bag directories) live beside this module in
 //! [`crate::io`]; a codec never touches a file.
@@ -19,6 +20,7 @@
 
 pub mod cdr;
 pub mod foxglove;
+pub mod livox;
 pub(crate) mod packed;
 pub(crate) mod point_cloud2;
 pub mod ros1;
@@ -136,8 +138,11 @@ pub struct PointCloud {
     /// Points skipped because a coordinate was NaN or ±Inf.
     pub num_dropped_non_finite: usize,
     /// Points of an organised cloud (`height > 1`) skipped because they are exactly (0, 0, 0):
-    /// how LiDAR drivers (Ouster, Hesai) and depth cameras mark "no return".
+    /// how LiDAR drivers (Ouster, Hesai) and depth cameras mark "no return" (and Livox points
+    /// at (0, 0, 0), organised or not).
     pub num_dropped_zero: usize,
+    /// Livox points dropped by their `tag` ([`livox::LivoxTags`]); 0 for other messages.
+    pub num_dropped_tag: usize,
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -171,6 +176,9 @@ pub trait WireRead<'a> {
 
     /// Reads an `int32`.
     fn i32(&mut self, field: &str) -> Result<i32, DecodeError>;
+
+    /// Reads a `uint64`.
+    fn u64(&mut self, field: &str) -> Result<u64, DecodeError>;
 
     /// Reads a `float64`.
     fn f64(&mut self, field: &str) -> Result<f64, DecodeError>;

@@ -79,6 +79,7 @@ pub(crate) fn decode_body<'a>(
         height,
         num_dropped_non_finite: 0,
         num_dropped_zero: 0,
+        num_dropped_tag: 0,
     };
     if width == 0 || height == 0 {
         return Ok(empty);
@@ -182,6 +183,7 @@ pub(crate) fn decode_body<'a>(
         times,
         num_dropped_non_finite: ex.num_dropped_non_finite,
         num_dropped_zero: ex.num_dropped_zero,
+        num_dropped_tag: 0,
         ..empty
     })
 }

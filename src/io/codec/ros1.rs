@@ -209,6 +209,10 @@ impl<'a> WireRead<'a> for Ros1Reader<'a> {
         Ok(i32::from_le_bytes(self.array(field)?))
     }
 
+    fn u64(&mut self, field: &str) -> Result<u64, DecodeError> {
+        Ok(u64::from_le_bytes(self.array(field)?))
+    }
+
     fn f64(&mut self, field: &str) -> Result<f64, DecodeError> {
         Ok(f64::from_le_bytes(self.array(field)?))
     }
@@ -274,7 +278,7 @@ impl WireWrite for Ros1Writer {
 // ---------------------------------------------------------------------------------------------
 
 /// Reads a `std_msgs/Header` (`seq` is read and dropped).
-fn read_header(r: &mut Ros1Reader<'_>, prefix: &str) -> Result<Header, DecodeError> {
+pub(crate) fn read_header(r: &mut Ros1Reader<'_>, prefix: &str) -> Result<Header, DecodeError> {
     let _seq = r.u32(&format!("{prefix}seq"))?;
     let secs_field = format!("{prefix}stamp.secs");
     let secs = r.u32(&secs_field)?;
