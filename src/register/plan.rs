@@ -48,7 +48,15 @@ impl Plan {
         let input = &opts.input;
         let (input_log, catalog) = InputLog::open_with(input, opts.read_policy)?;
         let channels = catalog.channel_infos();
-        let (topic, kind) = choose_topic(input, &channels, opts.topic.as_deref())?;
+        let (topic, kind) = choose_topic(input, &channels, opts.topic.as_deref()).map_err(|e| {
+            // A log cut before its first cloud: say so, not only that no cloud is there.
+            match (e, input_log.damage()) {
+                (crate::Error::InvalidInput(m), Some(d)) => {
+                    crate::Error::InvalidInput(format!("{m}; the log is damaged: {}", d.describe()))
+                }
+                (e, _) => e,
+            }
+        })?;
         let kind = kind.with_livox_tags(opts.livox_tags);
         let ids_of = |t: Option<&str>| -> Vec<u16> {
             channels
