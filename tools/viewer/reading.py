@@ -172,6 +172,31 @@ def decode_pointcloud2(msg) -> tuple[np.ndarray, np.ndarray | None]:
     return xyz[keep], intensity
 
 
+def is_livox(schema_name: str) -> bool:
+    """Whether a schema is a Livox CustomMsg (livox_ros_driver/CustomMsg,
+    livox_ros_driver2/msg/CustomMsg, ...), as mireg recognises it."""
+    pkg, _, name = schema_name.replace("/msg/", "/").partition("/")
+    return name == "CustomMsg" and pkg.startswith("livox")
+
+
+def decode_livox(msg) -> tuple[np.ndarray, np.ndarray]:
+    """Points (float64 N×3) and reflectivity of a decoded Livox CustomMsg, every tag kept (the
+    viewer shows what the sensor sent), the (0, 0, 0) "no return" and non-finite points dropped
+    as mireg drops them."""
+    pts = msg.points
+    xyz = np.array([(p.x, p.y, p.z) for p in pts], dtype=np.float64).reshape(-1, 3)
+    refl = np.array([p.reflectivity for p in pts], dtype=np.float64)
+    keep = np.isfinite(xyz).all(axis=1) & (xyz != 0).any(axis=1)
+    return xyz[keep], refl[keep]
+
+
+def decode_cloud(schema, msg) -> tuple[np.ndarray, np.ndarray | None]:
+    """Points and intensity of a decoded PointCloud2 or Livox CustomMsg."""
+    if schema is not None and is_livox(schema.name):
+        return decode_livox(msg)
+    return decode_pointcloud2(msg)
+
+
 def run_topics(metadata: dict, reference_topic: str = REFERENCE_TOPIC) -> dict:
     """kind -> topic of one run. A log registered more than once has its runs' topics in
     namespaces (/mireg_2/...); the run's metadata names its own, and topics that older metadata
@@ -222,7 +247,8 @@ def read_run(path: str | Path, cloud_topic: str | None = None, load_clouds=True,
         if cloud_topic is None:
             for ch in channels:
                 schema = schemas.get(ch.schema_id)
-                if schema is not None and schema.name in POINTCLOUD2_TYPES:
+                if schema is not None and (schema.name in POINTCLOUD2_TYPES
+                                           or is_livox(schema.name)):
                     cloud_topic = ch.topic
                     break
         if cloud_topic is None:
@@ -267,7 +293,7 @@ def read_run(path: str | Path, cloud_topic: str | None = None, load_clouds=True,
                     continue
                 msg = _decode(decoders, schema, channel, message)
                 frame.frame_id = msg.header.frame_id
-                frame.points, frame.intensity = decode_pointcloud2(msg)
+                frame.points, frame.intensity = decode_cloud(schema, msg)
                 continue
             if topic == topics["loops"]:
                 loop_msgs.append((t, json.loads(message.data)))

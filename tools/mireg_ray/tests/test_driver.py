@@ -40,7 +40,12 @@ def test_many_logs_kill_retry_rerun_and_config_change(tmp_path, monkeypatch, bin
     (logs / "b").mkdir()
     for name in ("a/one.mcap", "a/killme.mcap", "b/two.mcap"):
         shutil.copy(FIXTURE, logs / name)
-    (logs / "b" / "corrupt.mcap").write_bytes(FIXTURE.read_bytes()[:100_000])
+    # Bytes changed inside the fixture's one chunk: its CRC fails (a log cut short would be
+    # read as far as it goes, so corruption is what must fail).
+    corrupt = bytearray(FIXTURE.read_bytes())
+    for i in range(len(corrupt) // 3, len(corrupt) // 3 + 64):
+        corrupt[i] ^= 0x5A
+    (logs / "b" / "corrupt.mcap").write_bytes(bytes(corrupt))
     out = tmp_path / "out"
     markers = tmp_path / "markers"
     monkeypatch.chdir(tmp_path)
@@ -56,7 +61,7 @@ def test_many_logs_kill_retry_rerun_and_config_change(tmp_path, monkeypatch, bin
         assert {"input", "output", "status", "error", "summary"} <= set(e)
         if key.endswith("corrupt.mcap"):
             assert e["status"] == "failed"
-            assert "corrupt.mcap" in e["error"] and "truncated" in e["error"]
+            assert "corrupt.mcap" in e["error"] and "chunk at offset" in e["error"]
             assert not Path(e["output"]).exists()
         else:
             assert e["status"] == "done", e
