@@ -25,7 +25,7 @@ pub use info::InfoArgs;
 pub use map::MapArgs;
 pub use pair::{GtFormat, PairArgs, RegistrationFailed, pair_json};
 pub use process::error_text;
-pub use register::{DEFAULT_FIXTURE, RegisterArgs};
+pub use register::{DEFAULT_FIXTURE, RegisterArgs, register_options};
 pub use simulate::SimulateArgs;
 pub use stitch::StitchArgs;
 pub use sweep::SweepArgs;

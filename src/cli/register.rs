@@ -126,8 +126,13 @@ fn parse_fraction(s: &str) -> std::result::Result<f64, String> {
     }
 }
 
-pub(super) fn run_register(args: &RegisterArgs) -> Result<()> {
-    crate::heap::release_large_blocks_promptly();
+/// The [`RegisterOptions`] that `mireg register` runs with for `args` (the command line recorded
+/// in the output is this process's), for callers that run [`register_log`] themselves (the
+/// Python package).
+///
+/// # Errors
+/// A configuration file that cannot be read or parsed, or `--copy-window` without a segment.
+pub fn register_options(args: &RegisterArgs) -> Result<RegisterOptions> {
     let config = OdometryConfig {
         pair: args.flags.config()?,
         min_inliers: args.min_inliers,
@@ -171,6 +176,12 @@ pub(super) fn run_register(args: &RegisterArgs) -> Result<()> {
         )
         .into());
     }
+    Ok(opts)
+}
+
+pub(super) fn run_register(args: &RegisterArgs) -> Result<()> {
+    crate::heap::release_large_blocks_promptly();
+    let opts = register_options(args)?;
     let summary = register_log(&opts)?;
     if let Some(d) = &summary.input_damage {
         // On stderr, even with --quiet or --json: the user should know the log is damaged.

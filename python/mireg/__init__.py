@@ -1,0 +1,150 @@
+"""mireg on numpy arrays: MI-RANSAC pair registration, whole-log registration, and a fast cloud
+reader for MCAP files, ROS 1 bags and ROS 2 bag directories.
+
+Every function runs the same Rust code as the ``mireg`` command, with the GIL released, and gives
+its results bit for bit for the same configuration and seed. Units are metres and seconds.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from typing import Any, Iterator, Optional, Union
+
+import numpy as np
+
+from . import _mireg
+
+__all__ = ["Registration", "register_pair", "read_clouds", "register_log", "default_config"]
+__version__ = _mireg.__version__
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+
+def default_config() -> dict:
+    """The pair configuration's defaults (docs/CONFIG.md), as ``register_pair`` starts from."""
+    return json.loads(_mireg.default_pair_config())
+
+
+def _merge(base: dict, overrides: dict, where: str = "") -> dict:
+    out = dict(base)
+    for key, value in overrides.items():
+        if key not in base:
+            raise TypeError(f"unknown configuration key {where}{key!r} "
+                            f"(known: {', '.join(sorted(base))})")
+        if isinstance(base[key], dict) and isinstance(value, dict):
+            # A table of another kind (e.g. sampler kind "uniform") replaces the default's.
+            if value.get("kind", base[key].get("kind")) != base[key].get("kind"):
+                out[key] = value
+            else:
+                out[key] = _merge(base[key], value, f"{where}{key}.")
+        else:
+            out[key] = value
+    return out
+
+
+def _points(a: Any, name: str) -> np.ndarray:
+    """An (N, 3) C-contiguous float64 view of ``a`` (no copy when it already is one)."""
+    arr = np.asarray(a)
+    if arr.dtype not in (np.float32, np.float64):
+        raise TypeError(f"{name}: expected a float32 or float64 array, got dtype {arr.dtype}")
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{name}: expected an (N, 3) array of points, got shape {arr.shape}")
+    return np.ascontiguousarray(arr, dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class Registration:
+    """The outcome of :func:`register_pair` (the fields of ``mireg pair --json``)."""
+
+    transformation: np.ndarray
+    """4×4 ``target_from_source``: maps source points onto the target (identity on failure)."""
+    ransac_transformation: np.ndarray
+    """4×4 MI-RANSAC estimate before ICP."""
+    success: bool
+    failure_reason: Optional[str]
+    """``None`` on success, else e.g. ``"too_few_inliers"``."""
+    inliers: int
+    """RANSAC inliers among the correspondences."""
+    correspondences: int
+    fitness: float
+    """Fraction of source points within the ICP distance of the target after alignment."""
+    inlier_rmse: float
+    """RMSE of those distances, metres."""
+    hypotheses: int
+    timings: dict
+    """Seconds per stage (``total`` is the call's wall time)."""
+    raw: dict = field(repr=False)
+    """The whole JSON object, as ``mireg pair --json`` prints it."""
+
+
+def register_pair(source: Any, target: Any, voxel: Optional[float] = None, seed: int = 0,
+                  **config: Any) -> Registration:
+    """Register ``source`` onto ``target`` with MI-RANSAC, then ICP.
+
+    ``source``, ``target``: ``(N, 3)`` float32 or float64 arrays, metres (float64 C-contiguous
+    arrays are used without a copy). ``voxel``: the voxel size in metres (default 0.05, as
+    ``mireg pair``); normal, feature, inlier and ICP radii derive from it. ``seed``: the RNG
+    seed (default 0). Other keyword arguments are fields of the pair configuration
+    (docs/CONFIG.md), e.g. ``icp=False``, ``max_hypotheses=50000`` or
+    ``sampler={"kind": "uniform"}``; an unknown name is a ``TypeError``.
+    """
+    s, t = _points(source, "source"), _points(target, "target")
+    overrides = dict(config)
+    if voxel is not None:
+        overrides["voxel_size_m"] = float(voxel)
+    overrides["seed"] = int(seed)
+    cfg = _merge(default_config(), overrides)
+    out = json.loads(_mireg.register_pair(s, t, json.dumps(cfg)))
+    return Registration(
+        transformation=np.array(out["target_from_source"], dtype=np.float64),
+        ransac_transformation=np.array(out["ransac_target_from_source"], dtype=np.float64),
+        success=bool(out["success"]),
+        failure_reason=out["failure_reason"],
+        inliers=int(out["num_inliers"]),
+        correspondences=int(out["num_correspondences"]),
+        fitness=float(out["fitness"]),
+        inlier_rmse=float(out["inlier_rmse_m"]),
+        hypotheses=int(out["hypotheses"]),
+        timings=dict(out["timings_s"]),
+        raw=out,
+    )
+
+
+def read_clouds(path: PathLike, topic: Optional[str] = None
+                ) -> Iterator[tuple[int, np.ndarray, dict]]:
+    """Iterate ``(stamp_ns, points, fields)`` over the point clouds of a log (any log
+    ``mireg register`` reads: MCAP, ROS 1 .bag, ROS 2 bag directory, compressed or cut off).
+
+    ``topic``: the cloud topic (default: the only one). ``points``: ``(N, 3)`` float64 in the
+    cloud's frame, NaN and "no return" points dropped as ``register`` drops them; ``fields``:
+    ``intensity`` (float32) and ``time`` (float64, seconds after the header stamp) when the
+    cloud has them. Decoding runs on a thread of its own, at most two clouds ahead, so memory
+    stays bounded whatever the log's length.
+    """
+    return _mireg.CloudReader(os.fspath(path), topic)
+
+
+def _flag(name: str, value: Any) -> list[str]:
+    flag = "--" + name.replace("_", "-")
+    if value is True:
+        return [flag]
+    if value is False or value is None:
+        return []
+    return [flag, str(value)]
+
+
+def register_log(path: PathLike, output: Optional[PathLike] = None, **flags: Any) -> dict:
+    """``mireg register PATH``: register every cloud of a log and write poses, statistics and
+    the loop-closed trajectory into a new MCAP (``output``, default ``PATH.mireg.mcap`` beside
+    it). Keyword arguments are the command's flags: ``voxel=0.5`` is ``--voxel 0.5``,
+    ``no_loops=True`` is ``--no-loops``, ``force=True`` replaces an existing output. Returns the
+    ``--json`` summary as a dict.
+    """
+    args = [os.fspath(path)]
+    if output is not None:
+        args += ["-o", os.fspath(output)]
+    for name, value in flags.items():
+        args += _flag(name, value)
+    return json.loads(_mireg.register_log(args))

@@ -1,0 +1,219 @@
+//! `mireg._mireg`: the compiled half of the `mireg` Python package (`python/mireg/`), thin
+//! bindings over the `mireg` crate. The Python half turns keyword arguments into the CLI's
+//! configuration and JSON results into typed objects; everything that computes runs here with
+//! the GIL released.
+//!
+//! Results are those of the `mireg` command for the same configuration and seed, bit for bit:
+//! `register_pair` calls what `mireg pair` calls and returns the same JSON object;
+//! `register_log` parses its flags with the CLI's own parser and runs `mireg register`'s
+//! options.
+
+use std::sync::Mutex;
+use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
+use std::thread::JoinHandle;
+
+use clap::Parser;
+use nalgebra::Point3;
+use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
+use pyo3::exceptions::{PyOSError, PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use mireg::cli::{Cli, Command, pair_json, register_options};
+use mireg::pipeline::{PairConfig, register_pair as pair};
+use mireg::register::{for_each_cloud, register_log as run_log};
+
+/// A mireg error as the Python exception a user expects: `OSError` for files, `ValueError` for
+/// bad input, `RuntimeError` otherwise; the message is the CLI's.
+fn py_err(e: &mireg::Error) -> PyErr {
+    let text = e.to_string();
+    match e {
+        mireg::Error::Io { .. } => PyOSError::new_err(text),
+        mireg::Error::InvalidInput(_) | mireg::Error::Format { .. } => PyValueError::new_err(text),
+        _ => PyRuntimeError::new_err(text),
+    }
+}
+
+fn anyhow_err(e: &anyhow::Error) -> PyErr {
+    match e.downcast_ref::<mireg::Error>() {
+        Some(m) => py_err(m),
+        None => PyValueError::new_err(mireg::cli::error_text(e)),
+    }
+}
+
+/// The points of an `(N, 3)` C-contiguous float64 array, without a copy (`Point3<f64>` is
+/// `[f64; 3]`).
+fn points<'a>(a: &'a PyReadonlyArray2<'_, f64>, name: &str) -> PyResult<&'a [Point3<f64>]> {
+    let shape = a.shape();
+    if shape[1] != 3 {
+        return Err(PyValueError::new_err(format!(
+            "{name}: expected an (N, 3) array of points, got shape ({}, {})",
+            shape[0], shape[1]
+        )));
+    }
+    let flat = a
+        .as_slice()
+        .map_err(|_| PyValueError::new_err(format!("{name}: the array is not C-contiguous")))?;
+    // SAFETY: Point3<f64> is #[repr(C)] over [f64; 3]; `flat` holds 3·N f64 values.
+    Ok(unsafe { std::slice::from_raw_parts(flat.as_ptr().cast::<Point3<f64>>(), shape[0]) })
+}
+
+/// `register_pair(source, target, config_json) -> str`: registers `source` onto `target`
+/// (`(N, 3)` float64 arrays, metres) with the pair configuration given as JSON (the TOML
+/// configuration's fields), and returns `mireg pair --json`'s object as JSON.
+#[pyfunction]
+fn register_pair(
+    py: Python<'_>,
+    source: PyReadonlyArray2<'_, f64>,
+    target: PyReadonlyArray2<'_, f64>,
+    config_json: &str,
+) -> PyResult<String> {
+    let config: PairConfig = serde_json::from_str(config_json)
+        .map_err(|e| PyValueError::new_err(format!("configuration: {e}")))?;
+    let (s, t) = (points(&source, "source")?, points(&target, "target")?);
+    let result = py.detach(|| pair(s, t, &config)).map_err(|e| py_err(&e))?;
+    Ok(pair_json(&result, None).to_string())
+}
+
+/// The default pair configuration as JSON, for the Python side to overlay keyword arguments on.
+#[pyfunction]
+fn default_pair_config() -> String {
+    serde_json::to_string(&PairConfig::default()).expect("PairConfig serialises")
+}
+
+/// `register_log(args) -> str`: `mireg register ARGS` (the CLI's flags, parsed by its parser),
+/// without a progress bar; returns the `--json` summary.
+#[pyfunction]
+fn register_log(py: Python<'_>, args: Vec<String>) -> PyResult<String> {
+    let argv = std::iter::once("mireg".to_string())
+        .chain(std::iter::once("register".to_string()))
+        .chain(args);
+    let cli = Cli::try_parse_from(argv).map_err(|e| PyValueError::new_err(e.to_string()))?;
+    let Some(Command::Register(args)) = cli.command else {
+        return Err(PyRuntimeError::new_err("not a register command"));
+    };
+    let mut opts = register_options(&args).map_err(|e| anyhow_err(&e))?;
+    opts.progress = false;
+    let summary = py.detach(|| run_log(&opts)).map_err(|e| py_err(&e))?;
+    serde_json::to_string(&summary).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+}
+
+/// One decoded cloud: header stamp [ns], points, intensity, per-point times [s after the stamp].
+type CloudMsg = (i64, Vec<Point3<f64>>, Option<Vec<f32>>, Option<Vec<f64>>);
+
+/// What the Python iterator yields: `(stamp_ns, points, fields)`.
+type PyCloud<'py> = (i64, Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>);
+
+/// The clouds of a log, read on a thread of their own and handed over at most two ahead, so a
+/// log of any length is read in bounded memory.
+#[pyclass(module = "mireg._mireg")]
+struct CloudReader {
+    rx: Option<Mutex<Receiver<mireg::Result<CloudMsg>>>>,
+    thread: Option<JoinHandle<()>>,
+    topic: String,
+}
+
+#[pymethods]
+impl CloudReader {
+    /// Opens `path` (any log `register` reads) and starts reading the cloud topic (`topic`, or
+    /// the only one).
+    #[new]
+    #[pyo3(signature = (path, topic=None))]
+    fn new(py: Python<'_>, path: std::path::PathBuf, topic: Option<String>) -> PyResult<Self> {
+        // The topic is chosen (and errors reported) before the thread starts.
+        let (log, catalog) = mireg::io::input_log::InputLog::open(&path).map_err(|e| py_err(&e))?;
+        drop(log);
+        let chosen =
+            mireg::register::point_cloud_topic(&path, &catalog.channel_infos(), topic.as_deref())
+                .map_err(|e| py_err(&e))?;
+        let (tx, rx): (SyncSender<mireg::Result<CloudMsg>>, _) = sync_channel(2);
+        let topic_arg = chosen.clone();
+        let thread = py.detach(|| {
+            std::thread::spawn(move || {
+                let sent = for_each_cloud(&path, Some(&topic_arg), |_, c| {
+                    let msg = (
+                        c.header.stamp.to_ns(),
+                        c.points,
+                        c.intensity,
+                        c.times.map(|t| t.seconds),
+                    );
+                    match tx.send(Ok(msg)) {
+                        Ok(()) => Ok(std::ops::ControlFlow::Continue(())),
+                        // The Python iterator was dropped: stop reading.
+                        Err(_) => Ok(std::ops::ControlFlow::Break(())),
+                    }
+                });
+                if let Err(e) = sent {
+                    let _ = tx.send(Err(e));
+                }
+            })
+        });
+        Ok(Self {
+            rx: Some(Mutex::new(rx)),
+            thread: Some(thread),
+            topic: chosen,
+        })
+    }
+
+    /// The cloud topic being read.
+    #[getter]
+    fn topic(&self) -> &str {
+        &self.topic
+    }
+
+    fn __iter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    /// `(stamp_ns, points (N, 3) float64, fields)`; `fields` holds `intensity` (float32) and
+    /// `time` (float64, seconds after the stamp) when the cloud has them.
+    fn __next__<'py>(&mut self, py: Python<'py>) -> PyResult<Option<PyCloud<'py>>> {
+        let Some(rx) = &self.rx else { return Ok(None) };
+        let next = py.detach(|| {
+            rx.lock()
+                .map_err(|_| ())
+                .and_then(|r| r.recv().map_err(|_| ()))
+        });
+        let Ok(msg) = next else {
+            self.close();
+            return Ok(None);
+        };
+        let (stamp, pts, intensity, times) = msg.map_err(|e| py_err(&e))?;
+        let n = pts.len();
+        let flat: Vec<f64> = pts.iter().flat_map(|p| [p.x, p.y, p.z]).collect();
+        let array = PyArray1::from_vec(py, flat).reshape([n, 3])?;
+        let fields = PyDict::new(py);
+        if let Some(i) = intensity {
+            fields.set_item("intensity", PyArray1::from_vec(py, i))?;
+        }
+        if let Some(t) = times {
+            fields.set_item("time", PyArray1::from_vec(py, t))?;
+        }
+        Ok(Some((stamp, array, fields)))
+    }
+
+    /// Stops reading (also when the iterator is dropped or exhausted).
+    fn close(&mut self) {
+        self.rx = None;
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for CloudReader {
+    fn drop(&mut self) {
+        self.close();
+    }
+}
+
+/// The compiled module.
+#[pymodule]
+fn _mireg(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(register_pair, m)?)?;
+    m.add_function(wrap_pyfunction!(default_pair_config, m)?)?;
+    m.add_function(wrap_pyfunction!(register_log, m)?)?;
+    m.add_class::<CloudReader>()?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    Ok(())
+}
