@@ -584,15 +584,27 @@ def main() -> int:
     ap.add_argument("--icp-voxel-factor", type=float, default=1.0,
                     help="ICP cloud voxel in voxels for 'open3d global+icp' (default 1.0, as mireg; 0 = RANSAC clouds)")
     ap.add_argument("--json-out", help="write all per-trial rows (and pair info) to this JSON file")
+    ap.add_argument("--inprocess", action="store_true",
+                    help="also run mireg in this process through its Python package (pip install "
+                         "./python): row 'mireg (in-process)', timed like Open3D with perf_counter "
+                         "around the call, beside its own timings_s.total")
     args = ap.parse_args()
+    mireg_py = None
+    if args.inprocess:
+        try:
+            import mireg as mireg_py
+        except ImportError as e:
+            ap.error(f"--inprocess needs the mireg Python package in this venv ({e}): "
+                     "tools/.venv/bin/pip install ./python")
 
     variants = [] if args.skip_mireg else parse_variants(args.mireg_variant)
     if variants and not os.path.isfile(args.mireg):
         ap.error(f"mireg binary not found at {args.mireg} (build it or pass --mireg PATH / --skip-mireg)")
     with_kiss = kiss_matcher is not None and not args.skip_kiss_matcher
     methods = (["open3d global", "open3d global+icp"] + (["kiss-matcher"] if with_kiss else [])
-               + [label for label, _ in variants])
+               + [label for label, _ in variants] + (["mireg (in-process)"] if mireg_py else []))
     baselines = {label: "open3d global" if "--no-icp" in extra else "open3d global+icp" for label, extra in variants}
+    baselines["mireg (in-process)"] = "open3d global+icp"
 
     mireg_id = binary_identity(args.mireg) if variants else "not run (--skip-mireg)"
     print(f"# mireg pair vs Open3D RANSAC\n\n{machine_header()}\nmireg: {mireg_id}")
@@ -670,6 +682,17 @@ def main() -> int:
                         line.append(f"{label} RE {row['re_deg']:.2f}° TE {row['te_m']:.3f} m "
                                     f"{row['time_s']:.2f} s (wall {row['wall_s']:.2f} s)")
                     rows.append(row)
+                if mireg_py is not None:
+                    t0 = time.perf_counter()
+                    r = mireg_py.register_pair(src, pair.target, voxel=pair.voxel, seed=seed)
+                    t1 = time.perf_counter()
+                    row = {**base, "method": "mireg (in-process)", "time_s": t1 - t0,
+                           "rust_total_s": r.timings["total"], "T": r.transformation.tolist(),
+                           "num_inliers": r.inliers, "fitness": r.fitness,
+                           **evaluate(pair, r.transformation, P)}
+                    rows.append(row)
+                    line.append(f"in-process RE {row['re_deg']:.2f}° {row['time_s']:.3f} s "
+                                f"(Rust total {row['rust_total_s']:.3f} s)")
                 print("; ".join(line), flush=True)
                 os.remove(src_path)
 
