@@ -13,6 +13,8 @@
 //! (docs/ODOMETRY.md). The global estimate stays prior-free, so a dropped frame, a jump or a kidnap
 //! still recovers: its start wins where the prediction is wrong.
 
+pub mod stream;
+
 use nalgebra::{Isometry3, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 

@@ -16,7 +16,8 @@ import numpy as np
 
 from . import _mireg
 
-__all__ = ["Registration", "register_pair", "read_clouds", "register_log", "default_config"]
+__all__ = ["Registration", "register_pair", "read_clouds", "register_log", "default_config",
+           "Odometry"]
 __version__ = _mireg.__version__
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -148,3 +149,61 @@ def register_log(path: PathLike, output: Optional[PathLike] = None, **flags: Any
     for name, value in flags.items():
         args += _flag(name, value)
     return json.loads(_mireg.register_log(args))
+
+
+class Odometry:
+    """``mireg register``'s odometry, one cloud at a time, like KISS-ICP's Python pipeline: each
+    frame is registered prior-free (MI-RANSAC) and refined against a local map; clouds with
+    per-point times are deskewed. The same clouds in the same order give ``mireg register``'s
+    poses (``--no-loops``; loop closure needs the whole log: use :func:`register_log`).
+
+    ``voxel``: metres; default ``None`` sizes it from the first cloud's median range as
+    ``register`` does. ``deskew``: deskew clouds given ``timestamps`` (default ``True``).
+    ``seed``: the RNG seed (default 0). Other keyword arguments are fields of the odometry
+    configuration (``min_inliers``, ``min_fitness``, ``local_map``, ``map_max_points_per_voxel``,
+    ``feature_points``, ``map_fine``) or of the pair configuration (docs/CONFIG.md).
+    """
+
+    def __init__(self, voxel: Optional[float] = None, deskew: bool = True, seed: int = 0,
+                 **config: Any) -> None:
+        base = json.loads(_mireg.Odometry.default_config_json())
+        pair_keys = set(base["pair"])
+        odometry = {k: v for k, v in config.items() if k not in pair_keys}
+        pair = {k: v for k, v in config.items() if k in pair_keys}
+        if voxel is not None:
+            pair["voxel_size_m"] = float(voxel)
+        pair["seed"] = int(seed)
+        cfg = _merge(base, {**odometry, "pair": pair})
+        self._inner = _mireg.Odometry(json.dumps(cfg), voxel is None, bool(deskew))
+        self.poses: list[np.ndarray] = []
+        """``world_from_frame`` (4×4) of every frame so far; world = the first frame's sensor
+        frame."""
+        self.estimates: list[dict] = []
+        """Per frame: ``success``, ``failure_reason``, point counts."""
+
+    @property
+    def config(self) -> dict:
+        """The configuration in use (once the first cloud has sized the voxel, the resolved one)."""
+        return json.loads(self._inner.config_json())
+
+    def register_frame(self, points: Any, timestamps: Any = None,
+                       stamp_ns: Optional[int] = None) -> np.ndarray:
+        """Register the next cloud and return its pose ``world_from_frame`` (4×4).
+
+        ``points``: ``(N, 3)`` float32/float64, metres, sensor frame. ``timestamps``: per point,
+        seconds after the cloud's stamp (for deskewing), or ``None``. ``stamp_ns``: the cloud's
+        stamp in nanoseconds (default: 100 ms after the previous one, a 10 Hz sensor).
+        """
+        pts = _points(points, "points")
+        times = None
+        if timestamps is not None:
+            times = np.ascontiguousarray(np.asarray(timestamps, dtype=np.float64))
+            if times.ndim != 1:
+                raise ValueError(f"timestamps: expected a 1-D array, got shape {times.shape}")
+        if stamp_ns is None:
+            stamp_ns = len(self.poses) * 100_000_000
+        rows, info = self._inner.register_frame(pts, times, int(stamp_ns))
+        pose = np.array(rows, dtype=np.float64).reshape(4, 4)
+        self.poses.append(pose)
+        self.estimates.append(json.loads(info))
+        return pose

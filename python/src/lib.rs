@@ -20,6 +20,8 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use mireg::cli::{Cli, Command, pair_json, register_options};
+use mireg::odometry::OdometryConfig;
+use mireg::odometry::stream::StreamOdometry;
 use mireg::pipeline::{PairConfig, register_pair as pair};
 use mireg::register::{for_each_cloud, register_log as run_log};
 
@@ -211,6 +213,89 @@ impl Drop for CloudReader {
     }
 }
 
+/// `mireg register`'s odometry fed one cloud at a time ([`StreamOdometry`]).
+#[pyclass(module = "mireg._mireg")]
+struct Odometry {
+    inner: Mutex<StreamOdometry>,
+    frames: usize,
+}
+
+#[pymethods]
+impl Odometry {
+    /// Odometry with the configuration given as JSON (`OdometryConfig`'s fields; the voxel from
+    /// the first cloud when `derive_voxel`; clouds with times deskewed when `deskew`).
+    #[new]
+    fn new(config_json: &str, derive_voxel: bool, deskew: bool) -> PyResult<Self> {
+        let config: OdometryConfig = serde_json::from_str(config_json)
+            .map_err(|e| PyValueError::new_err(format!("configuration: {e}")))?;
+        Ok(Self {
+            inner: Mutex::new(StreamOdometry::new(config, derive_voxel, deskew)),
+            frames: 0,
+        })
+    }
+
+    /// Registers the next cloud: `(N, 3)` float64 points, per-point `times` in seconds after
+    /// `stamp_ns` when known; returns `(world_from_frame 4×4 as 16 row-major values, estimate
+    /// JSON)`.
+    #[pyo3(signature = (points, times, stamp_ns))]
+    fn register_frame(
+        &mut self,
+        py: Python<'_>,
+        points: PyReadonlyArray2<'_, f64>,
+        times: Option<numpy::PyReadonlyArray1<'_, f64>>,
+        stamp_ns: i64,
+    ) -> PyResult<(Vec<f64>, String)> {
+        let pts = self::points(&points, "points")?.to_vec();
+        let times = match &times {
+            Some(t) => {
+                let t = t.as_slice().map_err(|_| {
+                    PyValueError::new_err("timestamps: the array is not contiguous")
+                })?;
+                if t.len() != pts.len() {
+                    return Err(PyValueError::new_err(format!(
+                        "timestamps: {} values for {} points",
+                        t.len(),
+                        pts.len()
+                    )));
+                }
+                Some(t.to_vec())
+            }
+            None => None,
+        };
+        let inner = &self.inner;
+        let est = py
+            .detach(|| {
+                let mut odometry = inner.lock().expect("odometry lock");
+                odometry.push(pts, times.as_deref(), stamp_ns)
+            })
+            .map_err(|e| py_err(&e))?;
+        self.frames += 1;
+        let m = est.world_from_frame.to_homogeneous();
+        let rows = (0..4)
+            .flat_map(|r| (0..4).map(move |c| m[(r, c)]))
+            .collect();
+        let info = serde_json::json!({
+            "success": est.success,
+            "failure_reason": est.failure.map(|f| f.as_str()),
+            "num_points": est.num_points,
+            "num_points_downsampled": est.num_points_downsampled,
+        });
+        Ok((rows, info.to_string()))
+    }
+
+    /// The configuration in use, as JSON (resolved by the first cloud).
+    fn config_json(&self) -> String {
+        let inner = self.inner.lock().expect("odometry lock");
+        serde_json::to_string(inner.config()).expect("OdometryConfig serialises")
+    }
+
+    /// The default odometry configuration, as JSON.
+    #[staticmethod]
+    fn default_config_json() -> String {
+        serde_json::to_string(&OdometryConfig::default()).expect("OdometryConfig serialises")
+    }
+}
+
 /// The compiled module.
 #[pymodule]
 fn _mireg(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -218,6 +303,7 @@ fn _mireg(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(default_pair_config, m)?)?;
     m.add_function(wrap_pyfunction!(register_log, m)?)?;
     m.add_class::<CloudReader>()?;
+    m.add_class::<Odometry>()?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

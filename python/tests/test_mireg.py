@@ -167,3 +167,52 @@ def test_register_log_is_the_cli(tmp_path):
     assert poses(out_py) == poses(out_cli)
     with pytest.raises(ValueError, match="unexpected argument '--no-such-flag'"):
         mireg.register_log(FIXTURES / "bags/icl4_lz4.bag", tmp_path / "x.mcap", no_such_flag=1)
+
+
+def pose_matrices(path: Path, topic: str = "/mireg/pose") -> list[np.ndarray]:
+    mcap_reader = pytest.importorskip("mcap.reader")
+    ros2 = pytest.importorskip("mcap_ros2.decoder")
+    out = []
+    with open(path, "rb") as f:
+        reader = mcap_reader.make_reader(f, decoder_factories=[ros2.DecoderFactory()])
+        for _, _, _, msg in reader.iter_decoded_messages(topics=[topic]):
+            q, t = msg.pose.orientation, msg.pose.position
+            x, y, z, w = q.x, q.y, q.z, q.w
+            m = np.eye(4)
+            m[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                         [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                         [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
+            m[:3, 3] = [t.x, t.y, t.z]
+            out.append(m)
+    return out
+
+
+@pytest.mark.parametrize("log", ["icl_livingroom1.mcap", "livox/icl_livox_ros2"])
+def test_odometry_gives_register_s_poses(tmp_path, log):
+    """Odometry fed read_clouds' clouds (with their times: the Livox log is deskewed) gives the
+    poses mireg register writes (--no-loops), to the last bits the pose message keeps."""
+    out = tmp_path / "out.mcap"
+    mireg.register_log(FIXTURES / log, out, no_loops=True)
+    want = pose_matrices(out)
+    odometry = mireg.Odometry()
+    for stamp, points, fields in mireg.read_clouds(FIXTURES / log):
+        odometry.register_frame(points, fields.get("time"), stamp)
+    assert len(odometry.poses) == len(want) > 5
+    for got, w in zip(odometry.poses, want):
+        np.testing.assert_allclose(got, w, rtol=0, atol=1e-12)
+    assert all(e["success"] for e in odometry.estimates)
+    assert odometry.config["pair"]["voxel_size_m"] != default_config()["voxel_size_m"]
+
+
+def default_config():
+    return mireg.default_config()
+
+
+def test_odometry_bad_input_names_the_argument():
+    odometry = mireg.Odometry(voxel=0.05)
+    with pytest.raises(ValueError, match="points: expected an \\(N, 3\\) array"):
+        odometry.register_frame(np.zeros((5, 4)))
+    with pytest.raises(ValueError, match="timestamps: 3 values for 5 points"):
+        odometry.register_frame(np.zeros((5, 3)), np.zeros(3))
+    with pytest.raises(TypeError, match="unknown configuration key 'min_inlier'"):
+        mireg.Odometry(min_inlier=3)

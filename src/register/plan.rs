@@ -9,7 +9,8 @@ use crate::io::input_log::InputLog;
 use crate::io::log_order::ChunkTimes;
 use crate::io::mcap::log::InputCatalog;
 use crate::odometry::OdometryConfig;
-use crate::pipeline::{feature_voxel_for_cloud, voxel_for_cloud, with_feature_voxel};
+use crate::odometry::stream::resolve_config;
+use crate::pipeline::voxel_for_cloud;
 
 use super::clouds::{CloudKind, choose_topic};
 use super::output::Topics;
@@ -66,31 +67,17 @@ impl Plan {
                 .collect()
         };
         let cloud_channels = ids_of(Some(&topic));
-        let mut config = opts.config.clone();
-        let mut voxel_source = "configured";
         // The first cloud sizes the voxel (unless configured) and the feature voxel (unless
         // --feature-points 0); without either, it is not read twice.
-        let first = if opts.derive_voxel || config.feature_points > 0 {
+        let first = if opts.derive_voxel || opts.config.feature_points > 0 {
             first_usable_cloud(&input_log, &cloud_channels, kind)?
         } else {
             None
         };
-        if opts.derive_voxel
-            && let Some(v) = first.as_deref().and_then(voxel_for_cloud)
-        {
-            config.pair.voxel_size_m = v;
-            voxel_source = "first_cloud";
-        }
-        let voxel_m = config.pair.voxel_size_m;
-        if let Some(points) = &first {
-            let fv = feature_voxel_for_cloud(points, voxel_m, config.feature_points)?;
-            config.pair = with_feature_voxel(&config.pair, fv);
-        }
+        let (config, derived) = resolve_config(&opts.config, first.as_deref(), opts.derive_voxel)?;
         drop(first);
-        // Frames carry input points for the map ICP's fine stage, not for the pairwise one, which
-        // the local map replaces (`Odometry::new` turns that off).
-        config.pair.icp_fine = config.map_fine;
-        config.pair.icp_fine_points_per_icp_point = crate::odometry::MAP_FINE_DRAW_PER_ICP_POINT;
+        let voxel_source = if derived { "first_cloud" } else { "configured" };
+        let voxel_m = config.pair.voxel_size_m;
         // A log registered before keeps its mireg topics; this run's go to the next namespace
         // (`/mireg_2/…`), so that no topic mixes two runs.
         let topics = Topics::for_input(&channels);

@@ -8,11 +8,10 @@ use std::time::Instant;
 
 use nalgebra::{Isometry3, Point3};
 
-use crate::geometry::deskew::deskew;
 use crate::io::codec;
 use crate::loops::Descriptor;
-use crate::odometry::keep_map_fine_points;
-use crate::pipeline::{FailureReason, PrepareScratch, prepare_frame, prepare_frame_with};
+use crate::odometry::stream::{self, deskew_cloud, deskew_for};
+use crate::pipeline::{FailureReason, PrepareScratch, prepare_frame};
 use crate::{Error, Result};
 
 use super::DeskewMode;
@@ -111,11 +110,12 @@ impl Prepare<'_> {
                 if let Some(times) = &cloud.times {
                     time_field = Some(times.field.clone());
                     if self.deskew_mode != DeskewMode::Off
-                        && let Some((motion, dt)) = motions.of(frame_index.checked_sub(2))
+                        && let Some((motion, dt)) = motions.of(deskew_for(frame_index))
+                        && let Some((motion, dt, mean)) =
+                            deskew_cloud(&mut cloud.points, &times.seconds, motion, dt)
                     {
-                        deskew(&mut cloud.points, &times.seconds, &motion, dt);
                         deskew_motion = Some((motion, dt));
-                        deskew_mean_s = mean(&times.seconds);
+                        deskew_mean_s = mean;
                     }
                 } else if self.deskew_mode == DeskewMode::On {
                     let detail = format!(
@@ -128,14 +128,9 @@ impl Prepare<'_> {
                         msg.log_time
                     )));
                 }
-                let prepared = prepare_frame_with(&cloud.points, &config.pair, &mut carry.scratch)
-                    .map(|mut frame| {
-                        keep_map_fine_points(&mut frame);
-                        frame
-                    })
-                    .map_err(|e| (FailureReason::InvalidCloud, e.to_string()));
+                let prepared = stream::prepare(&cloud.points, config, &mut carry.scratch)?;
                 carry.spare_points = cloud.points;
-                (cloud.header, prepared)
+                (cloud.header, Ok(prepared))
             }
         };
         if let Some(e) = fatal {
@@ -143,7 +138,7 @@ impl Prepare<'_> {
         }
         carry.last_frame_id.clone_from(&header.frame_id);
         match prepared {
-            Ok(f) => Ok((f, None)),
+            Ok(prepared) => Ok(prepared),
             Err(invalid) => prepare_frame(&[], &config.pair).map(|f| (f, Some(invalid))),
         }
         .map(|(frame, invalid)| PreparedMsg {
@@ -179,13 +174,4 @@ fn stamp_of_log_time(log_time: u64) -> codec::Time {
         .ok()
         .and_then(codec::Time::from_ns)
         .unwrap_or_default()
-}
-
-/// The mean of `v` (0 when empty).
-fn mean(v: &[f64]) -> f64 {
-    if v.is_empty() {
-        0.0
-    } else {
-        v.iter().sum::<f64>() / v.len() as f64
-    }
 }

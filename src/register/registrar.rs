@@ -7,10 +7,10 @@ use std::time::Instant;
 use nalgebra::Isometry3;
 
 use crate::Result;
-use crate::geometry::deskew::{exp_twist, log_isometry};
 use crate::odometry::Odometry;
+use crate::odometry::stream::MeanTimeMotions;
 
-use super::frames::{CloudInfo, FrameOut, PreparedMsg};
+use super::frames::{FrameOut, PreparedMsg};
 
 /// Frames between two returns of the allocator's free memory to the system
 /// ([`crate::heap::trim`]), which keeps the peak RSS of a long log within a few percent of a short
@@ -39,9 +39,8 @@ pub(super) fn run(
     out: Sender<Result<FrameOut>>,
     motions: Sender<(usize, Isometry3<f64>, f64)>,
 ) {
-    let mut previous_stamp: Option<i64> = None;
-    // The previous frame's `stamp_from_mean` ([`stamp_from_mean`]).
-    let mut previous_from_mean = Isometry3::identity();
+    // The motions for deskewing, between mean point times ([`MeanTimeMotions`]).
+    let mut mean_time = MeanTimeMotions::default();
     for (k, msg) in prepared.into_iter().enumerate() {
         if k % TRIM_EVERY_FRAMES == TRIM_EVERY_FRAMES - 1 {
             crate::heap::trim();
@@ -53,29 +52,13 @@ pub(super) fn run(
             if let Some((reason, _)) = &m.cloud.invalid {
                 est.failure = Some(*reason);
             }
-            // The motion and its duration, for deskewing a later frame.
-            let stamp = m.cloud.header.stamp.to_ns();
-            let dt = previous_stamp.map_or(f64::NAN, |p| (stamp - p) as f64 * 1e-9);
-            previous_stamp = Some(stamp);
-            // NOTE: the motion for deskewing is taken between the frames' mean point times, not
-            // their stamps. A cloud deskewed to its stamp by a motion that is off by δ is
-            // shifted by about δ·(mean time / dt) as a whole, which registration takes into the
-            // stamp's pose; motions between stamp poses would then carry that error into the
-            // next deskew, and on Livox's 100 ms sweeps the loop oscillates (period 2, ±12 cm
-            // per frame at 3 m/s). Between mean-time poses the shift cancels to first order.
-            let from_mean = stamp_from_mean(&m.cloud);
-            let motion = if m.cloud.deskewed() || previous_from_mean != Isometry3::identity() {
-                previous_from_mean.inverse() * est.prev_from_curr * from_mean
-            } else {
-                est.prev_from_curr
-            };
-            previous_from_mean = from_mean;
-            if m.cloud.deskewed() && dt.is_finite() && dt > 0.0 {
-                let (omega, v) = log_isometry(&motion);
-                let s = -m.cloud.deskew_mean_s / dt;
-                est.world_from_frame =
-                    est.world_from_frame * from_mean * exp_twist(&(omega * s), &(v * s));
-            }
+            // The motion and its duration, for deskewing a later frame; a deskewed frame's pose
+            // referred to its stamp by its own motion.
+            let deskewed = m
+                .cloud
+                .deskew_motion
+                .map(|(motion, dt)| (motion, dt, m.cloud.deskew_mean_s));
+            let (motion, dt) = mean_time.push(&mut est, m.cloud.header.stamp.to_ns(), deskewed);
             let _ = motions.send((k, motion, dt));
             Ok(FrameOut {
                 cloud: m.cloud,
@@ -88,19 +71,5 @@ pub(super) fn run(
         if out.send(r).is_err() || failed {
             break;
         }
-    }
-}
-
-/// The pose of the sensor at a deskewed cloud's mean point time in the frame at its stamp,
-/// under the constant velocity it was deskewed by: `exp(mean/dt · log(motion))`; the identity
-/// when the cloud was not deskewed.
-fn stamp_from_mean(cloud: &CloudInfo) -> Isometry3<f64> {
-    match cloud.deskew_motion {
-        Some((motion, dt)) if cloud.deskew_mean_s != 0.0 => {
-            let (omega, v) = log_isometry(&motion);
-            let s = cloud.deskew_mean_s / dt;
-            exp_twist(&(omega * s), &(v * s))
-        }
-        _ => Isometry3::identity(),
     }
 }
