@@ -111,6 +111,20 @@ pub struct RegisterOptions {
     /// Which Livox `CustomMsg` points are kept, by their tag (`--livox-tags`). Default
     /// [`LivoxTags::DropNoise`]; no effect on other clouds.
     pub livox_tags: LivoxTags,
+    /// Called after each frame is written. Default `None`.
+    pub on_frame: Option<OnFrame>,
+}
+
+/// A callback `register` calls after writing each frame with (frames written so far, clouds
+/// the log holds by its summary or index, 0 when unknown), from the writing thread: for a
+/// progress display of the caller's own (the Python package's `register_log`).
+#[derive(Clone)]
+pub struct OnFrame(pub std::sync::Arc<dyn Fn(u64, u64) + Send + Sync>);
+
+impl std::fmt::Debug for OnFrame {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("OnFrame(..)")
+    }
 }
 
 impl RegisterOptions {
@@ -138,6 +152,7 @@ impl RegisterOptions {
             loops: true,
             read_policy: ReadPolicy::default(),
             livox_tags: LivoxTags::default(),
+            on_frame: None,
             loop_config: None,
         }
     }
@@ -242,6 +257,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     };
     let outputs = Outputs::create(&mut log, family, &plan.topics, opts.loops)?;
     let mut writer = Writer::new(outputs, &opts.world_frame, opts.progress, plan.total_frames);
+    writer.on_frame = opts.on_frame.clone();
     let prepare = Prepare {
         plan: &plan,
         input: &opts.input,

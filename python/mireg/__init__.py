@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import dataclass, field
-from typing import Any, Iterator, Optional, Union
+from typing import Any, Callable, Iterator, Optional, Union
 
 import numpy as np
 
@@ -136,19 +136,21 @@ def _flag(name: str, value: Any) -> list[str]:
     return [flag, str(value)]
 
 
-def register_log(path: PathLike, output: Optional[PathLike] = None, **flags: Any) -> dict:
+def register_log(path: PathLike, output: Optional[PathLike] = None,
+                 progress: Optional[Callable[[int, int], Any]] = None, **flags: Any) -> dict:
     """``mireg register PATH``: register every cloud of a log and write poses, statistics and
     the loop-closed trajectory into a new MCAP (``output``, default ``PATH.mireg.mcap`` beside
     it). Keyword arguments are the command's flags: ``voxel=0.5`` is ``--voxel 0.5``,
-    ``no_loops=True`` is ``--no-loops``, ``force=True`` replaces an existing output. Returns the
-    ``--json`` summary as a dict.
+    ``no_loops=True`` is ``--no-loops``, ``force=True`` replaces an existing output.
+    ``progress``: called as ``progress(frames_written, frames_in_log)`` after each frame
+    (``frames_in_log`` is 0 when the log does not say). Returns the ``--json`` summary as a dict.
     """
     args = [os.fspath(path)]
     if output is not None:
         args += ["-o", os.fspath(output)]
     for name, value in flags.items():
         args += _flag(name, value)
-    return json.loads(_mireg.register_log(args))
+    return json.loads(_mireg.register_log(args, progress))
 
 
 class Odometry:

@@ -1,6 +1,6 @@
 """Type stubs of the compiled half of the package (see mireg/__init__.py)."""
 
-from typing import Iterator, Optional
+from typing import Callable, Iterator, Optional
 
 import numpy as np
 
@@ -8,7 +8,7 @@ __version__: str
 
 def register_pair(source: np.ndarray, target: np.ndarray, config_json: str) -> str: ...
 def default_pair_config() -> str: ...
-def register_log(args: list[str]) -> str: ...
+def register_log(args: list[str], progress: Optional[Callable[[int, int], object]] = None) -> str: ...
 
 class CloudReader(Iterator[tuple[int, np.ndarray, dict]]):
     def __init__(self, path: str, topic: Optional[str] = None) -> None: ...

@@ -23,7 +23,7 @@ use mireg::cli::{Cli, Command, pair_json, register_options};
 use mireg::odometry::OdometryConfig;
 use mireg::odometry::stream::StreamOdometry;
 use mireg::pipeline::{PairConfig, register_pair as pair};
-use mireg::register::{for_each_cloud, register_log as run_log};
+use mireg::register::{OnFrame, for_each_cloud, register_log as run_log};
 
 /// A mireg error as the Python exception a user expects: `OSError` for files, `ValueError` for
 /// bad input, `RuntimeError` otherwise; the message is the CLI's.
@@ -87,10 +87,17 @@ fn default_pair_config() -> String {
     serde_json::to_string(&PairConfig::default()).expect("PairConfig serialises")
 }
 
-/// `register_log(args) -> str`: `mireg register ARGS` (the CLI's flags, parsed by its parser),
-/// without a progress bar; returns the `--json` summary.
+/// `register_log(args, progress) -> str`: `mireg register ARGS` (the CLI's flags, parsed by its
+/// parser), without a progress bar; `progress(frames_written, frames_in_log)` is called after
+/// each frame (an exception it raises is printed, not raised: the run goes on). Returns the
+/// `--json` summary.
 #[pyfunction]
-fn register_log(py: Python<'_>, args: Vec<String>) -> PyResult<String> {
+#[pyo3(signature = (args, progress=None))]
+fn register_log(
+    py: Python<'_>,
+    args: Vec<String>,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<String> {
     let argv = std::iter::once("mireg".to_string())
         .chain(std::iter::once("register".to_string()))
         .chain(args);
@@ -100,6 +107,15 @@ fn register_log(py: Python<'_>, args: Vec<String>) -> PyResult<String> {
     };
     let mut opts = register_options(&args).map_err(|e| anyhow_err(&e))?;
     opts.progress = false;
+    if let Some(callback) = progress {
+        opts.on_frame = Some(OnFrame(std::sync::Arc::new(move |done, total| {
+            Python::attach(|py| {
+                if let Err(e) = callback.call1(py, (done, total)) {
+                    e.print(py);
+                }
+            })
+        })));
+    }
     let summary = py.detach(|| run_log(&opts)).map_err(|e| py_err(&e))?;
     serde_json::to_string(&summary).map_err(|e| PyRuntimeError::new_err(e.to_string()))
 }

@@ -165,6 +165,10 @@ def test_register_log_is_the_cli(tmp_path):
             return [m.data for _, _, m in mcap_reader.make_reader(f).iter_messages(
                 topics=["/mireg/pose"])]
     assert poses(out_py) == poses(out_cli)
+    calls = []
+    mireg.register_log(FIXTURES / "bags/icl4_lz4.bag", tmp_path / "p.mcap", no_loops=True,
+                       progress=lambda done, total: calls.append((done, total)))
+    assert calls == [(1, 4), (2, 4), (3, 4), (4, 4)]
     with pytest.raises(ValueError, match="unexpected argument '--no-such-flag'"):
         mireg.register_log(FIXTURES / "bags/icl4_lz4.bag", tmp_path / "x.mcap", no_such_flag=1)
 

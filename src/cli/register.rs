@@ -169,6 +169,7 @@ pub fn register_options(args: &RegisterArgs) -> Result<RegisterOptions> {
             skip_corrupt: args.skip_corrupt,
         },
         livox_tags: args.livox_tags,
+        on_frame: None,
     };
     if opts.copy_window_only && opts.start.is_none() && opts.end.is_none() {
         return Err(crate::Error::InvalidInput(

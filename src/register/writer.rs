@@ -25,6 +25,9 @@ pub(super) struct Writer<'a> {
     outputs: Outputs,
     world_frame: &'a str,
     progress: Option<indicatif::ProgressBar>,
+    /// [`RegisterOptions::on_frame`], and the clouds the log holds (0: unknown).
+    pub(super) on_frame: Option<super::OnFrame>,
+    total_frames: u64,
     pub(super) estimates: Vec<Estimate>,
     /// The reference poses read (stamp \[ns\], pose).
     reference: Vec<(i64, Isometry3<f64>)>,
@@ -54,6 +57,8 @@ impl<'a> Writer<'a> {
             outputs,
             world_frame,
             progress,
+            on_frame: None,
+            total_frames,
             estimates: Vec::new(),
             reference: Vec::new(),
         }
@@ -75,6 +80,9 @@ impl<'a> Writer<'a> {
         });
         if let Some(bar) = &self.progress {
             bar.inc(1);
+        }
+        if let Some(f) = &self.on_frame {
+            (f.0)(self.estimates.len() as u64, self.total_frames);
         }
         Ok(())
     }
