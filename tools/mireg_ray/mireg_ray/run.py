@@ -36,7 +36,10 @@ def expand(pattern: str) -> tuple[Path, list[Path]]:
 
 
 def output_for(out_dir: Path, root: Path, path: Path) -> Path:
-    rel = path.resolve().relative_to(root.resolve()) if root != Path(".") else path
+    # Absolute but not resolved: an input that is a symbolic link to a file elsewhere keeps
+    # its place under the root.
+    rel = (Path(os.path.abspath(path)).relative_to(os.path.abspath(root))
+           if root != Path(".") else path)
     name = rel.name[: -len(rel.suffix)] if rel.suffix and path.is_file() else rel.name
     return out_dir / rel.parent / f"{name}.mireg.mcap"
 

@@ -115,3 +115,18 @@ def test_segments_are_stitched_into_the_sequential_trajectory(tmp_path, binary):
     # ... and `segments` closes loops over the stitched whole.
     assert counts["/mireg/pose_optimized"] == 71 and counts["/mireg/loops"] > 0
     assert not list(tmp_path.glob(".mireg-segments-*")), "segment outputs removed"
+
+
+def test_symlinked_inputs_keep_their_place_under_the_root(tmp_path):
+    """An input that is a symbolic link to a file outside the glob's root is written under the
+    output directory by its own name (it used to raise: the link was resolved first)."""
+    from mireg_ray import run
+
+    elsewhere = tmp_path / "elsewhere.mcap"
+    elsewhere.write_bytes(b"")
+    logs = tmp_path / "logs" / "day1"
+    logs.mkdir(parents=True)
+    (logs / "a.mcap").symlink_to(elsewhere)
+    root = tmp_path / "logs"
+    assert run.output_for(tmp_path / "out", root, logs / "a.mcap") == \
+        tmp_path / "out" / "day1" / "a.mireg.mcap"
