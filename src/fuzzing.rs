@@ -33,8 +33,24 @@ pub const TARGETS: &[Target] = &[
     ("rosbag2_metadata", rosbag2_metadata),
 ];
 
-/// `sensor_msgs/msg/PointCloud2` (cdr) decoding; a decoded cloud holds only finite points.
+/// `sensor_msgs/msg/PointCloud2` (cdr) decoding, and Livox `CustomMsg` in cdr and ros1; a
+/// decoded cloud holds only finite points.
 pub fn point_cloud2(data: &[u8]) {
+    use crate::io::codec::livox::{self, LivoxTags};
+    for c in [
+        livox::decode_cdr_reusing(data, Vec::new(), LivoxTags::KeepAll),
+        livox::decode_ros1_reusing(data, Vec::new(), LivoxTags::KeepAll),
+    ]
+    .into_iter()
+    .flatten()
+    {
+        assert!(
+            c.points
+                .iter()
+                .all(|p| p.coords.iter().all(|v| v.is_finite()))
+        );
+        assert_eq!(c.times.map(|t| t.seconds.len()), Some(c.points.len()));
+    }
     if let Ok(c) = cdr::decode_point_cloud2(data) {
         assert!(
             c.points
@@ -80,6 +96,13 @@ pub fn ros1_messages(data: &[u8]) {
 pub fn ros1_bag(data: &[u8]) {
     let path = scratch("in.bag");
     write(&path, data);
+    let skip = crate::io::damage::ReadPolicy {
+        strict: false,
+        skip_corrupt: true,
+    };
+    if let Ok(bag) = crate::io::bag::ros1::Bag::open_with(&path, skip) {
+        let _ = bag.for_each_message(|_, _, _| Ok(std::ops::ControlFlow::Continue(())));
+    }
     if let Ok(bag) = crate::io::bag::ros1::Bag::open(&path) {
         let _ = bag.catalog();
         let _ = bag.for_each_message(|_, _, _| Ok(std::ops::ControlFlow::Continue(())));
@@ -108,12 +131,22 @@ fn write(path: &Path, data: &[u8]) {
 }
 
 /// MCAP as `mireg evaluate` and `export` read it: the catalogue (summary, or a scan without
-/// one), every record in file order, and the pose and statistics topics.
+/// one), every record in file order, and the pose and statistics topics; and as `register`
+/// reads a damaged log (a cut salvaged, corrupt chunks skipped).
 pub fn mcap_records(data: &[u8]) {
     let path = scratch("in.mcap");
     write(&path, data);
     let _ = crate::io::mcap::log::list_channels(&path);
     let _ = crate::io::mcap::read::for_each_record(&path, |_| Ok(()));
+    // As `register` reads a damaged log: salvaging a cut, skipping corrupt chunks.
+    let salvage = crate::io::damage::ReadPolicy {
+        strict: false,
+        skip_corrupt: true,
+    };
+    let _ = crate::io::mcap::log::InputCatalog::read_with(&path, salvage);
+    let _ = crate::io::mcap::read::for_each_record_with(&path, salvage, |_| {
+        Ok(std::ops::ControlFlow::Continue(()))
+    });
     let _ = crate::trajectory::read_mcap_pose_topic(&path, "/mireg/pose");
     let _ = crate::trajectory::read_frame_flags(&path, "/mireg/stats");
 }
