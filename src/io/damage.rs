@@ -67,12 +67,15 @@ impl Damage {
     pub fn describe(&self) -> String {
         let mut parts = Vec::new();
         if let Some(reason) = &self.cut_reason {
+            // The readers' reasons end in a guess for `--strict`'s error; here it is known.
+            let reason = reason
+                .trim_end_matches(" (truncated bag?)")
+                .trim_end_matches(" (truncated MCAP?)");
             let mut s = format!("the log stops at byte {}: {reason}", self.file_size);
-            if self.partial_messages > 0 {
-                s += &format!(
-                    "; {} messages recovered from that chunk",
-                    self.partial_messages
-                );
+            match self.partial_messages {
+                0 => {}
+                1 => s += "; 1 message recovered from that chunk",
+                n => s += &format!("; {n} messages recovered from that chunk"),
             }
             parts.push(s);
         }
@@ -80,5 +83,32 @@ impl Damage {
             parts.push(format!("corrupt chunk at offset {offset} skipped: {what}"));
         }
         parts.join("; ")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn describe_says_where_and_how_many() {
+        let mut d = Damage::new(1000);
+        assert!(!d.any());
+        d.cut(
+            600,
+            "record data claims 900 bytes, 300 remain (truncated bag?)".into(),
+        );
+        d.partial_messages = 1;
+        assert_eq!(
+            d.describe(),
+            "the log stops at byte 1000: record data claims 900 bytes, 300 remain; \
+             1 message recovered from that chunk"
+        );
+        d.partial_messages = 3;
+        d.skipped_chunks.push((40, "CRC mismatch".into()));
+        assert!(d.describe().ends_with(
+            "3 messages recovered from that chunk; corrupt chunk at offset 40 skipped: CRC mismatch"
+        ));
+        assert!(d.any());
     }
 }
