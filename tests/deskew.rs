@@ -112,6 +112,49 @@ fn cloud_with_time(name: &str, datatype: u8, stamp: codec::Time, values: &[f64])
     w.finish()
 }
 
+/// A ROS 2 MCAP log of `frames` (points in metres, their `t` field in ns) on `/points`, 100 ms
+/// apart from 1 s on.
+fn timed_cloud_log(frames: impl IntoIterator<Item = (Vec<Point3<f64>>, Vec<f64>)>) -> Vec<u8> {
+    let mut out = std::io::Cursor::new(Vec::new());
+    let mut w = mcap::WriteOptions::new()
+        .profile("ros2")
+        .create(&mut out)
+        .unwrap();
+    let schema = w
+        .add_schema(
+            cdr::POINT_CLOUD2_SCHEMA_NAME,
+            "ros2msg",
+            cdr::POINT_CLOUD2_SCHEMA.as_bytes(),
+        )
+        .unwrap();
+    let ch = w
+        .add_channel(schema, "/points", "cdr", &Default::default())
+        .unwrap();
+    for (k, (pts, times)) in frames.into_iter().enumerate() {
+        let t = 1_000_000_000 + k as u64 * 100_000_000;
+        let stamp = codec::Time::from_ns(t as i64).unwrap();
+        let mut msg = cloud_with_time("t", 6, stamp, &times);
+        // Real coordinates instead of the helper's placeholders (x, y, z at the start of each point).
+        let data_start = msg.len() - 1 - 16 * pts.len();
+        for (i, p) in pts.iter().enumerate() {
+            for (j, c) in [p.x, p.y, p.z].iter().enumerate() {
+                let at = data_start + 16 * i + 4 * j;
+                msg[at..at + 4].copy_from_slice(&(*c as f32).to_le_bytes());
+            }
+        }
+        let header = mcap::records::MessageHeader {
+            channel_id: ch,
+            sequence: k as u32,
+            log_time: t,
+            publish_time: t,
+        };
+        w.write_to_known_channel(&header, &msg).unwrap();
+    }
+    w.finish().unwrap();
+    drop(w);
+    out.into_inner()
+}
+
 /// A time-field case: field, PointField datatype, raw values, convention, seconds after the stamp.
 type Case = (&'static str, u8, Vec<f64>, TimeConvention, Vec<f64>);
 
@@ -200,51 +243,17 @@ fn register_deskews_from_the_fourth_frame_and_says_so() {
             }
         })
         .collect();
-    let mut out = std::io::Cursor::new(Vec::new());
-    let mut w = mcap::WriteOptions::new()
-        .profile("ros2")
-        .create(&mut out)
-        .unwrap();
-    let schema = w
-        .add_schema(
-            cdr::POINT_CLOUD2_SCHEMA_NAME,
-            "ros2msg",
-            cdr::POINT_CLOUD2_SCHEMA.as_bytes(),
-        )
-        .unwrap();
-    let ch = w
-        .add_channel(schema, "/points", "cdr", &Default::default())
-        .unwrap();
-    for k in 0..8u64 {
-        let t = 1_000_000_000 + k * 100_000_000;
+    let frames = (0..8u64).map(|k| {
         let sensor = Isometry3::translation(0.1 * k as f64, 0.0, 0.0);
         let pts: Vec<Point3<f64>> = room.iter().map(|p| sensor.inverse() * p).collect();
         let times: Vec<f64> = pts
             .iter()
             .map(|p| (p.y.atan2(p.x) + std::f64::consts::PI) / std::f64::consts::TAU * 1e8)
             .collect();
-        let stamp = codec::Time::from_ns(t as i64).unwrap();
-        let mut msg = cloud_with_time("t", 6, stamp, &times);
-        // Real coordinates instead of the helper's placeholders (x, y, z at the start of each point).
-        let data_start = msg.len() - 1 - 16 * pts.len();
-        for (i, p) in pts.iter().enumerate() {
-            for (j, c) in [p.x, p.y, p.z].iter().enumerate() {
-                let at = data_start + 16 * i + 4 * j;
-                msg[at..at + 4].copy_from_slice(&(*c as f32).to_le_bytes());
-            }
-        }
-        let header = mcap::records::MessageHeader {
-            channel_id: ch,
-            sequence: k as u32,
-            log_time: t,
-            publish_time: t,
-        };
-        w.write_to_known_channel(&header, &msg).unwrap();
-    }
-    w.finish().unwrap();
-    drop(w);
+        (pts, times)
+    });
     let input = dir.path().join("spin.mcap");
-    std::fs::write(&input, out.into_inner()).unwrap();
+    std::fs::write(&input, timed_cloud_log(frames)).unwrap();
     let stats = |mode: DeskewMode| -> Vec<serde_json::Value> {
         let output = dir.path().join("out.mcap");
         let config = mireg::odometry::OdometryConfig {
@@ -357,54 +366,21 @@ fn deskewing_a_truly_skewed_log_recovers_its_motion_without_oscillating() {
         stamps.push(stamps[k] * step(k, 1.0));
     }
     const FRAMES: u64 = 14;
-    let mut out = std::io::Cursor::new(Vec::new());
-    let mut w = mcap::WriteOptions::new()
-        .profile("ros2")
-        .create(&mut out)
-        .unwrap();
-    let schema = w
-        .add_schema(
-            cdr::POINT_CLOUD2_SCHEMA_NAME,
-            "ros2msg",
-            cdr::POINT_CLOUD2_SCHEMA.as_bytes(),
-        )
-        .unwrap();
-    let ch = w
-        .add_channel(schema, "/points", "cdr", &Default::default())
-        .unwrap();
-    for k in 0..FRAMES {
-        let t = 1_000_000_000 + k * 100_000_000;
+    let frames = (0..FRAMES as usize).map(|k| {
         let (mut pts, mut times) = (Vec::new(), Vec::new());
         for p in &room {
-            let q = stamps[k as usize].inverse() * p;
+            let q = stamps[k].inverse() * p;
             // The sweep crosses the field of view from left to right in 100 ms.
             let share = (0.5 - q.y.atan2(q.x) / 100f64.to_radians()).clamp(0.0, 1.0);
             if q.x > 0.0 && share > 0.0 && share < 1.0 {
-                pts.push((stamps[k as usize] * step(k as usize, share)).inverse() * p);
+                pts.push((stamps[k] * step(k, share)).inverse() * p);
                 times.push(share * 1e8);
             }
         }
-        let stamp = codec::Time::from_ns(t as i64).unwrap();
-        let mut msg = cloud_with_time("t", 6, stamp, &times);
-        let data_start = msg.len() - 1 - 16 * pts.len();
-        for (i, p) in pts.iter().enumerate() {
-            for (j, c) in [p.x, p.y, p.z].iter().enumerate() {
-                let at = data_start + 16 * i + 4 * j;
-                msg[at..at + 4].copy_from_slice(&(*c as f32).to_le_bytes());
-            }
-        }
-        let header = mcap::records::MessageHeader {
-            channel_id: ch,
-            sequence: k as u32,
-            log_time: t,
-            publish_time: t,
-        };
-        w.write_to_known_channel(&header, &msg).unwrap();
-    }
-    w.finish().unwrap();
-    drop(w);
+        (pts, times)
+    });
     let input = dir.path().join("skewed.mcap");
-    std::fs::write(&input, out.into_inner()).unwrap();
+    std::fs::write(&input, timed_cloud_log(frames)).unwrap();
     // The worst frame-to-frame error (m, degrees) from frame 4 on, the first deskewed frames
     // having settled.
     let errors = |mode: DeskewMode| -> (f64, f64) {
@@ -423,22 +399,9 @@ fn deskewing_a_truly_skewed_log_recovers_its_motion_without_oscillating() {
             ..RegisterOptions::new(&input, &output, config)
         };
         register_log(&opts).unwrap();
-        let (mut pose_channel, mut poses) = (None, Vec::new());
-        mireg::io::mcap::read::for_each_record(&output, |r| {
-            match r {
-                mcap::records::Record::Channel(c) if c.topic == "/mireg/pose" => {
-                    pose_channel = Some(c.id)
-                }
-                mcap::records::Record::Message { header, data }
-                    if Some(header.channel_id) == pose_channel =>
-                {
-                    poses.push(cdr::decode_pose_stamped(&data).unwrap().1)
-                }
-                _ => {}
-            }
-            Ok(())
-        })
-        .unwrap();
+        let poses = mireg::trajectory::read_mcap_pose_topic(&output, "/mireg/pose")
+            .unwrap()
+            .poses;
         assert_eq!(poses.len(), FRAMES as usize);
         poses
             .windows(2)

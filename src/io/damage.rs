@@ -6,6 +6,22 @@
 //! containers salvage in their own way: MCAP in [`super::mcap::salvage`] and
 //! [`super::mcap::read`], ROS 1 bags in [`super::bag::ros1`].
 
+use std::io::Read;
+
+/// Appends to `out` what `r`, a decompressor over the first bytes of a chunk the file cuts
+/// short, yields before its stream stops or stops making sense, up to `limit` bytes in all: the
+/// whole records among them are what a cut chunk gives back.
+pub(crate) fn read_prefix(mut r: impl Read, limit: u64, out: &mut Vec<u8>) {
+    let mut buf = vec![0u8; 1 << 16];
+    while (out.len() as u64) < limit {
+        match r.read(&mut buf) {
+            Ok(0) | Err(_) => break,
+            Ok(n) => out.extend_from_slice(&buf[..n]),
+        }
+    }
+    out.truncate(limit as usize);
+}
+
 /// How damaged input is treated. The default salvages a cut-off log and fails on a corrupt
 /// chunk.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]

@@ -32,7 +32,7 @@ use std::path::{Path, PathBuf};
 use mcap::records::Channel;
 
 use crate::io::codec::ros1;
-use crate::io::damage::{Damage, ReadPolicy};
+use crate::io::damage::{Damage, ReadPolicy, read_prefix};
 use crate::io::mcap::log::InputCatalog;
 use crate::io::mcap::write::SchemaRecord;
 use crate::io::{MAX_CHUNK_BYTES, io_err};
@@ -719,26 +719,16 @@ fn partial_chunk(rec: &RawRecord) -> Vec<u8> {
         .map_or(0, u64::from)
         .min(MAX_CHUNK_BYTES);
     let mut out = Vec::new();
-    let mut read_all = |mut r: Box<dyn Read + '_>| {
-        let mut buf = vec![0u8; 1 << 16];
-        while (out.len() as u64) < size {
-            match r.read(&mut buf) {
-                Ok(0) | Err(_) => break,
-                Ok(n) => out.extend_from_slice(&buf[..n]),
-            }
-        }
-    };
     match rec.field("compression") {
-        Some(b"none") => out.extend_from_slice(&rec.data),
-        Some(b"bz2") => read_all(Box::new(bzip2::read::BzDecoder::new(&rec.data[..]))),
+        Some(b"none") => read_prefix(&rec.data[..], size, &mut out),
+        Some(b"bz2") => read_prefix(bzip2::read::BzDecoder::new(&rec.data[..]), size, &mut out),
         Some(b"lz4") => {
             if let Ok(d) = lz4::Decoder::new(&rec.data[..]) {
-                read_all(Box::new(d));
+                read_prefix(d, size, &mut out);
             }
         }
         _ => {}
     }
-    out.truncate(size as usize);
     out
 }
 
