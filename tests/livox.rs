@@ -4,18 +4,18 @@
 //! `icl_livox_expected.bin`. mireg must decode both bags to exactly those points, keep and drop
 //! them by tag as documented, and register both to the same poses.
 
-use std::collections::BTreeMap;
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 
-use mcap::records::Record;
+use mireg::io::codec::PointCloud;
 use mireg::io::codec::livox::{self, LivoxTags};
-use mireg::io::codec::{PointCloud, cdr, ros1};
 use mireg::io::input_log::InputLog;
-use mireg::io::mcap::log::for_each_record;
+use mireg::trajectory::{Trajectory, read_mcap_pose_topic};
 
 #[path = "common/cli.rs"]
 mod cli;
+#[path = "common/log_contents.rs"]
+mod log_contents;
 
 fn fixture(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -119,34 +119,15 @@ fn both_bags_decode_to_the_points_rosbags_decoded() {
     }
 }
 
-/// (stamp, pose) of every `/mireg/pose` message, and the stats JSON by frame, of a `register`
-/// output.
-type Poses = Vec<(i64, nalgebra::Isometry3<f64>)>;
-fn outputs(path: &Path) -> (Poses, Vec<serde_json::Value>) {
-    let mut channels = BTreeMap::new();
-    let (mut poses, mut stats) = (Vec::new(), Vec::new());
-    for_each_record(path, |r| {
-        match r {
-            Record::Channel(c) => {
-                channels.insert(c.id, (c.topic.clone(), c.message_encoding.clone()));
-            }
-            Record::Message { header, data } => {
-                let (topic, encoding) = &channels[&header.channel_id];
-                if topic == "/mireg/pose" {
-                    let (h, p) = match encoding.as_str() {
-                        "ros1" => ros1::decode_pose_stamped(&data).unwrap(),
-                        _ => cdr::decode_pose_stamped(&data).unwrap(),
-                    };
-                    poses.push((h.stamp.to_ns(), p));
-                } else if topic == "/mireg/stats" {
-                    stats.push(serde_json::from_slice(&data).unwrap());
-                }
-            }
-            _ => {}
-        }
-        Ok(())
-    })
-    .unwrap();
+/// The `/mireg/pose` trajectory and the stats JSON by frame of a `register` output.
+fn outputs(path: &Path) -> (Trajectory, Vec<serde_json::Value>) {
+    let poses = read_mcap_pose_topic(path, "/mireg/pose").unwrap();
+    let stats = log_contents::contents(path)
+        .messages
+        .iter()
+        .filter(|m| m.0 == "/mireg/stats")
+        .map(|m| serde_json::from_slice(&m.3).unwrap())
+        .collect();
     (poses, stats)
 }
 
@@ -171,7 +152,7 @@ fn ros1_and_ros2_livox_logs_register_to_the_same_poses() {
     }
     let (ros1_poses, stats) = &runs[0];
     let (ros2_poses, _) = &runs[1];
-    assert_eq!(ros1_poses.len(), 10);
+    assert_eq!(ros1_poses.poses.len(), 10);
     assert_eq!(
         ros1_poses, ros2_poses,
         "the same points give the same poses"

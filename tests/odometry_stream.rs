@@ -5,13 +5,11 @@
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 
-use mcap::records::Record;
-use mireg::io::codec::{cdr, ros1};
-use mireg::io::mcap::log::for_each_record;
+use mireg::io::codec::cdr;
 use mireg::odometry::OdometryConfig;
 use mireg::odometry::stream::StreamOdometry;
 use mireg::register::for_each_cloud;
-use nalgebra::Isometry3;
+use mireg::trajectory::read_mcap_pose_topic;
 
 #[path = "common/cli.rs"]
 mod cli;
@@ -20,34 +18,6 @@ fn fixture(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("fixtures")
         .join(name)
-}
-
-/// `/mireg/pose` of a register output.
-fn register_poses(output: &Path) -> Vec<Isometry3<f64>> {
-    let (mut channel, mut poses) = (None, Vec::new());
-    for_each_record(output, |r| {
-        match r {
-            Record::Channel(c) if c.topic == "/mireg/pose" => {
-                channel = Some((c.id, c.message_encoding.clone()))
-            }
-            Record::Message { header, data } => {
-                if let Some((id, enc)) = &channel
-                    && header.channel_id == *id
-                {
-                    let p = if enc == "ros1" {
-                        ros1::decode_pose_stamped(&data)
-                    } else {
-                        cdr::decode_pose_stamped(&data)
-                    };
-                    poses.push(p.unwrap().1);
-                }
-            }
-            _ => {}
-        }
-        Ok(())
-    })
-    .unwrap();
-    poses
 }
 
 #[test]
@@ -67,7 +37,7 @@ fn stream_odometry_gives_register_s_poses_bit_for_bit() {
             "--quiet",
             "--force",
         ]);
-        let want = register_poses(&out);
+        let want = read_mcap_pose_topic(&out, "/mireg/pose").unwrap().poses;
         let mut odometry = StreamOdometry::new(OdometryConfig::default(), true, true);
         let mut got = Vec::new();
         for_each_cloud(&log, None, |_, cloud| {

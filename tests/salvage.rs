@@ -9,11 +9,12 @@
 
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use mireg::io::damage::{Damage, ReadPolicy};
 use mireg::io::input_log::InputLog;
 
+#[path = "common/cli.rs"]
+mod cli;
 #[path = "common/log_contents.rs"]
 mod log_contents;
 
@@ -217,12 +218,8 @@ fn register_writes_a_complete_log_of_what_a_cut_log_holds() {
         let bytes = std::fs::read(fixture(name)).unwrap();
         let (input, at) = cut(dir.path(), "cut.log", &bytes, 60);
         let out = dir.path().join("out.mcap");
-        let run = Command::new(env!("CARGO_BIN_EXE_mireg"))
-            .args(["register", "--force", "--quiet", "-o"])
-            .arg(&out)
-            .arg(&input)
-            .output()
-            .unwrap();
+        let (input_arg, out_arg) = (input.to_str().unwrap(), out.to_str().unwrap());
+        let run = cli::mireg(&["register", "--force", "--quiet", "-o", out_arg, input_arg]);
         let stderr = String::from_utf8_lossy(&run.stderr);
         assert!(run.status.success(), "{name}: {stderr}");
         assert!(
@@ -256,12 +253,7 @@ fn register_writes_a_complete_log_of_what_a_cut_log_holds() {
         assert!(damage["cut_at"].as_u64().unwrap() <= at as u64);
 
         std::fs::remove_file(&out).unwrap();
-        let run = Command::new(env!("CARGO_BIN_EXE_mireg"))
-            .args(["register", "--strict", "--quiet", "-o"])
-            .arg(&out)
-            .arg(&input)
-            .output()
-            .unwrap();
+        let run = cli::mireg(&["register", "--strict", "--quiet", "-o", out_arg, input_arg]);
         assert_eq!(run.status.code(), Some(2));
         assert!(String::from_utf8_lossy(&run.stderr).contains("cut.log"));
         assert!(!out.exists());

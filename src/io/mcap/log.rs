@@ -66,8 +66,13 @@ impl InputCatalog {
     /// read).
     pub fn read_with(path: &Path, policy: ReadPolicy) -> Result<(Self, Damage)> {
         let mut cat = Self::default();
-        let summary = read_summary(path)?.filter(|s| !s.channels.is_empty());
-        if let Some(summary) = summary.filter(|_| !policy.skip_corrupt) {
+        // With `skip_corrupt` every chunk is scanned to find the corrupt ones: no summary read.
+        let summary = if policy.skip_corrupt {
+            None
+        } else {
+            read_summary(path)?.filter(|s| !s.channels.is_empty())
+        };
+        if let Some(summary) = summary {
             let schemas = summary
                 .schemas
                 .values()
