@@ -28,14 +28,6 @@ FIXTURE = REPO / "fixtures" / "icl_livingroom1.mcap"
 LOGS = 8
 
 
-@pytest.fixture(scope="module")
-def binary():
-    b = common.mireg_bin()
-    if not Path(b).exists() and shutil.which(b) is None:
-        pytest.skip(f"no mireg binary at {b}: build it or set MIREG_BIN")
-    return b
-
-
 def pose_bytes(path: Path) -> list[bytes]:
     """The /mireg/pose messages' bytes (stats carry timings; poses must not differ at all)."""
     from mcap.reader import make_reader

@@ -22,14 +22,6 @@ REPO = Path(__file__).resolve().parents[3]
 FIXTURE = REPO / "fixtures" / "icl_livingroom1.mcap"
 
 
-@pytest.fixture(scope="module")
-def binary():
-    b = common.mireg_bin()
-    if not Path(b).exists() and shutil.which(b) is None:
-        pytest.skip(f"no mireg binary at {b}: build it or set MIREG_BIN")
-    return b
-
-
 def manifest(out: Path) -> dict[str, dict]:
     return {e["input"]: e for e in map(json.loads, (out / "manifest.jsonl").read_text().split("\n")[:-1])}
 
