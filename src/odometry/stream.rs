@@ -63,14 +63,14 @@ pub fn deskew_cloud(
     times_s: &[f64],
     motion: Isometry3<f64>,
     dt: f64,
-) -> Deskewed {
+) -> (Isometry3<f64>, f64, f64) {
     deskew(points, times_s, &motion, dt);
     let mean = if times_s.is_empty() {
         0.0
     } else {
         times_s.iter().sum::<f64>() / times_s.len() as f64
     };
-    Some((motion, dt, mean))
+    (motion, dt, mean)
 }
 
 /// `points` prepared for registration ([`prepare_frame_with`], the map's fine points kept), or
@@ -220,7 +220,7 @@ impl StreamOdometry {
             && dt.is_finite()
             && dt > 0.0
         {
-            deskewed = deskew_cloud(&mut points, times, motion, dt);
+            deskewed = Some(deskew_cloud(&mut points, times, motion, dt));
         }
         let (frame, invalid) = prepare(&points, &self.config, &mut self.scratch)?;
         let odometry = self.odometry.as_mut().expect("made by the first cloud");

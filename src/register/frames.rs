@@ -7,6 +7,7 @@ use nalgebra::Isometry3;
 use crate::io::codec;
 use crate::loops::Descriptor;
 use crate::odometry::FrameEstimate;
+use crate::odometry::stream::Deskewed;
 use crate::pipeline::{FailureReason, FrameTimings, PreparedFrame};
 
 /// One cloud message's bytes and times.
@@ -22,12 +23,9 @@ pub(super) struct CloudInfo {
     pub(super) invalid: Option<(FailureReason, String)>,
     /// The cloud's time field.
     pub(super) time_field: Option<String>,
-    /// The motion (`prev_from_curr`, seconds) the cloud was deskewed by, if it was.
-    pub(super) deskew_motion: Option<(Isometry3<f64>, f64)>,
-    /// The mean of the deskewed points' times, seconds after the header stamp (0 when not
-    /// deskewed): the instant the registration of a cloud deskewed by a slightly wrong motion
-    /// is least biased at (`registrar.rs`).
-    pub(super) deskew_mean_s: f64,
+    /// The motion (`prev_from_curr`, seconds) the cloud was deskewed by and the mean of its
+    /// points' times after the stamp, if it was ([`Deskewed`]).
+    pub(super) deskewed: Deskewed,
     /// The frame's appearance descriptor, when loop closure is on and the frame has features.
     pub(super) descriptor: Option<Descriptor>,
     /// Points dropped by the decoder: non-finite, and zero returns of an organised cloud.
@@ -41,7 +39,12 @@ pub(super) struct CloudInfo {
 impl CloudInfo {
     /// Whether the cloud's points were deskewed by its time field.
     pub(super) fn deskewed(&self) -> bool {
-        self.deskew_motion.is_some()
+        self.deskewed.is_some()
+    }
+
+    /// The motion (`prev_from_curr`, seconds) the cloud was deskewed by, if it was.
+    pub(super) fn deskew_motion(&self) -> Option<(Isometry3<f64>, f64)> {
+        self.deskewed.map(|(motion, dt, _)| (motion, dt))
     }
 }
 

@@ -77,8 +77,7 @@ impl Prepare<'_> {
         let (kind, config, topic) = (self.plan.kind, &self.plan.config, self.plan.topic.as_str());
         let t = Instant::now();
         let decoded = kind.decode_reusing(&msg.data, std::mem::take(&mut carry.spare_points));
-        let (mut time_field, mut deskew_motion, mut fatal) = (None, None, None);
-        let mut deskew_mean_s = 0.0;
+        let (mut time_field, mut deskewed, mut fatal) = (None, None, None);
         let dropped = decoded.as_ref().map_or(Dropped::default(), |c| Dropped {
             non_finite: c.num_dropped_non_finite,
             zero: c.num_dropped_zero,
@@ -111,11 +110,9 @@ impl Prepare<'_> {
                     time_field = Some(times.field.clone());
                     if self.deskew_mode != DeskewMode::Off
                         && let Some((motion, dt)) = motions.of(deskew_for(frame_index))
-                        && let Some((motion, dt, mean)) =
-                            deskew_cloud(&mut cloud.points, &times.seconds, motion, dt)
                     {
-                        deskew_motion = Some((motion, dt));
-                        deskew_mean_s = mean;
+                        deskewed =
+                            Some(deskew_cloud(&mut cloud.points, &times.seconds, motion, dt));
                     }
                 } else if self.deskew_mode == DeskewMode::On {
                     let detail = format!(
@@ -147,8 +144,7 @@ impl Prepare<'_> {
                     .then(|| Descriptor::from_prepared(&frame)),
                 invalid,
                 time_field,
-                deskew_motion,
-                deskew_mean_s,
+                deskewed,
                 dropped,
                 log_time: msg.log_time,
                 publish_time: msg.publish_time,

@@ -54,11 +54,8 @@ pub(super) fn run(
             }
             // The motion and its duration, for deskewing a later frame; a deskewed frame's pose
             // referred to its stamp by its own motion.
-            let deskewed = m
-                .cloud
-                .deskew_motion
-                .map(|(motion, dt)| (motion, dt, m.cloud.deskew_mean_s));
-            let (motion, dt) = mean_time.push(&mut est, m.cloud.header.stamp.to_ns(), deskewed);
+            let (motion, dt) =
+                mean_time.push(&mut est, m.cloud.header.stamp.to_ns(), m.cloud.deskewed);
             let _ = motions.send((k, motion, dt));
             Ok(FrameOut {
                 cloud: m.cloud,

@@ -68,6 +68,7 @@ impl<'a> Writer<'a> {
     pub(super) fn frame(&mut self, log: &mut OutputLog, r: Result<FrameOut>) -> Result<()> {
         let out = r?;
         write_frame(log, &self.outputs, self.world_frame, &out)?;
+        let deskew_motion = out.cloud.deskew_motion();
         self.estimates.push(Estimate {
             world_from_frame: out.est.world_from_frame,
             success: out.est.success,
@@ -75,7 +76,7 @@ impl<'a> Writer<'a> {
             header: out.cloud.header,
             log_time: out.cloud.log_time,
             publish_time: out.cloud.publish_time,
-            deskew_motion: out.cloud.deskew_motion,
+            deskew_motion,
             descriptor: out.cloud.descriptor,
         });
         if let Some(bar) = &self.progress {
