@@ -438,8 +438,9 @@ impl Bag {
         let mut pos = start;
         // Both buffers are reused from chunk to chunk.
         let (mut chunk, mut spare) = (Vec::new(), Vec::new());
-        // A cut is met at `data_end` when this is not the pass that found it.
-        while pos < end || (pos == self.data_end && self.damage.cut_at == Some(pos)) {
+        // A cut is met at `data_end` (where the scan that found it set both) when this is not
+        // the pass that found it.
+        while pos < end || self.damage.cut_at == Some(pos) {
             let rec = match self.next_record(r, &mut pos, std::mem::take(&mut spare))? {
                 Next::Whole(rec) => rec,
                 Next::End => break,

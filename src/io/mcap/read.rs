@@ -358,7 +358,7 @@ fn salvage_chunk(
 
 /// The header of a chunk record whose body is cut short to `body`, and the compressed bytes
 /// after it that are there.
-pub(crate) fn partial_chunk_header(body: &[u8]) -> Option<(ChunkHeader, &[u8])> {
+fn partial_chunk_header(body: &[u8]) -> Option<(ChunkHeader, &[u8])> {
     const FIXED: usize = 8 + 8 + 8 + 4; // start and end time, uncompressed size, CRC
     let name_len = u32::from_le_bytes(body.get(FIXED..FIXED + 4)?.try_into().ok()?) as usize;
     let head_len = FIXED + 4 + name_len + 8;
