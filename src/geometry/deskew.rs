@@ -49,6 +49,13 @@ fn left_jacobian(omega: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::identity() + w * a + w * w * b
 }
 
+/// Where a sensor that moves by `motion` over some interval, at constant velocity, is after the
+/// fraction `s` of it (negative: before its start): `exp(s · log(motion))`.
+pub fn screw_fraction(motion: &Isometry3<f64>, s: f64) -> Isometry3<f64> {
+    let (omega, v) = log_isometry(motion);
+    exp_twist(&(omega * s), &(v * s))
+}
+
 /// Moves each of `points`, measured `times_s[i]` seconds after the reference time, into the
 /// sensor frame at the reference time, for a sensor that moved by `prev_from_curr` in the
 /// `dt_s` seconds before it (constant velocity).

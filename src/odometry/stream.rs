@@ -10,7 +10,7 @@ use nalgebra::{Isometry3, Point3};
 use super::keep_map_fine_points;
 use super::{FrameEstimate, MAP_FINE_DRAW_PER_ICP_POINT, Odometry, OdometryConfig};
 use crate::Result;
-use crate::geometry::deskew::{deskew, exp_twist, log_isometry};
+use crate::geometry::deskew::{deskew, screw_fraction};
 use crate::pipeline::{
     FailureReason, PrepareScratch, PreparedFrame, feature_voxel_for_cloud, prepare_frame,
     prepare_frame_with, voxel_for_cloud, with_feature_voxel,
@@ -132,11 +132,7 @@ impl MeanTimeMotions {
             .map_or(f64::NAN, |p| (stamp_ns - p) as f64 * 1e-9);
         self.previous_stamp_ns = Some(stamp_ns);
         let from_mean = match deskewed {
-            Some((motion, d, mean)) if mean != 0.0 => {
-                let (omega, v) = log_isometry(&motion);
-                let s = mean / d;
-                exp_twist(&(omega * s), &(v * s))
-            }
+            Some((motion, d, mean)) if mean != 0.0 => screw_fraction(&motion, mean / d),
             _ => Isometry3::identity(),
         };
         let motion = if deskewed.is_some() || self.previous_from_mean != Isometry3::identity() {
@@ -149,10 +145,8 @@ impl MeanTimeMotions {
             && dt.is_finite()
             && dt > 0.0
         {
-            let (omega, v) = log_isometry(&motion);
-            let s = -mean / dt;
             est.world_from_frame =
-                est.world_from_frame * from_mean * exp_twist(&(omega * s), &(v * s));
+                est.world_from_frame * from_mean * screw_fraction(&motion, -mean / dt);
         }
         (motion, dt)
     }
