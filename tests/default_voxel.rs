@@ -107,6 +107,8 @@ fn register_without_voxel_derives_it_from_the_first_cloud() {
     // it up the ladder voxel · 2^(k/4).
     assert_eq!(s["feature_voxel_m"], s["voxel_m"]);
     let s = register(&["--voxel", "0.07", "--feature-points", "10"]);
+    // The run's voxel stays the configured one; only global registration moves up.
+    assert_eq!(s["voxel_m"], 0.07, "{s}");
     let k = (s["feature_voxel_m"].as_f64().unwrap() / 0.07).ln()
         / mireg::pipeline::FEATURE_VOXEL_STEP.ln();
     assert!(k > 0.5 && (k - k.round()).abs() < 1e-9, "{s}");

@@ -19,7 +19,6 @@ use crate::pipeline::{
 /// `config` as `register` runs it once it has seen its first usable cloud `first`: the voxel
 /// from the cloud's median range when `derive_voxel` (and the cloud can size one), the feature
 /// voxel for [`OdometryConfig::feature_points`], and the map's fine stage drawing input points.
-/// Returns the configuration and whether the voxel came from the cloud.
 ///
 /// # Errors
 /// A voxel the downsampling refuses.
@@ -27,22 +26,41 @@ pub fn resolve_config(
     config: &OdometryConfig,
     first: Option<&[Point3<f64>]>,
     derive_voxel: bool,
-) -> Result<(OdometryConfig, bool)> {
+) -> Result<Resolved> {
     let mut config = config.clone();
     let mut derived = false;
     if derive_voxel && let Some(v) = first.and_then(voxel_for_cloud) {
         config.pair.voxel_size_m = v;
         derived = true;
     }
+    // Read before the feature voxel replaces `pair.voxel_size_m`.
+    let voxel_m = config.pair.voxel_size_m;
     if let Some(points) = first {
-        let fv = feature_voxel_for_cloud(points, config.pair.voxel_size_m, config.feature_points)?;
+        let fv = feature_voxel_for_cloud(points, voxel_m, config.feature_points)?;
         config.pair = with_feature_voxel(&config.pair, fv);
     }
     // Frames carry input points for the map ICP's fine stage, not for the pairwise one, which
     // the local map replaces (`Odometry::new` turns that off).
     config.pair.icp_fine = config.map_fine;
     config.pair.icp_fine_points_per_icp_point = MAP_FINE_DRAW_PER_ICP_POINT;
-    Ok((config, derived))
+    Ok(Resolved {
+        config,
+        voxel_m,
+        voxel_derived: derived,
+    })
+}
+
+/// What [`resolve_config`] makes of a configuration.
+#[derive(Debug, Clone)]
+pub struct Resolved {
+    /// The configuration to run: `pair.voxel_size_m` is the *feature* voxel of global
+    /// registration from here on ([`with_feature_voxel`]).
+    pub config: OdometryConfig,
+    /// The run's voxel \[m\]: the local map's and ICP's, which loop closure and the map scale
+    /// with (not the feature voxel).
+    pub voxel_m: f64,
+    /// Whether the voxel came from the first cloud (else it is the configured one).
+    pub voxel_derived: bool,
 }
 
 /// Which earlier frame's motion deskews frame `k`: frame `k − 2`'s (the latest one surely known
@@ -203,8 +221,7 @@ impl StreamOdometry {
             let first = voxel_for_cloud(&points)
                 .is_some()
                 .then_some(points.as_slice());
-            let (config, _) = resolve_config(&self.config, first, self.derive_voxel)?;
-            self.config = config;
+            self.config = resolve_config(&self.config, first, self.derive_voxel)?.config;
             self.odometry = Some(Odometry::new(self.config.clone())?);
         }
         let k = self.motions.len();

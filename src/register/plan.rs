@@ -74,10 +74,14 @@ impl Plan {
         } else {
             None
         };
-        let (config, derived) = resolve_config(&opts.config, first.as_deref(), opts.derive_voxel)?;
+        let resolved = resolve_config(&opts.config, first.as_deref(), opts.derive_voxel)?;
         drop(first);
-        let voxel_source = if derived { "first_cloud" } else { "configured" };
-        let voxel_m = config.pair.voxel_size_m;
+        let voxel_source = if resolved.voxel_derived {
+            "first_cloud"
+        } else {
+            "configured"
+        };
+        let (config, voxel_m) = (resolved.config, resolved.voxel_m);
         // A log registered before keeps its mireg topics; this run's go to the next namespace
         // (`/mireg_2/…`), so that no topic mixes two runs.
         let topics = Topics::for_input(&channels);
