@@ -27,8 +27,13 @@ def parse(argv: list[str]):
                        help="retries of a task whose worker or mireg process was lost (default 3)")
 
     r = sub.add_parser("run", help="register every log a glob names, one Ray task each")
-    r.add_argument("glob", help="e.g. 'logs/**/*.mcap' (quote it); bag directories match too")
-    r.add_argument("--out", required=True, help="output directory (manifest.jsonl inside)")
+    r.add_argument("glob", help="e.g. 'logs/**/*.mcap' or 's3://bucket/logs/*.mcap' (quote it); "
+                                "bag directories match too")
+    r.add_argument("--out", required=True,
+                   help="output directory or URL, e.g. s3://bucket/out (manifest.jsonl inside)")
+    r.add_argument("--storage-option", action="append", metavar="KEY=VALUE",
+                   help="an fsspec storage option for s3:// (or other) URLs, repeatable, e.g. "
+                        "endpoint_url=http://127.0.0.1:9000 for an S3-compatible store")
     cluster(r)
     s = sub.add_parser("segments", help="register one long log in parallel segments and stitch")
     s.add_argument("log")

@@ -82,7 +82,10 @@ def run_mireg(binary: str, args: list[str], threads: int) -> dict:
 def init_ray(address: str | None, cpus: int | None):
     import ray
 
-    env_vars = {k: v for k, v in os.environ.items() if k in ("MIREG_BIN", KILL_ONCE_ENV)}
+    # The S3 endpoint too, so that workers on other nodes reach the store the driver reads
+    # (credentials are not shipped: each node has its own, the usual way).
+    forwarded = ("MIREG_BIN", KILL_ONCE_ENV, "AWS_ENDPOINT_URL", "AWS_ENDPOINT_URL_S3")
+    env_vars = {k: v for k, v in os.environ.items() if k in forwarded}
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # no usage reports from our runs
     kwargs = {"runtime_env": {"env_vars": env_vars}, "log_to_driver": False}
     if address:

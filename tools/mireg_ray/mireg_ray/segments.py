@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import json
 import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
 
-from . import common
+from . import common, store
 
 
 def bounds(n: int, k: int, overlap: int) -> list[tuple[int, int | None]]:
@@ -47,7 +48,13 @@ def segment_task(binary: str, log: str, start: int, end: int | None, output: str
 
 def main(args, mireg_args: list[str]) -> int:
     binary = common.mireg_bin()
-    log = Path(args.log)
+    if store.is_remote(args.log) or store.is_remote(args.out):
+        # The segments' outputs go from the workers to the driver through a directory beside
+        # OUT, which an object store is not.
+        print("error: segments reads and writes local (or shared) paths only; object-store "
+              "URLs work with `run`", file=sys.stderr)
+        return 2
+    log = Path(store.local_path(args.log))
     info = json.loads(subprocess.run([binary, "info", str(log), "--json"], capture_output=True,
                                      text=True, check=True).stdout)
     n = info.get("cloud_messages") or 0
@@ -55,7 +62,7 @@ def main(args, mireg_args: list[str]) -> int:
         print(f"{log}: {n} clouds, nothing to split")
         return 2
     plan = bounds(n, args.segments, args.overlap)
-    out = Path(args.out)
+    out = Path(store.local_path(args.out))
     out.parent.mkdir(parents=True, exist_ok=True)
     print(f"{log}: {n} clouds on {info['cloud_topic']}, {len(plan)} segments overlapping by "
           f"{args.overlap} frames: {plan}")

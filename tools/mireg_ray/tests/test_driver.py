@@ -120,5 +120,5 @@ def test_symlinked_inputs_keep_their_place_under_the_root(tmp_path):
     logs.mkdir(parents=True)
     (logs / "a.mcap").symlink_to(elsewhere)
     root = tmp_path / "logs"
-    assert run.output_for(tmp_path / "out", root, logs / "a.mcap") == \
+    assert Path(run.output_for(str(tmp_path / "out"), root, logs / "a.mcap")) == \
         tmp_path / "out" / "day1" / "a.mireg.mcap"
