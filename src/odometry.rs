@@ -220,6 +220,12 @@ pub struct Odometry {
     /// The previous frame was accepted and is still to be added to the map: that happens while
     /// the next frame is registered globally (the two overlap on two cores).
     map_pending: bool,
+    /// The previous frame's index.
+    previous_index: usize,
+    /// Frames the odometry is done with are kept here for [`Self::take_retired`] instead of
+    /// being dropped ([`Self::keep_retired`]).
+    keep_retired: bool,
+    retired: Option<(usize, PreparedFrame)>,
 }
 
 impl Odometry {
@@ -254,7 +260,40 @@ impl Odometry {
             frames: 0,
             map,
             map_pending: false,
+            previous_index: 0,
+            keep_retired: false,
+            retired: None,
         })
+    }
+
+    /// Hand back each frame the odometry is done with ([`Self::take_retired`]) instead of
+    /// dropping it: a frame is held as the previous frame until a later one replaces it. Off by
+    /// default.
+    pub fn keep_retired(&mut self, keep: bool) {
+        self.keep_retired = keep;
+    }
+
+    /// The frame (with its index) that the last [`Self::push`] retired, when
+    /// [`Self::keep_retired`] is on; each frame once. A frame too poor to register is never held
+    /// and never retired.
+    pub fn take_retired(&mut self) -> Option<(usize, PreparedFrame)> {
+        self.retired.take()
+    }
+
+    /// The frame the odometry holds as the previous one (with its index), taking it: for the
+    /// end of a trajectory, after which the odometry registers no more frames.
+    pub fn take_previous(&mut self) -> Option<(usize, PreparedFrame)> {
+        let index = self.previous_index;
+        self.previous.take().map(|(f, _)| (index, f))
+    }
+
+    /// Makes `frame` (frame `index`, at `pose`) the previous frame, retiring the one before.
+    fn set_previous(&mut self, index: usize, frame: PreparedFrame, pose: Isometry3<f64>) {
+        let old = self.previous.replace((frame, pose));
+        if self.keep_retired {
+            self.retired = old.map(|(f, _)| (self.previous_index, f));
+        }
+        self.previous_index = index;
     }
 
     /// The configuration in force.
@@ -283,7 +322,7 @@ impl Odometry {
         let Some((_, world_from_prev)) = &self.previous else {
             // The first frame defines the world.
             if usable {
-                self.previous = Some((frame, Isometry3::identity()));
+                self.set_previous(index, frame, Isometry3::identity());
                 self.map_pending = true;
             } else {
                 est.success = false;
@@ -371,7 +410,7 @@ impl Odometry {
                 est.world_from_frame = pose;
                 est.map = Some(fit);
                 est.pair = Some(pair);
-                self.previous = Some((frame, pose));
+                self.set_previous(index, frame, pose);
                 self.map_pending = true;
                 return Ok(est);
             }
@@ -415,7 +454,7 @@ impl Odometry {
             est.map = Some(fit);
         }
         self.map_pending = est.success || est.map.is_some_and(|m| m.used);
-        self.previous = Some((frame, est.world_from_frame));
+        self.set_previous(index, frame, est.world_from_frame);
         Ok(est)
     }
 

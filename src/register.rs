@@ -21,6 +21,7 @@ mod stitch;
 mod window;
 mod writer;
 
+use closure::KeyframeCache;
 pub use closure::LoopSummary;
 use clouds::CloudKind;
 pub use clouds::{for_each_cloud, point_cloud_topic};
@@ -266,7 +267,10 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         descriptors: opts.loops,
     };
 
-    let copied = std::thread::scope(|scope| -> Result<u64> {
+    let loop_config = opts
+        .loop_config
+        .unwrap_or_else(|| LoopConfig::for_voxel(plan.voxel_m));
+    let (copied, cached) = std::thread::scope(|scope| -> Result<_> {
         let (cloud_tx, cloud_rx) = sync_channel(QUEUE_CAPACITY);
         let (prep_tx, prep_rx) = sync_channel(QUEUE_CAPACITY);
         // Unbounded: results are small (no point data), and the reading thread, which drains them,
@@ -280,7 +284,14 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         let prepare = &prepare;
         scope.spawn(move || prepare.run(cloud_rx, prep_tx, motion_rx, recycle_tx));
         let odometry = &mut odometry;
-        scope.spawn(move || registrar::run(odometry, prep_rx, out_tx, motion_tx));
+        let cache = (opts.loops && loop_config.keep_odometry_frames).then(|| {
+            KeyframeCache::new(
+                &loop_config,
+                &closure::loop_pair_config(&plan.config.pair, &loop_config),
+            )
+        });
+        let registrar =
+            scope.spawn(move || registrar::run(odometry, prep_rx, out_tx, motion_tx, cache));
         let read = reader::read(
             &plan,
             opts,
@@ -290,14 +301,17 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
             recycle_rx,
             &out_rx,
         );
-        writer.drain(&mut log, out_rx, read)
+        let copied = writer.drain(&mut log, out_rx, read)?;
+        let cached = registrar
+            .join()
+            .expect("the registering thread does not panic");
+        Ok((copied, cached))
     })?;
     let loops = if opts.loops {
-        let config = opts
-            .loop_config
-            .unwrap_or_else(|| LoopConfig::for_voxel(plan.voxel_m));
+        let config = loop_config;
+        let cached = cached.map(KeyframeCache::into_frames).unwrap_or_default();
         // The odometry is written: a loop closure that fails costs the loops, not the run.
-        match closure::close_loops(&plan, opts, &writer.estimates, &config) {
+        match closure::close_loops(&plan, opts, &writer.estimates, &config, cached) {
             Ok(outcome) => Some((outcome, config)),
             Err(e) => {
                 eprintln!(

@@ -116,3 +116,68 @@ fn loop_closure_is_independent_of_the_thread_count() {
     };
     assert_eq!(run("1"), run("2"));
 }
+
+/// The keyframes kept from the odometry verify exactly as the same frames read and prepared
+/// again: the same candidates, verdicts, relative poses and loop-closed trajectory, bit for bit,
+/// with and without [`LoopConfig::keep_odometry_frames`] (and with a thinned ICP source, so that
+/// the ICP cloud's point order matters too).
+#[test]
+fn frames_kept_from_the_odometry_verify_as_frames_read_again() {
+    use mireg::loops::LoopConfig;
+    use mireg::odometry::OdometryConfig;
+    use mireg::register::{RegisterOptions, register_log};
+
+    let dir = tempfile::tempdir().unwrap();
+    let input = fixture();
+    let options = |name: &str| RegisterOptions {
+        derive_voxel: true,
+        force: true,
+        ..RegisterOptions::new(&input, &dir.path().join(name), OdometryConfig::default())
+    };
+    // The voxel `register` derives, from a run without loops.
+    let voxel = register_log(&RegisterOptions {
+        loops: false,
+        ..options("voxel.mcap")
+    })
+    .unwrap()
+    .voxel_m;
+    let run = |name: &str, keep: bool| {
+        let opts = RegisterOptions {
+            loop_config: Some(LoopConfig {
+                keep_odometry_frames: keep,
+                icp_source_points: Some(300),
+                ..LoopConfig::for_voxel(voxel)
+            }),
+            ..options(name)
+        };
+        let output = opts.output.clone();
+        let summary = register_log(&opts).unwrap();
+        let records: Vec<serde_json::Value> = loops(&output)
+            .into_iter()
+            .map(|mut r| {
+                let o = r.as_object_mut().unwrap();
+                o.remove("verify_s");
+                o.remove("timings_s");
+                r
+            })
+            .collect();
+        let t = read_mcap_pose_topic(&output, "/mireg/pose_optimized").unwrap();
+        (summary, records, t.poses)
+    };
+    let (kept_summary, kept, kept_poses) = run("kept.mcap", true);
+    let (read_summary, read, read_poses) = run("read.mcap", false);
+    let loops_of = |s: &mireg::register::RegisterSummary| s.loops.clone().unwrap();
+    assert!(loops_of(&kept_summary).accepted > 0);
+    assert_eq!(
+        loops_of(&kept_summary).passes,
+        0,
+        "the fixture's keyframes all fit"
+    );
+    assert!(
+        loops_of(&read_summary).passes > 0,
+        "{:?}",
+        loops_of(&read_summary)
+    );
+    assert_eq!(kept, read);
+    assert_eq!(kept_poses, read_poses);
+}

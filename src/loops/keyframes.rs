@@ -65,21 +65,44 @@ pub fn select_keyframes(
             )));
         }
     }
-    let mut keys = Vec::new();
-    let angle_rad = config.keyframe_angle_deg.to_radians();
-    for k in 0..poses.len() {
-        let new = match keys.last() {
-            None => true,
-            Some(&last) => {
-                let last: usize = last;
-                let moved = travelled_m[k] - travelled_m[last];
-                let turned = (poses[last].rotation.inverse() * poses[k].rotation).angle();
-                moved >= config.keyframe_distance_m || turned >= angle_rad
-            }
-        };
-        if new {
-            keys.push(k);
+    let mut selector = KeyframeSelector::new(config);
+    let keys = (0..poses.len())
+        .filter(|&k| selector.push(&poses[k], travelled_m[k]))
+        .collect();
+    Ok(keys)
+}
+
+/// [`select_keyframes`] one frame at a time, for a caller that sees the poses as they come
+/// (`mireg register` keeps the keyframes' prepared frames for loop verification).
+#[derive(Debug, Clone)]
+pub struct KeyframeSelector {
+    distance_m: f64,
+    angle_rad: f64,
+    /// The last keyframe's pose and path length.
+    last: Option<(Isometry3<f64>, f64)>,
+}
+
+impl KeyframeSelector {
+    /// A selector by `config` (not checked: [`select_keyframes`] checks it).
+    pub fn new(config: &KeyframeConfig) -> Self {
+        Self {
+            distance_m: config.keyframe_distance_m,
+            angle_rad: config.keyframe_angle_deg.to_radians(),
+            last: None,
         }
     }
-    Ok(keys)
+
+    /// Whether the next frame, at `pose` after `travelled_m` of path from the log's start, is a
+    /// keyframe.
+    pub fn push(&mut self, pose: &Isometry3<f64>, travelled_m: f64) -> bool {
+        let new = self.last.is_none_or(|(last, last_travelled)| {
+            let moved = travelled_m - last_travelled;
+            let turned = (last.rotation.inverse() * pose.rotation).angle();
+            moved >= self.distance_m || turned >= self.angle_rad
+        });
+        if new {
+            self.last = Some((*pose, travelled_m));
+        }
+        new
+    }
 }

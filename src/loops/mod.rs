@@ -38,6 +38,6 @@ pub mod verify;
 pub use candidates::{Candidate, CandidateConfig, Keyframe, Source, find_candidates};
 pub use closure::{LoopConfig, LoopEdge, optimize_trajectory, pose_graph};
 pub use descriptor::Descriptor;
-pub use keyframes::{KeyframeConfig, select_keyframes};
+pub use keyframes::{KeyframeConfig, KeyframeSelector, select_keyframes};
 pub use scan_context::ScanContext;
 pub use verify::{Verification, VerifyConfig, verify};

@@ -133,6 +133,11 @@ pub struct PairConfig {
     pub icp_max_distance_m: Option<f64>,
     /// ICP iterations (of each stage). Default 30.
     pub icp_max_iterations: usize,
+    /// At most this many source points in ICP: a larger source ICP cloud is thinned to an even
+    /// stride of its points (the target keeps all of its own). `None` (the default) uses all.
+    /// Loop verification sets it ([`crate::loops::LoopConfig::icp_source_points`]): a loop edge
+    /// needs a pose good to a fraction of its σ, not a pair's best.
+    pub icp_max_source_points: Option<usize>,
     /// After ICP of the ICP clouds, a fine stage: point-to-plane ICP of the source's input
     /// points against the target's, at [`Self::icp_fine_distance_m`]. Each cloud draws
     /// [`Self::icp_fine_points_per_icp_point`] input points per ICP-cloud point (seeded); the
@@ -197,6 +202,7 @@ impl Default for PairConfig {
             icp_voxel_size_m: None,
             icp_max_distance_m: None,
             icp_max_iterations: crate::refine::icp::DEFAULT_MAX_ITERATIONS,
+            icp_max_source_points: None,
             icp_fine: true,
             icp_fine_points_per_icp_point: refine::FINE_POINTS_PER_ICP_POINT,
             icp_fine_distance_m: None,

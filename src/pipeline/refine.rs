@@ -236,7 +236,11 @@ pub(super) fn refine<'a>(
     };
     let distance = c.icp_max_distance_m.unwrap();
     let icp_config = IcpConfig::new(distance).max_iterations(c.icp_max_iterations);
-    let r = registration_icp_point_to_plane(src_icp.points(), tgt_icp, &model, &icp_config)?;
+    let thinned = c
+        .icp_max_source_points
+        .and_then(|max| thin(src_icp.points(), max));
+    let src_points = thinned.as_deref().unwrap_or(src_icp.points());
+    let r = registration_icp_point_to_plane(src_points, tgt_icp, &model, &icp_config)?;
     out.target_from_source = r.target_from_source;
     out.fitness = r.fitness;
     out.inlier_rmse_m = r.inlier_rmse_m;
@@ -257,7 +261,7 @@ pub(super) fn refine<'a>(
         distance_m: c.icp_fine_distance_m.unwrap(),
         max_iterations: c.icp_max_iterations,
     };
-    let fine = fine_stage(&inputs, src_icp.points(), tgt_icp, &r, distance)?;
+    let fine = fine_stage(&inputs, src_points, tgt_icp, &r, distance)?;
     let Some(f) = fine else {
         return Ok(());
     };
@@ -268,9 +272,36 @@ pub(super) fn refine<'a>(
     Ok(())
 }
 
+/// Every `ceil(n / max)`-th of `points`, when there are more than `max` (at least 1); `None`
+/// when all are kept. An even stride over the ICP cloud's voxel order spreads the kept points
+/// over the whole cloud.
+fn thin(points: &[Point3<f64>], max: usize) -> Option<Vec<Point3<f64>>> {
+    let max = max.max(1);
+    (points.len() > max).then(|| {
+        points
+            .iter()
+            .step_by(points.len().div_ceil(max))
+            .copied()
+            .collect()
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn thinning_keeps_at_most_max_points_spread_over_the_cloud() {
+        let points: Vec<Point3<f64>> = (0..10)
+            .map(|i| Point3::new(f64::from(i), 0.0, 0.0))
+            .collect();
+        assert_eq!(thin(&points, 10), None);
+        assert_eq!(thin(&points, 0).unwrap().len(), 1);
+        let kept: Vec<f64> = thin(&points, 4).unwrap().iter().map(|p| p.x).collect();
+        assert_eq!(kept, vec![0.0, 3.0, 6.0, 9.0]);
+        let kept: Vec<f64> = thin(&points, 3).unwrap().iter().map(|p| p.x).collect();
+        assert_eq!(kept, vec![0.0, 4.0, 8.0]);
+    }
 
     #[test]
     fn selection_sampling_includes_every_point_with_the_same_probability() {

@@ -3,8 +3,14 @@
 //! the two frames read again from the input (the log is on disk: a second pass, in batches of at
 //! most [`LoopConfig::frames_in_memory`] prepared frames), then the robust pose graph.
 //!
+//! The keyframes' frames that the odometry prepared are kept as it retires them
+//! ([`KeyframeCache`]), as many as fit the verification's memory budget: a candidate between
+//! two kept frames is verified without reading or preparing anything again, and a pass over the
+//! input is made only for the frames that did not fit.
+//!
 //! Memory: per frame, the odometry's estimate and a [`Descriptor`] (260 bytes) are kept through
-//! the run; the verification holds at most `frames_in_memory` prepared frames at a time.
+//! the run; the kept keyframes and the verification's frames together stay within
+//! [`LoopConfig::memory_budget_bytes`] and [`LoopConfig::frames_in_memory`].
 
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::ops::ControlFlow;
@@ -18,8 +24,8 @@ use crate::Result;
 use crate::evaluate::path_distances;
 use crate::geometry::deskew::deskew;
 use crate::loops::{
-    Candidate, Descriptor, Keyframe, LoopConfig, LoopEdge, Source, Verification, find_candidates,
-    optimize_trajectory, select_keyframes, verify,
+    Candidate, Descriptor, Keyframe, KeyframeSelector, LoopConfig, LoopEdge, Source, Verification,
+    find_candidates, optimize_trajectory, select_keyframes, verify,
 };
 use crate::pipeline::{PairConfig, PreparedFrame, prepare_frame, refine};
 
@@ -45,6 +51,8 @@ pub(super) struct LoopRecord {
     pub(super) correspondences: usize,
     pub(super) fitness: f64,
     pub(super) inlier_rmse_m: f64,
+    /// The ICP's iterations (0 when it did not run).
+    pub(super) icp_iterations: usize,
     pub(super) odometry_disagreement_m: f64,
     pub(super) odometry_disagreement_deg: f64,
     /// Robust weight of the loop edge at the optimum (0 for a rejected candidate).
@@ -87,20 +95,89 @@ pub(super) struct LoopOutcome {
 
 /// The pair settings of loop verification: the run's, with the pairwise fine stage as `mireg
 /// pair` runs it (the odometry's frames draw their fine points for the map instead).
-fn loop_pair_config(pair: &PairConfig, fine_icp: bool) -> PairConfig {
+pub(super) fn loop_pair_config(pair: &PairConfig, config: &LoopConfig) -> PairConfig {
     PairConfig {
-        icp_fine: fine_icp,
+        icp_fine: config.fine_icp,
+        icp_max_source_points: config.icp_source_points,
         icp_fine_points_per_icp_point: refine::FINE_POINTS_PER_ICP_POINT,
         ..pair.clone()
     }
 }
 
-/// Runs loop closure over the odometry's `estimates` (one per frame, in order).
+/// The prepared frames of the keyframes, kept from the odometry for verification: each frame's
+/// pose is [`Self::push_pose`]d as it is registered, deciding whether it is a keyframe by the
+/// rule [`close_loops`] applies ([`KeyframeSelector`]), and each frame the odometry retires is
+/// [`Self::offer`]ed, kept when it is a keyframe with features and fits the budget. Kept frames
+/// are exactly what verification would prepare from the log (the same deskewed cloud and pair
+/// settings; the odometry's extra points for the map's fine stage are dropped, as verification
+/// runs without that stage).
+pub(super) struct KeyframeCache {
+    selector: KeyframeSelector,
+    /// Path length to the last pose pushed \[m\], summed as [`path_distances`] sums it, and that
+    /// pose.
+    travelled: f64,
+    last_pose: Option<Isometry3<f64>>,
+    keyframe: Vec<bool>,
+    frames: BTreeMap<usize, PreparedFrame>,
+    bytes: usize,
+    budget_bytes: usize,
+    max_frames: usize,
+    icp_distance_m: f64,
+}
+
+impl KeyframeCache {
+    /// An empty cache for loop closure by `config`, with the run's pair settings `pair`.
+    pub(super) fn new(config: &LoopConfig, pair: &PairConfig) -> Self {
+        Self {
+            selector: KeyframeSelector::new(&config.keyframes),
+            travelled: 0.0,
+            last_pose: None,
+            keyframe: Vec::new(),
+            frames: BTreeMap::new(),
+            bytes: 0,
+            budget_bytes: config.memory_budget_bytes,
+            max_frames: config.frames_in_memory,
+            icp_distance_m: pair.icp_max_distance_m.unwrap_or(pair.voxel_size_m),
+        }
+    }
+
+    /// The next frame's odometry pose (`world_from_frame`, as the writer records it).
+    pub(super) fn push_pose(&mut self, pose: &Isometry3<f64>) {
+        if let Some(last) = &self.last_pose {
+            self.travelled += (pose.translation.vector - last.translation.vector).norm();
+        }
+        self.last_pose = Some(*pose);
+        let key = self.selector.push(pose, self.travelled);
+        self.keyframe.push(key);
+    }
+
+    /// Frame `k`, retired by the odometry: kept when it is a keyframe with features and fits.
+    pub(super) fn offer(&mut self, k: usize, mut frame: PreparedFrame) {
+        if !self.keyframe.get(k).copied().unwrap_or(false) || frame.features.is_empty() {
+            return;
+        }
+        frame.keep_fine(Vec::new());
+        let bytes = frame.approx_bytes(self.icp_distance_m);
+        if self.frames.len() < self.max_frames && self.bytes + bytes <= self.budget_bytes {
+            self.bytes += bytes;
+            self.frames.insert(k, frame);
+        }
+    }
+
+    /// The frames kept, by index.
+    pub(super) fn into_frames(self) -> BTreeMap<usize, PreparedFrame> {
+        self.frames
+    }
+}
+
+/// Runs loop closure over the odometry's `estimates` (one per frame, in order); `cached` holds
+/// frames the odometry prepared ([`KeyframeCache`]), which are not read again.
 pub(super) fn close_loops(
     plan: &Plan,
     opts: &RegisterOptions,
     estimates: &[Estimate],
     config: &LoopConfig,
+    cached: BTreeMap<usize, PreparedFrame>,
 ) -> Result<LoopOutcome> {
     let start = Instant::now();
     let poses: Vec<Isometry3<f64>> = estimates.iter().map(|e| e.world_from_frame).collect();
@@ -129,14 +206,15 @@ pub(super) fn close_loops(
         })
         .collect();
 
-    let pair = loop_pair_config(&plan.config.pair, config.fine_icp);
+    let pair = loop_pair_config(&plan.config.pair, config);
     let verifier = Verifier {
         poses: &poses,
         travelled: &travelled,
         pair: &pair,
         config,
     };
-    let (verified, skipped, passes) = verify_all(plan, opts, estimates, &candidates, &verifier)?;
+    let (verified, skipped, passes) =
+        verify_all(plan, opts, estimates, &candidates, &verifier, cached)?;
     // Candidates skipped as redundant were not tried: no record, a count.
     let candidates: Vec<Candidate> = candidates
         .into_iter()
@@ -239,6 +317,7 @@ fn record(
         correspondences: verified.map_or(0, |(v, _)| v.pair.num_correspondences),
         fitness: verified.map_or(0.0, |(v, _)| v.pair.fitness),
         inlier_rmse_m: verified.map_or(0.0, |(v, _)| v.pair.inlier_rmse_m),
+        icp_iterations: verified.map_or(0, |(v, _)| v.pair.icp_iterations),
         odometry_disagreement_m: verified.map_or(f64::NAN, |(v, _)| v.disagreement_m),
         odometry_disagreement_deg: verified.map_or(f64::NAN, |(v, _)| v.disagreement_deg),
         weight: weights.get(&(c.query, c.matched)).copied().unwrap_or(0.0),
@@ -256,7 +335,7 @@ pub(super) fn describe(
     estimates: &mut [Estimate],
 ) -> Result<()> {
     let needed: BTreeSet<usize> = (0..estimates.len()).collect();
-    let pair = loop_pair_config(&plan.config.pair, false);
+    let pair = loop_pair_config(&plan.config.pair, &LoopConfig::for_voxel(plan.voxel_m));
     let mut descriptors = vec![None; estimates.len()];
     for_each_needed_frame(plan, opts, estimates, &needed, &pair, |k, prepare| {
         let Some(frame) = prepare() else {
@@ -325,17 +404,20 @@ impl Verifier<'_> {
 
 /// Verifies every candidate, reading the input again as often as needed (the passes, returned):
 /// in each pass the frames stream by in file order; a frame some candidate still needs is
-/// prepared, its candidates whose other frame is held are verified at once (in parallel), and it
-/// is held while it has candidates left and there is room ([`LoopConfig::frames_in_memory`]);
-/// a frame is released when its last candidate is done. Candidates whose two frames were never
-/// held together wait for the next pass. Each pass verifies at least the candidates of the first
-/// frame it holds, so the passes end; a log that revisits a few places often needs few.
+/// prepared (or taken from `cached`), its candidates whose other frame is held are verified at
+/// once (in parallel), and it is held while it has candidates left and there is room
+/// ([`LoopConfig::frames_in_memory`]); a frame is released when its last candidate is done.
+/// Candidates whose two frames were never held together wait for the next pass. Each pass
+/// verifies at least the candidates of the first frame it holds, so the passes end; a log that
+/// revisits a few places often needs few. A pass whose frames are all in `cached` visits them in
+/// index order without reading the input, and is not counted.
 fn verify_all(
     plan: &Plan,
     opts: &RegisterOptions,
     estimates: &[Estimate],
     candidates: &[Candidate],
     verifier: &Verifier,
+    mut cached: BTreeMap<usize, PreparedFrame>,
 ) -> Result<VerifyOutcome> {
     // Sized by the first frame prepared (frames of one log are of a size).
     let mut capacity: Option<usize> = None;
@@ -346,7 +428,6 @@ fn verify_all(
     let mut remaining: Vec<Candidate> = candidates.to_vec();
     let mut passes = 0;
     while !remaining.is_empty() {
-        passes += 1;
         // Each frame's candidates (indices into `remaining`, in its order) and how many are left.
         let mut of_frame: HashMap<usize, Vec<usize>> = HashMap::new();
         for (i, c) in remaining.iter().enumerate() {
@@ -356,73 +437,84 @@ fn verify_all(
         let mut uses: HashMap<usize, usize> =
             of_frame.iter().map(|(&f, cs)| (f, cs.len())).collect();
         let needed: BTreeSet<usize> = uses.keys().copied().collect();
+        cached.retain(|k, _| needed.contains(k));
+        let all_cached = needed.iter().all(|k| cached.contains_key(k));
         let mut held: BTreeMap<usize, PreparedFrame> = BTreeMap::new();
         let mut done: BTreeSet<(usize, usize)> = BTreeSet::new();
-        let seen = for_each_needed_frame(
-            plan,
-            opts,
-            estimates,
-            &needed,
-            verifier.pair,
-            |k, prepare| {
-                // This frame's candidates that an accepted loop makes redundant: not tried.
-                let mine = || of_frame[&k].iter().map(|&i| &remaining[i]);
-                let redundant: Vec<(usize, usize)> = mine()
-                    .filter(|c| !done.contains(&(c.query, c.matched)))
-                    .filter(|c| verifier.redundant(c, &accepted))
-                    .map(|c| (c.query, c.matched))
-                    .collect();
-                for key in redundant {
-                    skipped.insert(key);
-                    release(&mut done, &mut uses, &mut held, key);
+        let mut visit = |k: usize,
+                         prepare: &mut dyn FnMut() -> Option<PreparedFrame>|
+         -> Result<bool> {
+            // This frame's candidates that an accepted loop makes redundant: not tried.
+            let mine = || of_frame[&k].iter().map(|&i| &remaining[i]);
+            let redundant: Vec<(usize, usize)> = mine()
+                .filter(|c| !done.contains(&(c.query, c.matched)))
+                .filter(|c| verifier.redundant(c, &accepted))
+                .map(|c| (c.query, c.matched))
+                .collect();
+            for key in redundant {
+                skipped.insert(key);
+                release(&mut done, &mut uses, &mut held, key);
+            }
+            let from_cache = cached.remove(&k);
+            if uses[&k] == 0 {
+                return Ok(false);
+            }
+            let was_cached = from_cache.is_some();
+            let Some(frame) = from_cache.or_else(prepare) else {
+                return Ok(false);
+            };
+            // This frame's candidates whose other frame is held.
+            let ready: Vec<&Candidate> = mine()
+                .filter(|c| !done.contains(&(c.query, c.matched)))
+                .filter(|c| {
+                    (c.query == k && held.contains_key(&c.matched))
+                        || (c.matched == k && held.contains_key(&c.query))
+                })
+                .collect();
+            let results: Vec<((usize, usize), (Verification, f64))> = ready
+                .par_iter()
+                .map(|c| {
+                    let (q, m) = if c.query == k {
+                        (&frame, &held[&c.matched])
+                    } else {
+                        (&held[&c.query], &frame)
+                    };
+                    verifier.verify(c, q, m).map(|v| ((c.query, c.matched), v))
+                })
+                .collect::<Result<_>>()?;
+            for (key, v) in results {
+                if v.0.accepted {
+                    accepted.push(key);
                 }
-                if uses[&k] == 0 {
-                    return Ok(false);
+                verified.insert(key, v);
+                release(&mut done, &mut uses, &mut held, key);
+            }
+            let cap = *capacity.get_or_insert_with(|| {
+                let distance = verifier
+                    .pair
+                    .icp_max_distance_m
+                    .unwrap_or(verifier.pair.voxel_size_m);
+                let fit = verifier.config.memory_budget_bytes / frame.approx_bytes(distance).max(1);
+                fit.clamp(2, verifier.config.frames_in_memory.max(2))
+            });
+            // A kept frame was in memory already; a new one needs room beside the kept ones.
+            if uses[&k] > 0 && (was_cached || held.len() + cached.len() < cap) {
+                held.insert(k, frame);
+            }
+            Ok(true)
+        };
+        let seen = if all_cached {
+            let mut seen = BTreeSet::new();
+            for &k in &needed {
+                if visit(k, &mut || None)? {
+                    seen.insert(k);
                 }
-                let Some(frame) = prepare() else {
-                    return Ok(false);
-                };
-                // This frame's candidates whose other frame is held.
-                let ready: Vec<&Candidate> = mine()
-                    .filter(|c| !done.contains(&(c.query, c.matched)))
-                    .filter(|c| {
-                        (c.query == k && held.contains_key(&c.matched))
-                            || (c.matched == k && held.contains_key(&c.query))
-                    })
-                    .collect();
-                let results: Vec<((usize, usize), (Verification, f64))> = ready
-                    .par_iter()
-                    .map(|c| {
-                        let (q, m) = if c.query == k {
-                            (&frame, &held[&c.matched])
-                        } else {
-                            (&held[&c.query], &frame)
-                        };
-                        verifier.verify(c, q, m).map(|v| ((c.query, c.matched), v))
-                    })
-                    .collect::<Result<_>>()?;
-                for (key, v) in results {
-                    if v.0.accepted {
-                        accepted.push(key);
-                    }
-                    verified.insert(key, v);
-                    release(&mut done, &mut uses, &mut held, key);
-                }
-                let cap = *capacity.get_or_insert_with(|| {
-                    let distance = verifier
-                        .pair
-                        .icp_max_distance_m
-                        .unwrap_or(verifier.pair.voxel_size_m);
-                    let fit =
-                        verifier.config.memory_budget_bytes / frame.approx_bytes(distance).max(1);
-                    fit.clamp(2, verifier.config.frames_in_memory.max(2))
-                });
-                if uses[&k] > 0 && held.len() < cap {
-                    held.insert(k, frame);
-                }
-                Ok(true)
-            },
-        )?;
+            }
+            seen
+        } else {
+            passes += 1;
+            for_each_needed_frame(plan, opts, estimates, &needed, verifier.pair, visit)?
+        };
         let before = remaining.len();
         // Candidates with a frame that could not be read again: no verification, rejected.
         remaining.retain(|c| {

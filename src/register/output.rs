@@ -404,6 +404,7 @@ pub fn loops_json_schema() -> serde_json::Value {
                 "required": ["translation", "rotation_xyzw"]
             },
             "inliers": int, "correspondences": int, "fitness": num, "inlier_rmse_m": num,
+            "icp_iterations": int,
             "odometry_disagreement_m": nullable_num, "odometry_disagreement_deg": nullable_num,
             "weight": num, "verify_s": num,
             "timings_s": {"type": ["object", "null"], "additionalProperties": num}

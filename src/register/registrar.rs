@@ -10,6 +10,7 @@ use crate::Result;
 use crate::odometry::Odometry;
 use crate::odometry::stream::MeanTimeMotions;
 
+use super::closure::KeyframeCache;
 use super::frames::{FrameOut, PreparedMsg};
 
 /// Frames between two returns of the allocator's free memory to the system
@@ -32,13 +33,16 @@ fn on_pool<R: Send>(f: impl FnOnce() -> R + Send) -> R {
 
 /// Registers the frames of `prepared` in order, sending each result on `out` and each frame's
 /// motion (`prev_from_curr` and its seconds) on `motions` for deskewing a later frame. Stops at
-/// the first error (sent on) or when the writer hangs up.
+/// the first error (sent on) or when the writer hangs up. With a `cache`, the keyframes' frames
+/// are offered to it as the odometry retires them, the last one at the end (returned).
 pub(super) fn run(
     odometry: &mut Odometry,
     prepared: Receiver<Result<PreparedMsg>>,
     out: Sender<Result<FrameOut>>,
     motions: Sender<(usize, Isometry3<f64>, f64)>,
-) {
+    mut cache: Option<KeyframeCache>,
+) -> Option<KeyframeCache> {
+    odometry.keep_retired(cache.is_some());
     // The motions for deskewing, between mean point times ([`MeanTimeMotions`]).
     let mut mean_time = MeanTimeMotions::default();
     for (k, msg) in prepared.into_iter().enumerate() {
@@ -57,6 +61,12 @@ pub(super) fn run(
             let (motion, dt) =
                 mean_time.push(&mut est, m.cloud.header.stamp.to_ns(), m.cloud.deskewed);
             let _ = motions.send((k, motion, dt));
+            if let Some(cache) = cache.as_mut() {
+                cache.push_pose(&est.world_from_frame);
+                if let Some((j, frame)) = odometry.take_retired() {
+                    cache.offer(j, frame);
+                }
+            }
             Ok(FrameOut {
                 cloud: m.cloud,
                 prep,
@@ -69,4 +79,10 @@ pub(super) fn run(
             break;
         }
     }
+    if let Some(cache) = cache.as_mut()
+        && let Some((j, frame)) = odometry.take_previous()
+    {
+        cache.offer(j, frame);
+    }
+    cache
 }

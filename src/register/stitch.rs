@@ -405,6 +405,6 @@ fn close_stitched(
         .collect();
     describe(&plan, &opts, &mut estimates)?;
     let loop_config = LoopConfig::for_voxel(voxel);
-    let outcome = close_loops(&plan, &opts, &estimates, &loop_config)?;
+    let outcome = close_loops(&plan, &opts, &estimates, &loop_config, Default::default())?;
     Ok((estimates, outcome, loop_config))
 }
