@@ -117,6 +117,12 @@ impl std::fmt::Debug for MatchTarget {
 }
 
 impl MatchTarget {
+    /// Heap bytes a target holds per descriptor, roughly: its projection (`f64` per principal
+    /// axis), its descriptor (`f32` per bin), its index and, when descriptors repeat, its group
+    /// (`u32` each). For sizing caches, not accounting.
+    pub const APPROX_BYTES_PER_DESCRIPTOR: usize =
+        8 * brute_force::PCA_DIMS + 4 * crate::features::fpfh::FPFH_BINS + 4 + 8;
+
     /// The search structures over `target` (finite descriptors); `None` when it is empty.
     pub fn new(target: &[Fpfh]) -> Option<Self> {
         if target.is_empty() {

@@ -63,12 +63,14 @@ pub struct PreparedFrame {
 impl PreparedFrame {
     /// A rough count of the heap this frame holds once it has served as a matching and ICP
     /// target with correspondences searched within `icp_distance_m` \[bytes\]: its feature cloud
-    /// with FPFH (156 B a point), its ICP cloud with normals and search structures (about 100 B a
+    /// with FPFH (156 B a point) and their matching target
+    /// ([`MatchTarget::APPROX_BYTES_PER_DESCRIPTOR`], 336 B a point), its ICP cloud with normals and search structures (about 100 B a
     /// point, plus 16 B per column of the radius grid over the cloud's two longest extents: the
     /// largest part for a LiDAR scan), its drawn input points (24 B a point). For sizing caches,
     /// not accounting.
     pub fn approx_bytes(&self, icp_distance_m: f64) -> usize {
-        let features = self.points.len() * (24 + 4 * crate::features::fpfh::FPFH_BINS);
+        let features = self.points.len()
+            * (24 + 4 * crate::features::fpfh::FPFH_BINS + MatchTarget::APPROX_BYTES_PER_DESCRIPTOR);
         let icp = self.icp.as_ref().map_or(0, |t| {
             let pts = t.points();
             let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
