@@ -106,6 +106,9 @@ pub struct RegisterOptions {
     /// Loop-closure settings; `None`: [`LoopConfig::for_voxel`] of the run's voxel. Default
     /// `None`.
     pub loop_config: Option<LoopConfig>,
+    /// Replaces the loop configuration's [`LoopConfig::memory_budget_bytes`] (`--loop-memory`)
+    /// \[bytes\]. Default `None`.
+    pub loop_memory_bytes: Option<usize>,
     /// How a damaged input is treated (`--strict`, `--skip-corrupt`). Default: a log cut short
     /// is read up to its last whole message, a corrupt chunk is an error.
     pub read_policy: ReadPolicy,
@@ -155,6 +158,7 @@ impl RegisterOptions {
             livox_tags: LivoxTags::default(),
             on_frame: None,
             loop_config: None,
+            loop_memory_bytes: None,
         }
     }
 }
@@ -267,9 +271,12 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         descriptors: opts.loops,
     };
 
-    let loop_config = opts
+    let mut loop_config = opts
         .loop_config
         .unwrap_or_else(|| LoopConfig::for_voxel(plan.voxel_m));
+    if let Some(bytes) = opts.loop_memory_bytes {
+        loop_config.memory_budget_bytes = bytes;
+    }
     let (copied, cached) = std::thread::scope(|scope| -> Result<_> {
         let (cloud_tx, cloud_rx) = sync_channel(QUEUE_CAPACITY);
         let (prep_tx, prep_rx) = sync_channel(QUEUE_CAPACITY);

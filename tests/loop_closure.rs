@@ -181,3 +181,38 @@ fn frames_kept_from_the_odometry_verify_as_frames_read_again() {
     assert_eq!(kept, read);
     assert_eq!(kept_poses, read_poses);
 }
+
+/// `--loop-memory 0` keeps no frame from the odometry: every candidate's frames are read again
+/// (at least one pass), and the budget is recorded with the other loop settings.
+#[test]
+fn loop_memory_zero_reads_the_frames_again() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.mcap");
+    let summary: serde_json::Value = serde_json::from_str(&mireg_stdout(&[
+        "register",
+        s(&fixture()),
+        "-o",
+        s(&out),
+        "--json",
+        "--quiet",
+        "--loop-memory",
+        "0",
+    ]))
+    .unwrap();
+    assert!(
+        summary["loops"]["accepted"].as_u64().unwrap() > 0,
+        "{summary}"
+    );
+    assert!(
+        summary["loops"]["passes"].as_u64().unwrap() >= 1,
+        "{summary}"
+    );
+    let meta = contents(&out)
+        .metadata
+        .into_iter()
+        .find(|(name, _)| name == "mireg")
+        .expect("mireg metadata")
+        .1;
+    let config: serde_json::Value = serde_json::from_str(&meta["loop_config"]).unwrap();
+    assert_eq!(config["memory_budget_bytes"], 0, "{config}");
+}

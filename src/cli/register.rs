@@ -88,6 +88,12 @@ pub struct RegisterArgs {
     /// MI-RANSAC + ICP, then a robust pose graph (docs/LOOPS.md).
     #[arg(long)]
     pub no_loops: bool,
+    /// Memory for loop verification's prepared frames, MiB: the keyframes kept from the
+    /// odometry and the frames read again, by their estimated size. More keeps more keyframes
+    /// and reads the log again less; 0 keeps none. A candidate verifies the same either way;
+    /// which redundant candidates are skipped can change with the order frames come in.
+    #[arg(long, value_name = "MIB", default_value_t = crate::loops::closure::DEFAULT_LOOP_MEMORY_BYTES >> 20)]
+    pub loop_memory: usize,
     /// Refuse a log that was cut off (no footer or summary, a last record or chunk that stops
     /// short). By default such a log is read up to its last whole message, the messages of the
     /// chunk being written when it stopped included, and the summary says where it was cut
@@ -164,6 +170,7 @@ pub fn register_options(args: &RegisterArgs) -> Result<RegisterOptions> {
         copy_window_only: args.copy_window,
         loops: !args.no_loops,
         loop_config: None,
+        loop_memory_bytes: Some(args.loop_memory.saturating_mul(1 << 20)),
         read_policy: ReadPolicy {
             strict: args.strict,
             skip_corrupt: args.skip_corrupt,

@@ -70,7 +70,9 @@ impl PreparedFrame {
     /// not accounting.
     pub fn approx_bytes(&self, icp_distance_m: f64) -> usize {
         let features = self.points.len()
-            * (24 + 4 * crate::features::fpfh::FPFH_BINS + MatchTarget::APPROX_BYTES_PER_DESCRIPTOR);
+            * (24
+                + 4 * crate::features::fpfh::FPFH_BINS
+                + MatchTarget::APPROX_BYTES_PER_DESCRIPTOR);
         let icp = self.icp.as_ref().map_or(0, |t| {
             let pts = t.points();
             let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
