@@ -1,0 +1,134 @@
+#!/usr/bin/env python3
+"""Segments against the reference (issue 34, item 3): registers a log in K overlapping segments
+exactly as ``mireg_ray segments`` does (``register --copy-window --no-loops --start/--end``, the
+split of ``mireg_ray.segments.bounds``), stitches them (``mireg stitch --no-loops``), and prints
+the stitched ATE against the log's reference next to the sequential run's, and the seams' RPE
+against the median RPE. No Ray: the segments run one after the other, so the numbers are the
+stitching's, not the cluster's.
+
+    tools/segment_accuracy.py /tmp/kaist03.mcap --segments 2 4 --overlap 4 6 [--mireg BIN] [-- ARGS]
+
+ATE: ``mireg evaluate --json`` (position RMSE after SE(3) alignment, frames matched by stamp).
+RPE of a step: the translation error of the relative pose between consecutive frames, from
+``mireg export --format tum`` of the estimate and the reference. A seam's step is the one from
+the anchor (the last frame the two segments share) to the next frame, the first whose pose comes
+from the later segment. Any Python 3 runs it (no packages needed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent / "mireg_ray"))
+from mireg_ray.segments import bounds  # noqa: E402  (the driver's own split)
+
+
+def run(cmd: list[str]) -> str:
+    p = subprocess.run(cmd, capture_output=True, text=True)
+    if p.returncode != 0:
+        sys.exit(f"{' '.join(cmd)}: {p.stderr.strip()}")
+    return p.stdout
+
+
+def tum(binary: str, log: Path, topic: str | None = None) -> dict[int, tuple]:
+    """Stamp [ns] -> (translation, quaternion xyzw) of a log's trajectory."""
+    cmd = [binary, "export", str(log), "--format", "tum"] + (["--topic", topic] if topic else [])
+    poses = {}
+    for line in run(cmd).splitlines():
+        if line.strip() and not line.startswith("#"):
+            v = line.split()
+            sec, _, frac = v[0].partition(".")
+            poses[int(sec) * 10**9 + int(frac.ljust(9, "0"))] = (
+                tuple(map(float, v[1:4])), tuple(map(float, v[4:8])))
+    return poses
+
+
+def qmul(a, b):
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return (aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz)
+
+
+def rotate(q, v):
+    x, y, z, w = q
+    p = qmul(qmul(q, (*v, 0.0)), (-x, -y, -z, w))
+    return p[:3]
+
+
+def relative(p, q):
+    """p⁻¹ q as (translation, quaternion)."""
+    inv = (-p[1][0], -p[1][1], -p[1][2], p[1][3])
+    d = tuple(b - a for a, b in zip(p[0], q[0]))
+    return rotate(inv, d), qmul(inv, q[1])
+
+
+def step_errors(est, ref):
+    """Translation error [m] of each consecutive step, in stamp order."""
+    stamps = sorted(set(est) & set(ref))
+    errs = []
+    for a, b in zip(stamps, stamps[1:]):
+        (te, qe), (tr, qr) = relative(est[a], est[b]), relative(ref[a], ref[b])
+        # (ref step)⁻¹ (est step): translation part.
+        inv = (-qr[0], -qr[1], -qr[2], qr[3])
+        errs.append(math.dist(rotate(inv, te), rotate(inv, tr)))
+    return errs
+
+
+def main() -> int:
+    argv = sys.argv[1:]
+    extra = argv[argv.index("--") + 1:] if "--" in argv else []
+    argv = argv[: argv.index("--")] if "--" in argv else argv
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("log", type=Path)
+    ap.add_argument("--segments", type=int, nargs="+", default=[2, 4])
+    ap.add_argument("--overlap", type=int, nargs="+", default=[4])
+    ap.add_argument("--mireg", default=os.environ.get("MIREG_BIN", "target/release/mireg"))
+    args = ap.parse_args(argv)
+    b = args.mireg
+    n = json.loads(run([b, "info", str(args.log), "--json"]))["cloud_messages"]
+    with tempfile.TemporaryDirectory() as tmp:
+        seq = Path(tmp) / "seq.mcap"
+        run([b, "register", str(args.log), "-o", str(seq), "--quiet", "--no-loops", *extra])
+        seq_ate = json.loads(run([b, "evaluate", str(seq), "--json"]))["ate_rmse_m"]
+        ref = tum(b, seq, "/ground_truth/pose")
+        print(f"{args.log}: {n} clouds; sequential ATE {100 * seq_ate:.3f} cm")
+        print("K  overlap  segments                       ATE (cm)  vs seq  median RPE (cm)  "
+              "seam RPE (cm)  worst seam / median")
+        for k in args.segments:
+            for overlap in args.overlap:
+                plan = bounds(n, k, overlap)
+                outs = []
+                for i, (start, end) in enumerate(plan):
+                    out = Path(tmp) / f"s{k}_{overlap}_{i}.mcap"
+                    window = ["--start", str(start)] + (["--end", str(end)] if end else [])
+                    run([b, "register", str(args.log), "-o", str(out), "--quiet", "--copy-window",
+                         "--no-loops", *window, *extra])
+                    outs.append(str(out))
+                st = Path(tmp) / f"st{k}_{overlap}.mcap"
+                run([b, "stitch", str(args.log), *outs, "-o", str(st), "--no-loops"])
+                ate = json.loads(run([b, "evaluate", str(st), "--json"]))["ate_rmse_m"]
+                est = tum(b, st, "/mireg/pose")
+                errs = step_errors(est, ref)
+                med = statistics.median(errs)
+                # The anchor of each seam: the last frame the later segment shares with the
+                # earlier one (the later segment's frames start after it).
+                seams = [min(plan[i][1], n) - 1 for i in range(len(plan) - 1)]
+                seam_errs = [errs[s] for s in seams if s < len(errs)]
+                worst = max(seam_errs) / med if seam_errs else float("nan")
+                print(f"{k:<2} {overlap:<8} {str(plan):<30} {100 * ate:8.3f}  {ate / seq_ate:6.3f}  "
+                      f"{100 * med:15.2f}  {' '.join(f'{100 * e:.2f}' for e in seam_errs):<13}  "
+                      f"{worst:.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
