@@ -291,12 +291,8 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         let prepare = &prepare;
         scope.spawn(move || prepare.run(cloud_rx, prep_tx, motion_rx, recycle_tx));
         let odometry = &mut odometry;
-        let cache = (opts.loops && loop_config.keep_odometry_frames).then(|| {
-            KeyframeCache::new(
-                &loop_config,
-                &closure::loop_pair_config(&plan.config.pair, &loop_config),
-            )
-        });
+        let cache = (opts.loops && loop_config.keep_odometry_frames)
+            .then(|| KeyframeCache::new(&loop_config));
         let registrar =
             scope.spawn(move || registrar::run(odometry, prep_rx, out_tx, motion_tx, cache));
         let read = reader::read(

@@ -178,6 +178,15 @@ fn frames_kept_from_the_odometry_verify_as_frames_read_again() {
         "{:?}",
         loops_of(&read_summary)
     );
+    // The kept frames are counted, idle, within the budget; none without keeping.
+    let budget = LoopConfig::for_voxel(voxel).memory_budget_bytes;
+    let k = loops_of(&kept_summary);
+    assert!(
+        k.kept_frames > 0 && k.kept_bytes > 0 && k.kept_bytes <= budget,
+        "{k:?}"
+    );
+    assert_eq!(loops_of(&read_summary).kept_frames, 0);
+    assert_eq!(loops_of(&read_summary).kept_bytes, 0);
     assert_eq!(kept, read);
     assert_eq!(kept_poses, read_poses);
 }

@@ -89,7 +89,9 @@ pub struct RegisterArgs {
     #[arg(long)]
     pub no_loops: bool,
     /// Memory for loop verification's prepared frames, MiB: the keyframes kept from the
-    /// odometry and the frames read again, by their estimated size. More keeps more keyframes
+    /// odometry and the frames read again, by their size on the heap, and the search structures
+    /// verification builds on them while they fit (beyond, dropped and rebuilt when used; one
+    /// per thread at a time can exceed it). More keeps more keyframes
     /// and reads the log again less; 0 keeps none. A candidate verifies the same either way;
     /// which redundant candidates are skipped can change with the order frames come in.
     #[arg(long, value_name = "MIB", default_value_t = crate::loops::closure::DEFAULT_LOOP_MEMORY_BYTES >> 20)]

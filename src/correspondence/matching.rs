@@ -123,6 +123,17 @@ impl MatchTarget {
     pub const APPROX_BYTES_PER_DESCRIPTOR: usize =
         8 * brute_force::PCA_DIMS + 4 * crate::features::fpfh::FPFH_BINS + 4 + 8;
 
+    /// Number of target descriptors.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether the target holds no descriptor (never: [`MatchTarget::new`] declines an empty
+    /// one).
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
     /// The search structures over `target` (finite descriptors); `None` when it is empty.
     pub fn new(target: &[Fpfh]) -> Option<Self> {
         if target.is_empty() {

@@ -531,6 +531,17 @@ impl RadiusGrid {
         self.index.len()
     }
 
+    /// The heap this grid holds \[bytes\]: its columns, cell starts, coordinates, indices and
+    /// any scratch kept for a rebuild (capacities, not lengths).
+    pub fn heap_bytes(&self) -> usize {
+        let Scratch { cell, range, next } = &*self.scratch;
+        self.columns.capacity() * std::mem::size_of::<(u32, u32)>()
+            + (self.starts.capacity() + self.index.capacity() + next.capacity()) * 4
+            + self.xyz.iter().map(|v| v.capacity() * 8).sum::<usize>()
+            + cell.capacity() * std::mem::size_of::<(usize, u32)>()
+            + range.capacity() * std::mem::size_of::<(u32, u32)>()
+    }
+
     /// Whether the grid holds no points (never: [`RadiusGrid::new`] declines empty clouds).
     pub fn is_empty(&self) -> bool {
         self.index.is_empty()

@@ -10,7 +10,9 @@
 //!
 //! Memory: per frame, the odometry's estimate and a [`Descriptor`] (260 bytes) are kept through
 //! the run; the kept keyframes and the verification's frames together stay within
-//! [`LoopConfig::memory_budget_bytes`] and [`LoopConfig::frames_in_memory`].
+//! [`LoopConfig::memory_budget_bytes`] (by [`PreparedFrame::heap_bytes`]) and
+//! [`LoopConfig::frames_in_memory`]; the search structures verification builds on them stay
+//! within the budget too, but for those of the candidates verified at once (one per thread).
 
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::ops::ControlFlow;
@@ -77,6 +79,11 @@ pub struct LoopSummary {
     /// Accepted loops whose robust weight at the optimum is below ½ (the graph down-weighted
     /// them as inconsistent with the rest).
     pub down_weighted: usize,
+    /// Keyframes' frames kept from the odometry for verification ([`KeyframeCache`]), and
+    /// the heap they held \[bytes\] ([`PreparedFrame::heap_bytes`], idle).
+    pub kept_frames: usize,
+    /// See [`LoopSummary::kept_frames`].
+    pub kept_bytes: usize,
     /// Passes over the input to read the candidates' frames.
     pub passes: usize,
     /// Pose-graph iterations (0 without loops).
@@ -122,12 +129,11 @@ pub(super) struct KeyframeCache {
     bytes: usize,
     budget_bytes: usize,
     max_frames: usize,
-    icp_distance_m: f64,
 }
 
 impl KeyframeCache {
-    /// An empty cache for loop closure by `config`, with the run's pair settings `pair`.
-    pub(super) fn new(config: &LoopConfig, pair: &PairConfig) -> Self {
+    /// An empty cache for loop closure by `config`.
+    pub(super) fn new(config: &LoopConfig) -> Self {
         Self {
             selector: KeyframeSelector::new(&config.keyframes),
             travelled: 0.0,
@@ -137,7 +143,6 @@ impl KeyframeCache {
             bytes: 0,
             budget_bytes: config.memory_budget_bytes,
             max_frames: config.frames_in_memory,
-            icp_distance_m: pair.icp_max_distance_m.unwrap_or(pair.voxel_size_m),
         }
     }
 
@@ -157,7 +162,9 @@ impl KeyframeCache {
             return;
         }
         frame.keep_fine(Vec::new());
-        let bytes = frame.approx_bytes(self.icp_distance_m);
+        // Its search structures (from a fallback to frame-to-frame ICP) are rebuilt when used.
+        frame.drop_search_structures();
+        let bytes = frame.heap_bytes();
         if self.frames.len() < self.max_frames && self.bytes + bytes <= self.budget_bytes {
             self.bytes += bytes;
             self.frames.insert(k, frame);
@@ -213,6 +220,10 @@ pub(super) fn close_loops(
         pair: &pair,
         config,
     };
+    let (kept_frames, kept_bytes) = (
+        cached.len(),
+        cached.values().map(PreparedFrame::heap_bytes).sum(),
+    );
     let (verified, skipped, passes) =
         verify_all(plan, opts, estimates, &candidates, &verifier, cached)?;
     // Candidates skipped as redundant were not tried: no record, a count.
@@ -259,6 +270,8 @@ pub(super) fn close_loops(
         .collect();
     let summary = LoopSummary {
         keyframes: keyframes.len(),
+        kept_frames,
+        kept_bytes,
         candidates: candidates.len(),
         redundant: skipped.len(),
         accepted: loops.len(),
@@ -441,68 +454,73 @@ fn verify_all(
         let all_cached = needed.iter().all(|k| cached.contains_key(k));
         let mut held: BTreeMap<usize, PreparedFrame> = BTreeMap::new();
         let mut done: BTreeSet<(usize, usize)> = BTreeSet::new();
-        let mut visit = |k: usize,
-                         prepare: &mut dyn FnMut() -> Option<PreparedFrame>|
-         -> Result<bool> {
-            // This frame's candidates that an accepted loop makes redundant: not tried.
-            let mine = || of_frame[&k].iter().map(|&i| &remaining[i]);
-            let redundant: Vec<(usize, usize)> = mine()
-                .filter(|c| !done.contains(&(c.query, c.matched)))
-                .filter(|c| verifier.redundant(c, &accepted))
-                .map(|c| (c.query, c.matched))
-                .collect();
-            for key in redundant {
-                skipped.insert(key);
-                release(&mut done, &mut uses, &mut held, key);
-            }
-            let from_cache = cached.remove(&k);
-            if uses[&k] == 0 {
-                return Ok(false);
-            }
-            let was_cached = from_cache.is_some();
-            let Some(frame) = from_cache.or_else(prepare) else {
-                return Ok(false);
-            };
-            // This frame's candidates whose other frame is held.
-            let ready: Vec<&Candidate> = mine()
-                .filter(|c| !done.contains(&(c.query, c.matched)))
-                .filter(|c| {
-                    (c.query == k && held.contains_key(&c.matched))
-                        || (c.matched == k && held.contains_key(&c.query))
-                })
-                .collect();
-            let results: Vec<((usize, usize), (Verification, f64))> = ready
-                .par_iter()
-                .map(|c| {
-                    let (q, m) = if c.query == k {
-                        (&frame, &held[&c.matched])
-                    } else {
-                        (&held[&c.query], &frame)
-                    };
-                    verifier.verify(c, q, m).map(|v| ((c.query, c.matched), v))
-                })
-                .collect::<Result<_>>()?;
-            for (key, v) in results {
-                if v.0.accepted {
-                    accepted.push(key);
+        let mut visit =
+            |k: usize, prepare: &mut dyn FnMut() -> Option<PreparedFrame>| -> Result<bool> {
+                // This frame's candidates that an accepted loop makes redundant: not tried.
+                let mine = || of_frame[&k].iter().map(|&i| &remaining[i]);
+                let redundant: Vec<(usize, usize)> = mine()
+                    .filter(|c| !done.contains(&(c.query, c.matched)))
+                    .filter(|c| verifier.redundant(c, &accepted))
+                    .map(|c| (c.query, c.matched))
+                    .collect();
+                for key in redundant {
+                    skipped.insert(key);
+                    release(&mut done, &mut uses, &mut held, key);
                 }
-                verified.insert(key, v);
-                release(&mut done, &mut uses, &mut held, key);
-            }
-            let cap = *capacity.get_or_insert_with(|| {
-                let distance = verifier
-                    .pair
-                    .icp_max_distance_m
-                    .unwrap_or(verifier.pair.voxel_size_m);
-                let fit = verifier.config.memory_budget_bytes / frame.approx_bytes(distance).max(1);
-                fit.clamp(2, verifier.config.frames_in_memory.max(2))
-            });
-            // A kept frame was in memory already; a new one needs room beside the kept ones.
-            if uses[&k] > 0 && (was_cached || held.len() + cached.len() < cap) {
-                held.insert(k, frame);
-            }
-            Ok(true)
-        };
+                let from_cache = cached.remove(&k);
+                if uses[&k] == 0 {
+                    return Ok(false);
+                }
+                let was_cached = from_cache.is_some();
+                let Some(mut frame) = from_cache.or_else(prepare) else {
+                    return Ok(false);
+                };
+                // This frame's candidates whose other frame is held.
+                let ready: Vec<&Candidate> = mine()
+                    .filter(|c| !done.contains(&(c.query, c.matched)))
+                    .filter(|c| {
+                        (c.query == k && held.contains_key(&c.matched))
+                            || (c.matched == k && held.contains_key(&c.query))
+                    })
+                    .collect();
+                let cap = *capacity.get_or_insert_with(|| {
+                    let fit = verifier.config.memory_budget_bytes / frame.heap_bytes().max(1);
+                    fit.clamp(2, verifier.config.frames_in_memory.max(2))
+                });
+                // As many at once as there are threads: each builds search structures on its target
+                // (a matching target and an ICP grid, for a LiDAR scan twenty times the idle frame),
+                // kept for the frame's next candidates while the frames in memory fit the budget,
+                // dropped when they do not.
+                let budget = verifier.config.memory_budget_bytes;
+                let mut results: Vec<((usize, usize), (Verification, f64))> = Vec::new();
+                for chunk in ready.chunks(rayon::current_num_threads().max(1)) {
+                    let verified_chunk: Vec<_> = chunk
+                        .par_iter()
+                        .map(|c| {
+                            let (q, m) = if c.query == k {
+                                (&frame, &held[&c.matched])
+                            } else {
+                                (&held[&c.query], &frame)
+                            };
+                            verifier.verify(c, q, m).map(|v| ((c.query, c.matched), v))
+                        })
+                        .collect::<Result<_>>()?;
+                    results.extend(verified_chunk);
+                    fit_budget(budget, &mut frame, &mut held, &cached);
+                }
+                for (key, v) in results {
+                    if v.0.accepted {
+                        accepted.push(key);
+                    }
+                    verified.insert(key, v);
+                    release(&mut done, &mut uses, &mut held, key);
+                }
+                // A kept frame was in memory already; a new one needs room beside the kept ones.
+                if uses[&k] > 0 && (was_cached || held.len() + cached.len() < cap) {
+                    held.insert(k, frame);
+                }
+                Ok(true)
+            };
         let seen = if all_cached {
             let mut seen = BTreeSet::new();
             for &k in &needed {
@@ -527,6 +545,27 @@ fn verify_all(
         }
     }
     Ok((verified, skipped, passes))
+}
+
+/// Drops the search structures of the `held` frames, then of `frame`, while the frames in
+/// memory (those and the `cached` ones, which are idle) hold more than `budget` bytes.
+fn fit_budget(
+    budget: usize,
+    frame: &mut PreparedFrame,
+    held: &mut BTreeMap<usize, PreparedFrame>,
+    cached: &BTreeMap<usize, PreparedFrame>,
+) {
+    let idle: usize = cached.values().map(PreparedFrame::heap_bytes).sum();
+    let mut total =
+        idle + frame.heap_bytes() + held.values().map(PreparedFrame::heap_bytes).sum::<usize>();
+    for f in held.values_mut().chain(std::iter::once(frame)) {
+        if total <= budget {
+            return;
+        }
+        let before = f.heap_bytes();
+        f.drop_search_structures();
+        total -= before - f.heap_bytes();
+    }
 }
 
 /// Marks candidate `key` done and releases its frames whose last candidate it was.

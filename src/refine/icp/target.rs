@@ -187,6 +187,31 @@ impl IcpTarget {
             .map_err(|_| Error::InvalidInput("target already has a correspondence grid".into()))
     }
 
+    /// The heap this target holds now \[bytes\]: its points and normals (given, or estimated
+    /// once asked for), and the kd-tree and correspondence grid where they have been built (the
+    /// tree counted at 32 B a point: its leaves' coordinates and indices and its stems).
+    pub fn heap_bytes(&self) -> usize {
+        let point = std::mem::size_of::<Point3<f64>>();
+        let normals = match (&self.normals, &self.deferred) {
+            (Some(n), _) => n.capacity(),
+            (None, Some((_, all))) => all.get().and_then(|n| n.as_ref()).map_or(0, Vec::capacity),
+            (None, None) => 0,
+        };
+        let tree = self.tree.get().map_or(0, |_| self.points.len() * 32);
+        let grid = match self.grid.get() {
+            Some((_, Some(grid))) => grid.heap_bytes(),
+            _ => 0,
+        };
+        (self.points.capacity() + normals) * point + tree + grid
+    }
+
+    /// Drops the correspondence grid, if one was built, so that the target holds only its
+    /// points, normals and tree until its next ICP builds it again (the same grid: answers do
+    /// not change). For a target kept idle between uses, whose grid is the largest part.
+    pub fn drop_grid(&mut self) {
+        self.grid = std::sync::OnceLock::new();
+    }
+
     /// The target points.
     pub fn points(&self) -> &[Point3<f64>] {
         &self.points
