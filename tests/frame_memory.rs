@@ -1,6 +1,7 @@
 //! A prepared frame's memory: what it holds idle, what serving as a registration target adds,
-//! and that dropping those search structures gives the idle size back without changing the
-//! next registration against it (loop closure keeps frames idle between candidates).
+//! and that dropping those search structures gives the idle size back (as predicted before the
+//! first use) without changing the next registration against it (loop closure keeps frames idle
+//! between candidates).
 
 use mireg::pipeline::{PairConfig, prepare_frame, register_prepared};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion};
@@ -53,6 +54,13 @@ fn dropping_search_structures_restores_the_idle_size_and_changes_no_result() {
         let floor = target.points.len() * 24 + target.features.len() * 4 * 33 + icp_points * 24;
         assert!(idle >= floor, "{icp_voxel:?}: idle {idle} B < {floor} B");
 
+        // What it will hold idle after serving as a target, predicted before.
+        let predicted = target.idle_bytes();
+        assert!(
+            predicted >= idle,
+            "{icp_voxel:?}: predicted {predicted} B, idle {idle} B"
+        );
+
         let first = register_prepared(&source, &target, &c).unwrap();
         assert!(
             first.failure.is_none(),
@@ -78,6 +86,8 @@ fn dropping_search_structures_restores_the_idle_size_and_changes_no_result() {
             after <= idle + normals * 24 && after < used,
             "{icp_voxel:?}: after dropping {after} B, idle {idle} B, in use {used} B"
         );
+        assert_eq!(after, predicted, "{icp_voxel:?}");
+        assert_eq!(target.idle_bytes(), predicted, "{icp_voxel:?}");
 
         let again = register_prepared(&source, &target, &c).unwrap();
         assert_eq!(

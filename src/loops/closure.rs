@@ -55,8 +55,8 @@ pub struct LoopConfig {
     /// At most this many prepared frames are held at once while verifying. Default
     /// [`DEFAULT_FRAMES_IN_MEMORY`].
     pub frames_in_memory: usize,
-    /// ... and at most as many as fit this budget \[bytes\] by their heap when idle
-    /// ([`crate::pipeline::PreparedFrame::heap_bytes`]: the keyframes kept from the odometry at
+    /// ... and at most as many as fit this budget \[bytes\] by what they hold idle
+    /// ([`crate::pipeline::PreparedFrame::idle_bytes`]: the keyframes kept from the odometry at
     /// their own size, the frames read again by the first one's): small frames are held in
     /// larger numbers, so a long log is read fewer times. The search structures verification
     /// builds on a frame (its matching target and ICP grid) are kept for its next candidates
@@ -96,9 +96,9 @@ pub struct LoopConfig {
 pub const DEFAULT_LOOP_ICP_SOURCE_POINTS: usize = 4000;
 /// Default [`LoopConfig::frames_in_memory`]: 256 prepared frames.
 pub const DEFAULT_FRAMES_IN_MEMORY: usize = 256;
-/// Default [`LoopConfig::memory_budget_bytes`]: 128 MiB of idle frames (measured: about 200
-/// KAIST03 Ouster keyframes at a 0.37 m voxel, 0.67 MB each; micro211 depth frames, 0.32 MB
-/// each, are held up to [`DEFAULT_FRAMES_IN_MEMORY`]).
+/// Default [`LoopConfig::memory_budget_bytes`]: 128 MiB of idle frames (measured: 128 KAIST03
+/// Ouster keyframes at a 0.37 m voxel, 1.05 MB each; micro211 depth frames, 0.37 MB each, are
+/// held up to [`DEFAULT_FRAMES_IN_MEMORY`]).
 pub const DEFAULT_LOOP_MEMORY_BYTES: usize = 128 << 20;
 
 impl LoopConfig {

@@ -10,7 +10,7 @@
 //!
 //! Memory: per frame, the odometry's estimate and a [`Descriptor`] (260 bytes) are kept through
 //! the run; the kept keyframes and the verification's frames together stay within
-//! [`LoopConfig::memory_budget_bytes`] (by [`PreparedFrame::heap_bytes`]) and
+//! [`LoopConfig::memory_budget_bytes`] (by [`PreparedFrame::idle_bytes`]) and
 //! [`LoopConfig::frames_in_memory`]; the search structures verification builds on them stay
 //! within the budget too, but for those of the candidates verified at once (one per thread).
 
@@ -80,7 +80,7 @@ pub struct LoopSummary {
     /// them as inconsistent with the rest).
     pub down_weighted: usize,
     /// Keyframes' frames kept from the odometry for verification ([`KeyframeCache`]), and
-    /// the heap they held \[bytes\] ([`PreparedFrame::heap_bytes`], idle).
+    /// the heap they are charged against the budget \[bytes\] ([`PreparedFrame::idle_bytes`]).
     pub kept_frames: usize,
     /// See [`LoopSummary::kept_frames`].
     pub kept_bytes: usize,
@@ -164,7 +164,7 @@ impl KeyframeCache {
         frame.keep_fine(Vec::new());
         // Its search structures (from a fallback to frame-to-frame ICP) are rebuilt when used.
         frame.drop_search_structures();
-        let bytes = frame.heap_bytes();
+        let bytes = frame.idle_bytes();
         if self.frames.len() < self.max_frames && self.bytes + bytes <= self.budget_bytes {
             self.bytes += bytes;
             self.frames.insert(k, frame);
@@ -222,7 +222,7 @@ pub(super) fn close_loops(
     };
     let (kept_frames, kept_bytes) = (
         cached.len(),
-        cached.values().map(PreparedFrame::heap_bytes).sum(),
+        cached.values().map(PreparedFrame::idle_bytes).sum(),
     );
     let (verified, skipped, passes) =
         verify_all(plan, opts, estimates, &candidates, &verifier, cached)?;
@@ -484,7 +484,7 @@ fn verify_all(
                     })
                     .collect();
                 let cap = *capacity.get_or_insert_with(|| {
-                    let fit = verifier.config.memory_budget_bytes / frame.heap_bytes().max(1);
+                    let fit = verifier.config.memory_budget_bytes / frame.idle_bytes().max(1);
                     fit.clamp(2, verifier.config.frames_in_memory.max(2))
                 });
                 // As many at once as there are threads: each builds search structures on its target

@@ -198,11 +198,26 @@ impl IcpTarget {
             (None, None) => 0,
         };
         let tree = self.tree.get().map_or(0, |_| self.points.len() * 32);
-        let grid = match self.grid.get() {
+        (self.points.capacity() + normals) * point + tree + self.grid_bytes()
+    }
+
+    /// The heap of the correspondence grid \[bytes\], 0 until one is built.
+    pub fn grid_bytes(&self) -> usize {
+        match self.grid.get() {
             Some((_, Some(grid))) => grid.heap_bytes(),
             _ => 0,
-        };
-        (self.points.capacity() + normals) * point + tree + grid
+        }
+    }
+
+    /// The heap of normals not estimated yet \[bytes\]: what the first point-to-plane ICP against
+    /// this target adds for good (0 with normals given or already estimated).
+    pub fn pending_normal_bytes(&self) -> usize {
+        match &self.deferred {
+            Some((_, all)) if self.normals.is_none() && all.get().is_none() => {
+                self.points.len() * std::mem::size_of::<Vector3<f64>>()
+            }
+            _ => 0,
+        }
     }
 
     /// Drops the correspondence grid, if one was built, so that the target holds only its
