@@ -282,6 +282,15 @@ fn print_summary(s: &RegisterSummary) {
             l.elapsed_s,
             s.pose_optimized_topic.as_deref().unwrap_or("-")
         );
+        if l.passes > 0 {
+            println!(
+                "loops: {} keyframes kept from the odometry ({:.0} MB); the other candidates' frames read again in {} pass{} over the log (--loop-memory MIB sets the budget)",
+                l.kept_frames,
+                l.kept_bytes as f64 / 1e6,
+                l.passes,
+                if l.passes == 1 { "" } else { "es" }
+            );
+        }
     }
     for (what, r) in [
         ("odometry", &s.reference),
