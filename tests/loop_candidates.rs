@@ -151,6 +151,41 @@ fn appearance_finds_a_revisit_whose_odometry_is_metres_off() {
     assert!((c.descriptor_distance - 0.01).abs() < 1e-6);
 }
 
+#[test]
+fn appearance_needs_the_path_separation_too() {
+    // A straight 60 m drive, a keyframe per metre (10 log frames apart): keyframe 40 looks like
+    // keyframe 30, 10 m back (enough frames apart, too little path), and keyframe 59 like
+    // keyframe 5, 54 m back.
+    let positions: Vec<_> = (0..60).map(|k| Vector3::new(k as f64, 0.0, 0.0)).collect();
+    let mut descriptors: Vec<_> = (0..60).map(distinct).collect();
+    descriptors[40] = descriptors[30];
+    descriptors[59] = descriptors[5];
+    let kf = keyframes(&positions, &descriptors);
+    let config = CandidateConfig::default();
+    assert!(kf[40].frame - kf[30].frame >= config.min_frame_separation);
+    assert!(kf[40].travelled_m - kf[30].travelled_m < config.min_path_separation_m);
+    let found: Vec<_> = find_candidates(&kf, &config)
+        .unwrap()
+        .into_iter()
+        .map(|c| (c.query, c.matched, c.by))
+        .collect();
+    assert_eq!(found, vec![(59, 5, Source::Appearance)]);
+    // With the separation down to 5 m, the neighbour is a candidate as well.
+    let near = CandidateConfig {
+        min_path_separation_m: 5.0,
+        ..config
+    };
+    let found: Vec<_> = find_candidates(&kf, &near)
+        .unwrap()
+        .into_iter()
+        .map(|c| (c.query, c.matched))
+        .collect();
+    assert!(
+        found.contains(&(40, 30)) && found.contains(&(59, 5)),
+        "{found:?}"
+    );
+}
+
 /// Five laps of a 30 m circle (a keyframe per metre), every keyframe of a place alike.
 fn laps() -> Vec<Keyframe> {
     let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(3);

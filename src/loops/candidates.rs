@@ -70,8 +70,10 @@ pub struct CandidateConfig {
     /// The place radius stops growing here \[m\]: beyond it, only appearance can find the
     /// revisit (and the ball queries stay small on long logs). Default 30.
     pub max_place_radius_m: f64,
-    /// Place candidates need at least this much path between them \[m\], so that a keyframe is
-    /// not matched with its neighbours along the path. Default 20.
+    /// Candidates, by place and by appearance, need at least this much path between them \[m\],
+    /// so that a keyframe is not matched with its neighbours along the path (a LiDAR scan shares
+    /// most of what it sees with the scans a few metres back: registering them is the odometry's
+    /// work, not a loop's). Default 20.
     pub min_path_separation_m: f64,
     /// Both searches need the two keyframes at least this many log frames apart
     /// ([`Keyframe::frame`]). Default 50.
@@ -156,8 +158,9 @@ impl CandidateConfig {
 /// `frame_q − frame_m ≥ min_frame_separation`:
 /// - by place: `‖t_q − t_m‖ ≤` [`CandidateConfig::place_radius_for`]`(travelled_q − travelled_m)`
 ///   and `travelled_q − travelled_m ≥ min_path_separation_m`; the `max_place_per_query` nearest;
-/// - by appearance: descriptor distance `≤ max_descriptor_distance` and `≤ appearance_ratio` ×
-///   the median over the eligible m; the `appearance_k` nearest, whatever the odometry says.
+/// - by appearance, among the m with `travelled_q − travelled_m ≥ min_path_separation_m` too:
+///   descriptor distance `≤ max_descriptor_distance` and `≤ appearance_ratio` × the median over
+///   those m; the `appearance_k` nearest, wherever the odometry puts them.
 ///
 /// A pair found by both is one [`Source::Both`] candidate. Per query the merged list is ranked
 /// `Both` first, then by descriptor distance, then by the earlier `matched`, and cut to
@@ -194,7 +197,8 @@ pub fn find_candidates(keyframes: &[Keyframe], config: &CandidateConfig) -> Resu
         .map(|q| {
             let eligible = eligible_count(keyframes, q, config.min_frame_separation);
             let place = by_place(keyframes, &positions, &tree, q, eligible, config);
-            let appearance = by_appearance(keyframes, q, eligible, config);
+            let far = far_count(keyframes, q, config.min_path_separation_m);
+            let appearance = by_appearance(keyframes, q, eligible.min(far), config);
             merge(keyframes, q, &place, &appearance, config.max_per_query)
         })
         .collect();
@@ -206,6 +210,13 @@ pub fn find_candidates(keyframes: &[Keyframe], config: &CandidateConfig) -> Resu
 fn eligible_count(keyframes: &[Keyframe], q: usize, min_frames: usize) -> usize {
     let frame_q = keyframes[q].frame;
     keyframes[..q].partition_point(|k| frame_q - k.frame >= min_frames)
+}
+
+/// Number of keyframes before `q` at least `min_path_m` of path earlier (a prefix, since the
+/// path grows).
+fn far_count(keyframes: &[Keyframe], q: usize, min_path_m: f64) -> usize {
+    let travelled_q = keyframes[q].travelled_m;
+    keyframes[..q].partition_point(|k| travelled_q - k.travelled_m >= min_path_m)
 }
 
 /// `(matched, odometry distance)` of the place candidates of `q`, nearest first.
