@@ -192,10 +192,14 @@ fn frames_kept_from_the_odometry_verify_as_frames_read_again() {
 }
 
 /// `--loop-memory 0` keeps no frame from the odometry: every candidate's frames are read again
-/// (at least one pass), and the budget is recorded with the other loop settings.
+/// (at least one pass) and every search structure is dropped after each use and built again,
+/// yet each candidate verifies as with the default budget; the budget is recorded with the
+/// other loop settings.
 #[test]
 fn loop_memory_zero_reads_the_frames_again() {
     let dir = tempfile::tempdir().unwrap();
+    let default_out = dir.path().join("default.mcap");
+    mireg_stdout(&["register", s(&fixture()), "-o", s(&default_out), "--quiet"]);
     let out = dir.path().join("out.mcap");
     let summary: serde_json::Value = serde_json::from_str(&mireg_stdout(&[
         "register",
@@ -224,4 +228,37 @@ fn loop_memory_zero_reads_the_frames_again() {
         .1;
     let config: serde_json::Value = serde_json::from_str(&meta["loop_config"]).unwrap();
     assert_eq!(config["memory_budget_bytes"], 0, "{config}");
+    assert_eq!(summary["loops"]["kept_frames"], 0, "{summary}");
+
+    // Each candidate both runs tried verifies the same, bit for bit (which ones are skipped as
+    // redundant follows the order the passes verify them in).
+    let verdicts =
+        |path: &std::path::Path| -> std::collections::BTreeMap<(u64, u64), serde_json::Value> {
+            loops(path)
+                .into_iter()
+                .map(|r| {
+                    let key = (
+                        r["query_frame"].as_u64().unwrap(),
+                        r["match_frame"].as_u64().unwrap(),
+                    );
+                    let v = serde_json::json!([
+                        r["verdict"],
+                        r["match_from_query"],
+                        r["inliers"],
+                        r["fitness"],
+                        r["icp_iterations"]
+                    ]);
+                    (key, v)
+                })
+                .collect()
+        };
+    let (zero, default) = (verdicts(&out), verdicts(&default_out));
+    let both: Vec<_> = zero.keys().filter(|k| default.contains_key(k)).collect();
+    assert!(
+        both.len() >= zero.len().min(default.len()) / 2,
+        "{zero:?} {default:?}"
+    );
+    for k in both {
+        assert_eq!(zero[k], default[k], "candidate {k:?}");
+    }
 }
