@@ -3,29 +3,12 @@
 //! first use) without changing the next registration against it (loop closure keeps frames idle
 //! between candidates).
 
+#[path = "common/room_scene.rs"]
+mod room_scene;
+
 use mireg::pipeline::{PairConfig, prepare_frame, register_prepared};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion};
-use rand::{RngExt, SeedableRng};
-
-/// `n` points on a room corner (floor and two walls, 4 m) with a box on the floor.
-fn scene(n: usize, seed: u64) -> Vec<Point3<f64>> {
-    let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
-    (0..n)
-        .map(|_| {
-            let (u, v): (f64, f64) = (rng.random_range(0.0..4.0), rng.random_range(0.0..2.5));
-            match rng.random_range(0..5u32) {
-                0 | 1 => Point3::new(u, rng.random_range(0.0..4.0), 0.0),
-                2 => Point3::new(u, 0.0, v),
-                3 => Point3::new(0.0, u, v),
-                _ => Point3::new(
-                    1.5 + rng.random_range(0.0..0.8),
-                    2.0 + rng.random_range(0.0..0.5),
-                    rng.random_range(0.0..0.6),
-                ),
-            }
-        })
-        .collect()
-}
+use room_scene::scene;
 
 #[test]
 fn dropping_search_structures_restores_the_idle_size_and_changes_no_result() {

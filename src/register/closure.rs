@@ -487,10 +487,10 @@ fn verify_all(
                     let fit = verifier.config.memory_budget_bytes / frame.idle_bytes().max(1);
                     fit.clamp(2, verifier.config.frames_in_memory.max(2))
                 });
-                // As many at once as there are threads: each builds search structures on its target
-                // (a matching target and an ICP grid, for a LiDAR scan twenty times the idle frame),
-                // kept for the frame's next candidates while the frames in memory fit the budget,
-                // dropped when they do not.
+                // As many at once as there are threads: each builds search structures on its
+                // target (a matching target and an ICP grid, for a LiDAR scan twenty times the
+                // idle frame), kept for the frame's next candidates while the frames in memory
+                // fit the budget, dropped when they do not.
                 let budget = verifier.config.memory_budget_bytes;
                 let mut results: Vec<((usize, usize), (Verification, f64))> = Vec::new();
                 for chunk in ready.chunks(rayon::current_num_threads().max(1)) {
