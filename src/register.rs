@@ -314,7 +314,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         let config = loop_config;
         let cached = cached.map(KeyframeCache::into_frames).unwrap_or_default();
         // The odometry is written: a loop closure that fails costs the loops, not the run.
-        match closure::close_loops(&plan, opts, &writer.estimates, &config, cached) {
+        match closure::close_loops(&plan, opts, &writer.estimates, &config, cached, &[]) {
             Ok(outcome) => Some((outcome, config)),
             Err(e) => {
                 eprintln!(

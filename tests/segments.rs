@@ -257,15 +257,17 @@ fn stitched_segments_recover_known_motion() {
 }
 
 /// Loop closure over the stitched whole (`stitch` with loops): candidates across the seams,
-/// every accepted loop right against the fixture's reference, an optimised pose for every frame,
-/// and the summary counting what was tried.
+/// the seam pairs (the later segment's first two output frames against the frame before its
+/// window), every accepted loop right against the fixture's reference, an optimised pose for
+/// every frame, and the summary counting what was tried.
 #[test]
 fn stitched_segments_close_loops_over_the_whole_log() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
+    let (end0, start1) = (40, 28);
     let segs = vec![
-        segment(d, "s0.mcap", None, Some(40)),
-        segment(d, "s1.mcap", Some(28), None),
+        segment(d, "s0.mcap", None, Some(end0)),
+        segment(d, "s1.mcap", Some(start1), None),
     ];
     let out = d.join("stitched.mcap");
     let s = mireg::register::stitch(&fixture(), &segs, &out, false, "test", true).unwrap();
@@ -277,6 +279,28 @@ fn stitched_segments_close_loops_over_the_whole_log() {
     let accepted = loop_records::assert_accepted_loops_match(&tried, &reference, voxel);
     assert_eq!(accepted, summary.accepted);
     assert!(accepted > 0);
+    // The anchor is segment 0's last frame; segment 1's window starts at `start1`.
+    let (anchor, before) = (end0 - 1, start1 - 1);
+    let mut seams: Vec<(u64, u64, &str)> = tried
+        .iter()
+        .filter(|r| r["found_by"] == "seam")
+        .map(|r| {
+            let f = |k: &str| r[k].as_u64().unwrap();
+            (
+                f("query_frame"),
+                f("match_frame"),
+                r["verdict"].as_str().unwrap(),
+            )
+        })
+        .collect();
+    seams.sort();
+    assert_eq!(
+        seams,
+        [
+            (anchor + 1, before, "accepted"),
+            (anchor + 2, before, "accepted")
+        ]
+    );
     let optimized = loop_records::poses_by_stamp(&out, "/mireg/pose_optimized");
     assert_eq!(optimized.len(), 71);
 }

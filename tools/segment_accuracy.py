@@ -1,12 +1,17 @@
 #!/usr/bin/env python3
 """Segments against the reference (issue 34, item 3): registers a log in K overlapping segments
 exactly as ``mireg_ray segments`` does (``register --copy-window --no-loops --start/--end``, the
-split of ``mireg_ray.segments.bounds``), stitches them (``mireg stitch --no-loops``), and prints
-the stitched ATE against the log's reference next to the sequential run's, and the seams' RPE
-against the median RPE. No Ray: the segments run one after the other, so the numbers are the
+split of ``mireg_ray.segments.bounds``), stitches them (``mireg stitch``, ``--no-loops`` unless
+``--loops``), and prints the stitched ATE against the log's reference next to the sequential
+run's, and the seams' RPE against the median RPE. No Ray: the segments run one after the other, so the numbers are the
 stitching's, not the cluster's.
 
-    tools/segment_accuracy.py /tmp/kaist03.mcap --segments 2 4 --overlap 4 6 [--mireg BIN] [-- ARGS]
+    tools/segment_accuracy.py /tmp/kaist03.mcap --segments 2 4 --overlap 4 6 [--loops]
+        [--mireg BIN] [-- ARGS]
+
+With ``--loops``, the sequential run and the stitch close loops (their default, and what
+``mireg_ray segments`` delivers: one pose graph over the stitched log, with the seam pairs), and
+both are judged on their optimised trajectories (``/mireg/pose_optimized``).
 
 ATE: ``mireg evaluate --json`` (position RMSE after SE(3) alignment, frames matched by stamp).
 RPE of a step: the translation error of the relative pose between consecutive frames, from
@@ -91,16 +96,21 @@ def main() -> int:
     ap.add_argument("log", type=Path)
     ap.add_argument("--segments", type=int, nargs="+", default=[2, 4])
     ap.add_argument("--overlap", type=int, nargs="+", default=[4])
+    ap.add_argument("--loops", action="store_true",
+                    help="close loops in the sequential run and over the stitched log")
     ap.add_argument("--mireg", default=os.environ.get("MIREG_BIN", "target/release/mireg"))
     args = ap.parse_args(argv)
     b = args.mireg
     n = json.loads(run([b, "info", str(args.log), "--json"]))["cloud_messages"]
     with tempfile.TemporaryDirectory() as tmp:
         seq = Path(tmp) / "seq.mcap"
-        run([b, "register", str(args.log), "-o", str(seq), "--quiet", "--no-loops", *extra])
+        no_loops = [] if args.loops else ["--no-loops"]
+        pose_topic = "/mireg/pose_optimized" if args.loops else "/mireg/pose"
+        run([b, "register", str(args.log), "-o", str(seq), "--quiet", *no_loops, *extra])
         seq_ate = json.loads(run([b, "evaluate", str(seq), "--json"]))["ate_rmse_m"]
         ref = tum(b, seq, "/ground_truth/pose")
-        print(f"{args.log}: {n} clouds; sequential ATE {100 * seq_ate:.3f} cm")
+        print(f"{args.log}: {n} clouds; sequential ATE {100 * seq_ate:.3f} cm "
+              f"({'loops closed' if args.loops else 'odometry, --no-loops'})")
         print("K  overlap  segments                       ATE (cm)  vs seq  median RPE (cm)  "
               "seam RPE (cm)  worst seam / median")
         for k in args.segments:
@@ -114,9 +124,9 @@ def main() -> int:
                          "--no-loops", *window, *extra])
                     outs.append(str(out))
                 st = Path(tmp) / f"st{k}_{overlap}.mcap"
-                run([b, "stitch", str(args.log), *outs, "-o", str(st), "--no-loops"])
+                run([b, "stitch", str(args.log), *outs, "-o", str(st), *no_loops])
                 ate = json.loads(run([b, "evaluate", str(st), "--json"]))["ate_rmse_m"]
-                est = tum(b, st, "/mireg/pose")
+                est = tum(b, st, pose_topic)
                 errs = step_errors(est, ref)
                 med = statistics.median(errs)
                 # The anchor of each seam: the last frame the later segment shares with the

@@ -41,6 +41,9 @@ pub enum Source {
     Appearance,
     /// Both searches.
     Both,
+    /// Not searched: a stitched segment's first output frame against the frame just before the
+    /// segment's window, which its young local map never held (`mireg stitch`).
+    Seam,
 }
 
 /// A loop candidate: keyframe `query` may see what the earlier keyframe `matched` saw.

@@ -178,13 +178,17 @@ impl KeyframeCache {
 }
 
 /// Runs loop closure over the odometry's `estimates` (one per frame, in order); `cached` holds
-/// frames the odometry prepared ([`KeyframeCache`]), which are not read again.
+/// frames the odometry prepared ([`KeyframeCache`]), which are not read again. `seams` are
+/// (query, match) frame pairs verified besides the candidates the searches find
+/// ([`Source::Seam`]; `mireg stitch` gives them, `register` none): they are tried whatever the
+/// redundancy rule says and do not make other candidates redundant.
 pub(super) fn close_loops(
     plan: &Plan,
     opts: &RegisterOptions,
     estimates: &[Estimate],
     config: &LoopConfig,
     cached: BTreeMap<usize, PreparedFrame>,
+    seams: &[(usize, usize)],
 ) -> Result<LoopOutcome> {
     let start = Instant::now();
     let poses: Vec<Isometry3<f64>> = estimates.iter().map(|e| e.world_from_frame).collect();
@@ -203,15 +207,31 @@ pub(super) fn close_loops(
             })
         })
         .collect();
-    // Candidates in frames (the search's indices are keyframes').
-    let candidates: Vec<Candidate> = find_candidates(&keyframes, &config.candidates)?
+    // Candidates in frames (the search's indices are keyframes'), the seams' first.
+    let mut candidates: Vec<Candidate> = seams
+        .iter()
+        .filter(|&&(q, m)| m < q && q < estimates.len())
+        .map(|&(q, m)| Candidate {
+            query: q,
+            matched: m,
+            by: Source::Seam,
+            odometry_distance_m: (poses[q].translation.vector - poses[m].translation.vector).norm(),
+            descriptor_distance: match (&estimates[q].descriptor, &estimates[m].descriptor) {
+                (Some(a), Some(b)) => a.distance(b),
+                _ => f64::NAN,
+            },
+        })
+        .collect();
+    let searched = find_candidates(&keyframes, &config.candidates)?
         .into_iter()
         .map(|c| Candidate {
             query: keyframes[c.query].frame,
             matched: keyframes[c.matched].frame,
             ..c
         })
-        .collect();
+        .filter(|c| !seams.contains(&(c.query, c.matched)))
+        .collect::<Vec<_>>();
+    candidates.extend(searched);
 
     let pair = loop_pair_config(&plan.config.pair, config);
     let verifier = Verifier {
@@ -319,6 +339,7 @@ fn record(
             Source::Place => "place",
             Source::Appearance => "appearance",
             Source::Both => "both",
+            Source::Seam => "seam",
         },
         descriptor_distance: c.descriptor_distance,
         odometry_distance_m: c.odometry_distance_m,
@@ -387,6 +408,7 @@ impl Verifier<'_> {
         let d = self.config.redundant_path_m;
         let near = |a: usize, b: usize| (self.travelled[a] - self.travelled[b]).abs() <= d;
         d > 0.0
+            && c.by != Source::Seam
             && accepted
                 .iter()
                 .any(|&(q, m)| near(c.query, q) && near(c.matched, m))
@@ -437,6 +459,12 @@ fn verify_all(
     let mut verified = Verified::new();
     let mut accepted: Vec<(usize, usize)> = Vec::new();
     let mut skipped: BTreeSet<(usize, usize)> = BTreeSet::new();
+    // Seam pairs are no loops: an accepted one makes no other candidate redundant.
+    let seam_pairs: BTreeSet<(usize, usize)> = candidates
+        .iter()
+        .filter(|c| c.by == Source::Seam)
+        .map(|c| (c.query, c.matched))
+        .collect();
     // Candidates that could not be read (a frame that no longer decodes) are left out.
     let mut remaining: Vec<Candidate> = candidates.to_vec();
     let mut passes = 0;
@@ -509,7 +537,7 @@ fn verify_all(
                     fit_budget(budget, &mut frame, &mut held, &cached);
                 }
                 for (key, v) in results {
-                    if v.0.accepted {
+                    if v.0.accepted && !seam_pairs.contains(&key) {
                         accepted.push(key);
                     }
                     verified.insert(key, v);

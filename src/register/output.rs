@@ -390,7 +390,7 @@ pub fn loops_json_schema() -> serde_json::Value {
         "type": "object",
         "properties": {
             "query_frame": int, "match_frame": int, "query_stamp_ns": int, "match_stamp_ns": int,
-            "found_by": {"type": "string", "enum": ["place", "appearance", "both"]},
+            "found_by": {"type": "string", "enum": ["place", "appearance", "both", "seam"]},
             "descriptor_distance": num, "odometry_distance_m": num, "path_between_m": num,
             "verdict": {"type": "string", "enum": ["accepted", "rejected"]},
             "reason": {"type": "string"},

@@ -298,7 +298,14 @@ pub fn stitch(
         write_pose(&mut out, &ch, &segs[0].world_frame, &pose, &bytes)?;
     }
     let closed = if loops {
-        Some(close_stitched(log, output, &segs[0], &stitched)?)
+        let seam_pairs = seam_candidates(&segs, &seams, &stitched);
+        Some(close_stitched(
+            log,
+            output,
+            &segs[0],
+            &stitched,
+            &seam_pairs,
+        )?)
     } else {
         None
     };
@@ -343,6 +350,45 @@ pub fn stitch(
     })
 }
 
+/// Output frames after each anchor verified against the frame before the segment's window.
+const SEAM_QUERIES: usize = 2;
+
+/// The seam pairs loop closure verifies besides its candidates ([`crate::loops::Source::Seam`]):
+/// at each seam, the later segment's first [`SEAM_QUERIES`] output frames against the stitched
+/// frame just before that segment's window (its first frame, overlap included). The segment's
+/// young local map held only the overlap when it registered them, where the sequential run's
+/// map also held the frames before it; these pairs give the pose graph that missing link.
+fn seam_candidates(
+    segs: &[Segment],
+    seams: &[Seam],
+    stitched: &[(usize, SegFrame)],
+) -> Vec<(usize, usize)> {
+    let index: BTreeMap<i64, usize> = stitched
+        .iter()
+        .enumerate()
+        .map(|(k, (_, f))| (f.stamp_ns, k))
+        .collect();
+    let mut pairs = Vec::new();
+    for seam in seams {
+        let window_start = segs[seam.segment].frames[0].stamp_ns;
+        let (Some(&first), Some(&anchor)) =
+            (index.get(&window_start), index.get(&seam.anchor_stamp_ns))
+        else {
+            continue;
+        };
+        let Some(before) = first.checked_sub(1) else {
+            continue;
+        };
+        pairs.extend(
+            (anchor + 1..stitched.len())
+                .take_while(|&q| stitched[q].0 == seam.segment)
+                .take(SEAM_QUERIES)
+                .map(|q| (q, before)),
+        );
+    }
+    pairs
+}
+
 /// Loop closure over the stitched trajectory: the run's plan rebuilt from `log` with the first
 /// segment's recorded settings, each frame's estimate from the stitched poses and statistics,
 /// descriptors from the log read again, then [`super::closure::close_loops`].
@@ -354,6 +400,7 @@ fn close_stitched(
     output: &Path,
     first: &Segment,
     stitched: &[(usize, SegFrame)],
+    seam_pairs: &[(usize, usize)],
 ) -> Result<(Vec<Estimate>, LoopOutcome, LoopConfig)> {
     let meta = |k: &str| {
         first.meta.get(k).ok_or_else(|| {
@@ -405,6 +452,13 @@ fn close_stitched(
         .collect();
     describe(&plan, &opts, &mut estimates)?;
     let loop_config = LoopConfig::for_voxel(voxel);
-    let outcome = close_loops(&plan, &opts, &estimates, &loop_config, Default::default())?;
+    let outcome = close_loops(
+        &plan,
+        &opts,
+        &estimates,
+        &loop_config,
+        Default::default(),
+        seam_pairs,
+    )?;
     Ok((estimates, outcome, loop_config))
 }
