@@ -133,22 +133,72 @@ fn place_finds_the_revisit_of_a_drifting_square_loop_and_not_the_neighbours_in_t
     assert!(!without.iter().any(|c| c.query == 80 && c.matched == 0));
 }
 
+/// Out 30 m along x and back, a keyframe per metre, through odometry whose heading drifted by
+/// 25° at the turn: the way back runs off at 155° instead of 180°, so keyframe 58, back where
+/// keyframe 2 was, is 12 m from it in the odometry.
+fn drifted_out_and_back() -> Vec<Vector3<f64>> {
+    let back = Vector3::new(
+        f64::to_radians(155.0).cos(),
+        f64::to_radians(155.0).sin(),
+        0.0,
+    );
+    (0..=60)
+        .map(|k| {
+            if k <= 30 {
+                Vector3::new(k as f64, 0.0, 0.0)
+            } else {
+                Vector3::new(30.0, 0.0, 0.0) + back * (k - 30) as f64
+            }
+        })
+        .collect()
+}
+
 #[test]
 fn appearance_finds_a_revisit_whose_odometry_is_metres_off() {
-    // A straight 60 m drive; keyframe 55 sees what keyframe 5 saw, its odometry 50 m away.
-    let positions: Vec<_> = (0..60).map(|k| Vector3::new(k as f64, 0.0, 0.0)).collect();
-    let mut descriptors: Vec<_> = (0..60).map(distinct).collect();
-    let mut revisit = descriptors[5];
-    revisit.fpfh[5] = 0.97;
-    revisit.fpfh[6] = 0.03;
-    descriptors[55] = revisit;
+    let positions = drifted_out_and_back();
+    let mut descriptors: Vec<_> = (0..positions.len()).map(distinct).collect();
+    let mut revisit = descriptors[2];
+    revisit.fpfh[2] = 0.97;
+    revisit.fpfh[3] = 0.03;
+    descriptors[58] = revisit;
     let kf = keyframes(&positions, &descriptors);
-    let found = find_candidates(&kf, &CandidateConfig::default()).unwrap();
+    let config = CandidateConfig::default();
+    let apart = (positions[58] - positions[2]).norm();
+    // Beyond the place radius, but the sensor came back: a revisit by the ratio test.
+    assert!(
+        apart > 12.0 && apart > config.place_radius_for(56.0),
+        "{apart}"
+    );
+    let found = find_candidates(&kf, &config).unwrap();
     assert_eq!(found.len(), 1, "{found:?}");
     let c = found[0];
-    assert_eq!((c.query, c.matched, c.by), (55, 5, Source::Appearance));
-    assert!((c.odometry_distance_m - 50.0).abs() < 1e-9);
+    assert_eq!((c.query, c.matched, c.by), (58, 2, Source::Appearance));
+    assert!((c.odometry_distance_m - apart).abs() < 1e-9);
     assert!((c.descriptor_distance - 0.01).abs() < 1e-6);
+}
+
+#[test]
+fn a_straight_drive_has_no_revisit_even_where_keyframes_look_alike() {
+    // A straight 60 m drive: keyframe 55 looks like keyframe 5, 50 m back along the line (as a
+    // LiDAR scan sees far ahead). The odometry went on, it did not come back: no candidate,
+    // unless the ratio test is turned off.
+    let positions: Vec<_> = (0..60).map(|k| Vector3::new(k as f64, 0.0, 0.0)).collect();
+    let mut descriptors: Vec<_> = (0..60).map(distinct).collect();
+    descriptors[55] = descriptors[5];
+    let kf = keyframes(&positions, &descriptors);
+    let config = CandidateConfig::default();
+    assert!(!config.revisits(50.0, 50.0) && config.revisits(0.8 * 50.0, 50.0));
+    assert_eq!(find_candidates(&kf, &config).unwrap(), vec![]);
+    let off = CandidateConfig {
+        max_distance_per_path: 1.0,
+        ..config
+    };
+    let found: Vec<_> = find_candidates(&kf, &off)
+        .unwrap()
+        .into_iter()
+        .map(|c| (c.query, c.matched, c.by))
+        .collect();
+    assert_eq!(found, vec![(55, 5, Source::Appearance)]);
 }
 
 #[test]
@@ -161,7 +211,11 @@ fn appearance_needs_the_path_separation_too() {
     descriptors[40] = descriptors[30];
     descriptors[59] = descriptors[5];
     let kf = keyframes(&positions, &descriptors);
-    let config = CandidateConfig::default();
+    // A straight drive: the revisit test off, to isolate the path separation.
+    let config = CandidateConfig {
+        max_distance_per_path: 1.0,
+        ..CandidateConfig::default()
+    };
     assert!(kf[40].frame - kf[30].frame >= config.min_frame_separation);
     assert!(kf[40].travelled_m - kf[30].travelled_m < config.min_path_separation_m);
     let found: Vec<_> = find_candidates(&kf, &config)

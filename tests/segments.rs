@@ -257,7 +257,7 @@ fn stitched_segments_recover_known_motion() {
 }
 
 /// Loop closure over the stitched whole (`stitch` with loops): candidates across the seams,
-/// the seam pairs (the later segment's first two output frames against the frame before its
+/// the seam pairs (the later segment's first three output frames against the frame before its
 /// window), every accepted loop right against the fixture's reference, an optimised pose for
 /// every frame, and the summary counting what was tried.
 #[test]
@@ -298,7 +298,8 @@ fn stitched_segments_close_loops_over_the_whole_log() {
         seams,
         [
             (anchor + 1, before, "accepted"),
-            (anchor + 2, before, "accepted")
+            (anchor + 2, before, "accepted"),
+            (anchor + 3, before, "accepted")
         ]
     );
     let optimized = loop_records::poses_by_stamp(&out, "/mireg/pose_optimized");

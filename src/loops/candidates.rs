@@ -78,6 +78,17 @@ pub struct CandidateConfig {
     /// most of what it sees with the scans a few metres back: registering them is the odometry's
     /// work, not a loop's). Default 20.
     pub min_path_separation_m: f64,
+    /// Both searches need the two keyframes' odometry positions at most this fraction of the
+    /// path between them apart \[m/m\]: the sensor came back towards the place instead of going
+    /// on along a line from it. Keyframes of a straight drive 20 m apart see each other's far
+    /// field, which the odometry related already; an edge between them closes nothing and only
+    /// moves a trajectory that has no loop. 1 turns the test off. Default 0.8.
+    ///
+    /// Measured (`register` on the four loop logs and the fixture, 2026-12-05): every accepted
+    /// revisit had a ratio of at most 0.64 (an appearance match of micro211 out-and-back), most
+    /// under 0.1; the three loops found on KAIST03, a straight drive, had 1.00 (8–9.6 m apart
+    /// after 8–9.6 m of path).
+    pub max_distance_per_path: f64,
     /// Both searches need the two keyframes at least this many log frames apart
     /// ([`Keyframe::frame`]). Default 50.
     pub min_frame_separation: usize,
@@ -119,6 +130,7 @@ impl Default for CandidateConfig {
             drift_fraction: 0.02,
             max_place_radius_m: 30.0,
             min_path_separation_m: 20.0,
+            max_distance_per_path: 0.8,
             min_frame_separation: 50,
             max_place_per_query: 3,
             appearance_k: 3,
@@ -136,6 +148,7 @@ impl CandidateConfig {
             ("drift_fraction", self.drift_fraction),
             ("max_place_radius_m", self.max_place_radius_m),
             ("min_path_separation_m", self.min_path_separation_m),
+            ("max_distance_per_path", self.max_distance_per_path),
             ("max_descriptor_distance", self.max_descriptor_distance),
             ("appearance_ratio", self.appearance_ratio),
         ] {
@@ -146,6 +159,12 @@ impl CandidateConfig {
             }
         }
         Ok(())
+    }
+
+    /// Whether two keyframes `distance_m` apart in the odometry after `path_m` of path between
+    /// them may be a revisit: `distance_m ≤ max_distance_per_path · path_m`.
+    pub fn revisits(&self, distance_m: f64, path_m: f64) -> bool {
+        distance_m <= self.max_distance_per_path * path_m
     }
 
     /// The place radius \[m\] for two keyframes `path_m` of path apart:
@@ -163,7 +182,8 @@ impl CandidateConfig {
 ///   and `travelled_q − travelled_m ≥ min_path_separation_m`; the `max_place_per_query` nearest;
 /// - by appearance, among the m with `travelled_q − travelled_m ≥ min_path_separation_m` too:
 ///   descriptor distance `≤ max_descriptor_distance` and `≤ appearance_ratio` × the median over
-///   those m; the `appearance_k` nearest, wherever the odometry puts them.
+///   those m; the `appearance_k` nearest, however far the odometry puts them;
+/// - both: only pairs that may be revisits ([`CandidateConfig::revisits`]).
 ///
 /// A pair found by both is one [`Source::Both`] candidate. Per query the merged list is ranked
 /// `Both` first, then by descriptor distance, then by the earlier `matched`, and cut to
@@ -248,8 +268,10 @@ fn by_place(
         .filter_map(|n| {
             let path = travelled_q - keyframes[n.index].travelled_m;
             let d = n.distance_sq.sqrt();
-            (path >= config.min_path_separation_m && d <= config.place_radius_for(path))
-                .then_some((n.index, d))
+            (path >= config.min_path_separation_m
+                && d <= config.place_radius_for(path)
+                && config.revisits(d, path))
+            .then_some((n.index, d))
         })
         .collect();
     // The tree sorts by distance with ties by index; keep that order.
@@ -279,7 +301,12 @@ fn by_appearance(
     let limit = config
         .max_descriptor_distance
         .min(config.appearance_ratio * median);
-    all.retain(|&(_, d)| d <= limit);
+    let kq = &keyframes[q];
+    all.retain(|&(m, d)| {
+        let km = &keyframes[m];
+        let apart = (kq.pose.translation.vector - km.pose.translation.vector).norm();
+        d <= limit && config.revisits(apart, kq.travelled_m - km.travelled_m)
+    });
     all.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
     all.truncate(config.appearance_k);
     all
