@@ -6,6 +6,11 @@
 //! known extra motion (0.2 m and 0.5° yaw per frame), as a ROS 2 PointCloud2 (x, y, z, intensity).
 //! With `PASSTHROUGH_MB`, a 1 MB/message binary channel of that many MB (incompressible bytes) is
 //! interleaved, to measure the pass-through of non-cloud data against `cp`.
+//!
+//! The reference, on `/ground_truth/pose` (PoseStamped in the first frame's world): a frame of
+//! scan 0 is that scan seen from `motion_k⁻¹`, which is therefore its true pose relative to
+//! frame 0, exactly. A frame of scan 1 also carries scan 1's own pose relative to scan 0, which
+//! the data set does not give, so the odd frames have no reference.
 
 use std::path::Path;
 
@@ -37,6 +42,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         cdr::POINT_CLOUD2_SCHEMA.as_bytes(),
         "cdr",
     )?;
+    let reference = log.add_channel(
+        "/ground_truth/pose",
+        cdr::POSE_STAMPED_SCHEMA_NAME,
+        "ros2msg",
+        cdr::POSE_STAMPED_SCHEMA.as_bytes(),
+        "cdr",
+    )?;
     let blob = log.add_channel("/camera/raw", "", "", &[], "application/octet-stream")?;
     let mut state = 0x2545_f491_4f6c_dd1du64;
     let mut noise = vec![0u8; 1 << 20];
@@ -60,6 +72,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             t,
             &cdr::encode_point_cloud2(&header, &pts, Some(&intensity)),
         )?;
+        if k % 2 == 0 {
+            let world = Header {
+                stamp: header.stamp,
+                frame_id: "velodyne_first".into(),
+            };
+            let pose = cdr::encode_pose_stamped(&world, &motion.inverse());
+            log.write(reference, t, t, &pose)?;
+        }
         for _ in 0..blobs_per_frame {
             if blobs_written == passthrough_mb {
                 break;

@@ -77,14 +77,16 @@ def relative(p, q):
 
 
 def step_errors(est, ref):
-    """Translation error [m] of each consecutive step, in stamp order."""
+    """(first stamp, last stamp, translation error [m]) of each step between consecutive frames
+    that have a reference, in stamp order (a reference on every other frame gives two-frame
+    steps)."""
     stamps = sorted(set(est) & set(ref))
     errs = []
     for a, b in zip(stamps, stamps[1:]):
         (te, qe), (tr, qr) = relative(est[a], est[b]), relative(ref[a], ref[b])
         # (ref step)⁻¹ (est step): translation part.
         inv = (-qr[0], -qr[1], -qr[2], qr[3])
-        errs.append(math.dist(rotate(inv, te), rotate(inv, tr)))
+        errs.append((a, b, math.dist(rotate(inv, te), rotate(inv, tr))))
     return errs
 
 
@@ -127,12 +129,15 @@ def main() -> int:
                 run([b, "stitch", str(args.log), *outs, "-o", str(st), *no_loops])
                 ate = json.loads(run([b, "evaluate", str(st), "--json"]))["ate_rmse_m"]
                 est = tum(b, st, pose_topic)
-                errs = step_errors(est, ref)
-                med = statistics.median(errs)
+                steps = step_errors(est, ref)
+                med = statistics.median(e for _, _, e in steps)
                 # The anchor of each seam: the last frame the later segment shares with the
-                # earlier one (the later segment's frames start after it).
+                # earlier one (the later segment's frames start after it). A seam's step is the
+                # one that spans the anchor and the frame after it.
+                order = sorted(est)
                 seams = [min(plan[i][1], n) - 1 for i in range(len(plan) - 1)]
-                seam_errs = [errs[s] for s in seams if s < len(errs)]
+                seam_errs = [e for s in seams if s + 1 < len(order)
+                             for a, b, e in steps if a <= order[s] and order[s + 1] <= b]
                 worst = max(seam_errs) / med if seam_errs else float("nan")
                 print(f"{k:<2} {overlap:<8} {str(plan):<30} {100 * ate:8.3f}  {ate / seq_ate:6.3f}  "
                       f"{100 * med:15.2f}  {' '.join(f'{100 * e:.2f}' for e in seam_errs):<13}  "
