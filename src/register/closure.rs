@@ -218,6 +218,7 @@ pub(super) fn close_loops(
             odometry_distance_m: (poses[q].translation.vector - poses[m].translation.vector).norm(),
             descriptor_distance: match (&estimates[q].descriptor, &estimates[m].descriptor) {
                 (Some(a), Some(b)) => a.distance(b),
+                // A frame without features has no descriptor: null on `/mireg/loops`.
                 _ => f64::NAN,
             },
         })

@@ -391,7 +391,7 @@ pub fn loops_json_schema() -> serde_json::Value {
         "properties": {
             "query_frame": int, "match_frame": int, "query_stamp_ns": int, "match_stamp_ns": int,
             "found_by": {"type": "string", "enum": ["place", "appearance", "both", "seam"]},
-            "descriptor_distance": num, "odometry_distance_m": num, "path_between_m": num,
+            "descriptor_distance": nullable_num, "odometry_distance_m": num, "path_between_m": num,
             "verdict": {"type": "string", "enum": ["accepted", "rejected"]},
             "reason": {"type": "string"},
             "match_from_query": {
