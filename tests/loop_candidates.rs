@@ -177,6 +177,15 @@ fn appearance_finds_a_revisit_whose_odometry_is_metres_off() {
     assert!((c.descriptor_distance - 0.01).abs() < 1e-6);
 }
 
+/// (query, matched, source) of each candidate [`find_candidates`] finds.
+fn found_pairs(kf: &[Keyframe], config: &CandidateConfig) -> Vec<(usize, usize, Source)> {
+    find_candidates(kf, config)
+        .unwrap()
+        .into_iter()
+        .map(|c| (c.query, c.matched, c.by))
+        .collect()
+}
+
 #[test]
 fn a_straight_drive_has_no_revisit_even_where_keyframes_look_alike() {
     // A straight 60 m drive: keyframe 55 looks like keyframe 5, 50 m back along the line (as a
@@ -193,11 +202,7 @@ fn a_straight_drive_has_no_revisit_even_where_keyframes_look_alike() {
         max_distance_per_path: 1.0,
         ..config
     };
-    let found: Vec<_> = find_candidates(&kf, &off)
-        .unwrap()
-        .into_iter()
-        .map(|c| (c.query, c.matched, c.by))
-        .collect();
+    let found = found_pairs(&kf, &off);
     assert_eq!(found, vec![(55, 5, Source::Appearance)]);
 }
 
@@ -218,11 +223,7 @@ fn appearance_needs_the_path_separation_too() {
     };
     assert!(kf[40].frame - kf[30].frame >= config.min_frame_separation);
     assert!(kf[40].travelled_m - kf[30].travelled_m < config.min_path_separation_m);
-    let found: Vec<_> = find_candidates(&kf, &config)
-        .unwrap()
-        .into_iter()
-        .map(|c| (c.query, c.matched, c.by))
-        .collect();
+    let found = found_pairs(&kf, &config);
     assert_eq!(found, vec![(59, 5, Source::Appearance)]);
     // With the separation down to 5 m, the neighbour is a candidate as well.
     let near = CandidateConfig {

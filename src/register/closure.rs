@@ -460,12 +460,6 @@ fn verify_all(
     let mut verified = Verified::new();
     let mut accepted: Vec<(usize, usize)> = Vec::new();
     let mut skipped: BTreeSet<(usize, usize)> = BTreeSet::new();
-    // Seam pairs are no loops: an accepted one makes no other candidate redundant.
-    let seam_pairs: BTreeSet<(usize, usize)> = candidates
-        .iter()
-        .filter(|c| c.by == Source::Seam)
-        .map(|c| (c.query, c.matched))
-        .collect();
     // Candidates that could not be read (a frame that no longer decodes) are left out.
     let mut remaining: Vec<Candidate> = candidates.to_vec();
     let mut passes = 0;
@@ -521,7 +515,7 @@ fn verify_all(
                 // idle frame), kept for the frame's next candidates while the frames in memory
                 // fit the budget, dropped when they do not.
                 let budget = verifier.config.memory_budget_bytes;
-                let mut results: Vec<((usize, usize), (Verification, f64))> = Vec::new();
+                let mut results: Vec<(&Candidate, (Verification, f64))> = Vec::new();
                 for chunk in ready.chunks(rayon::current_num_threads().max(1)) {
                     let verified_chunk: Vec<_> = chunk
                         .par_iter()
@@ -531,14 +525,16 @@ fn verify_all(
                             } else {
                                 (&held[&c.query], &frame)
                             };
-                            verifier.verify(c, q, m).map(|v| ((c.query, c.matched), v))
+                            verifier.verify(c, q, m).map(|v| (*c, v))
                         })
                         .collect::<Result<_>>()?;
                     results.extend(verified_chunk);
                     fit_budget(budget, &mut frame, &mut held, &cached);
                 }
-                for (key, v) in results {
-                    if v.0.accepted && !seam_pairs.contains(&key) {
+                for (c, v) in results {
+                    let key = (c.query, c.matched);
+                    // Seam pairs are no loops: an accepted one makes no candidate redundant.
+                    if v.0.accepted && c.by != Source::Seam {
                         accepted.push(key);
                     }
                     verified.insert(key, v);
