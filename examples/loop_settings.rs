@@ -4,7 +4,7 @@
 //! accepted and the stage's time.
 //!
 //! ```text
-//! cargo run --release --example loop_settings -- LOG [odometry_sigma=1] [loop_sigma=1] [kernel=1] [inliers=30] [fitness=0.5] [per_query=2] [fine_icp=0] [keyframe_distance_factor=1] [redundant_path_voxels=0]
+//! cargo run --release --example loop_settings -- LOG [odometry_sigma=1] [loop_sigma=1] [kernel=1] [inliers=30] [fitness=0.5] [per_query=2] [fine_icp=0] [keyframe_distance_factor=1] [redundant_path_voxels=0] [keep_odometry_frames=1] [seed=0]
 //! ```
 //! Sigma factors multiply [`LoopConfig::for_voxel`]'s deviations (translation and rotation).
 
@@ -31,6 +31,7 @@ fn main() -> mireg::Result<()> {
         force: true,
         ..RegisterOptions::new(&input, &output, OdometryConfig::default())
     };
+    opts.config.pair.seed = factor(11, 0.0) as u64;
     let voxel = register_log(&opts)?.voxel_m;
     let mut c = LoopConfig::for_voxel(voxel);
     let (so, sl) = (factor(1, 1.0), factor(2, 1.0));
@@ -45,6 +46,8 @@ fn main() -> mireg::Result<()> {
     c.fine_icp = factor(7, f64::from(u8::from(c.fine_icp))) != 0.0;
     c.keyframes.keyframe_distance_m *= factor(8, 1.0);
     c.redundant_path_m = factor(9, 0.0) * voxel;
+    // The kept keyframes drop the fine stage's points: `fine_icp` needs them read again.
+    c.keep_odometry_frames = factor(10, 1.0) != 0.0;
     opts.loops = true;
     opts.loop_config = Some(c);
     let s = register_log(&opts)?;
