@@ -148,7 +148,10 @@ pub const MAP_ICP_MAX_ITERATIONS_AFTER_COARSE: usize = 2;
 /// below 0.73 or below 0.8× the frame before it, so the rule costs them nothing.
 pub const DOUBTFUL_MAP_FITNESS: f64 = 0.5;
 
-/// ... or below this fraction of the previous accepted frame's map fitness: 0.8.
+/// ... or below this fraction of the previous accepted frame's map fitness: 0.8. The first frame
+/// registered to the map has no previous fit to compare with and always gets the second opinion
+/// (one more global registration per log): on the KITTI replay, seed 10's frame 1 fitted at 0.77
+/// where the right pose fits at 0.81, and the ATE was 0.227 cm instead of 0.067.
 pub const MAP_FITNESS_DROP: f64 = 0.8;
 
 /// The second opinion's RANSAC seed is the configured seed plus this (the 64-bit golden ratio,
@@ -498,12 +501,12 @@ impl Odometry {
     }
 
     /// Whether a global start's fit to the map is doubtful: below [`DOUBTFUL_MAP_FITNESS`], or
-    /// below [`MAP_FITNESS_DROP`] times the last accepted frame's.
+    /// below [`MAP_FITNESS_DROP`] times the last accepted frame's, or there is no such frame yet.
     fn doubtful(&self, fitness: f64) -> bool {
         fitness < DOUBTFUL_MAP_FITNESS
             || self
                 .last_map_fitness
-                .is_some_and(|last| fitness < MAP_FITNESS_DROP * last)
+                .is_none_or(|last| fitness < MAP_FITNESS_DROP * last)
     }
 
     /// Global registration of `frame` to `prev` once more, on the RANSAC stream of
