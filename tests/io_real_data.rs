@@ -1,24 +1,16 @@
 //! Readers against the real data sets in `../shared/data` (skipped with a message when absent)
 //! and the committed ICL-NUIM fixture in `fixtures/icl_nuim`.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use nalgebra::{Isometry3, Point3};
 
 use mireg::io::cloud_file::read_points;
 use mireg::io::pose_file::{bunny_pose, find_log_pair, read_log};
 
-fn shared_data(rel: &str) -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data")
-        .join(rel);
-    if p.exists() {
-        Some(p)
-    } else {
-        eprintln!("skipping: {} not present", p.display());
-        None
-    }
-}
+#[path = "common/shared_data.rs"]
+mod shared;
+use shared::shared_data;
 
 /// Median distance from (a subsample of about `samples`) `source` points to their nearest
 /// `target` point, by brute force.

@@ -7,8 +7,6 @@
 //! (scan 0 again) has an exact reference. With seed 2 the first RANSAC of frame 1 stops on a wrong
 //! model (map fitness 0.35; measured before the rule: frame 2 then lands 1.1 m from its true pose).
 
-use std::path::{Path, PathBuf};
-
 use mireg::io::cloud_file::read_points;
 use mireg::io::codec::{Header, Time, cdr};
 use mireg::io::mcap::log::OutputLog;
@@ -20,19 +18,10 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 mod log_contents;
 #[path = "common/loop_records.rs"]
 mod loop_records;
+#[path = "common/shared_data.rs"]
+mod shared;
 use loop_records::poses_by_stamp;
-
-fn kitti(name: &str) -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data/kitti_pair")
-        .join(name);
-    if p.exists() {
-        Some(p)
-    } else {
-        eprintln!("skipping: {} not present", p.display());
-        None
-    }
-}
+use shared::shared_data;
 
 /// The motion applied to frame `k`'s scan; frame `k`'s true pose in frame 0's world is its
 /// inverse (for the frames of scan 0).
@@ -47,7 +36,10 @@ const T0: i64 = 1_700_000_000_000_000_000;
 
 #[test]
 fn a_doubtful_frame_gets_a_second_global_registration() {
-    let (Some(s0), Some(s1)) = (kitti("000000.bin"), kitti("000001.bin")) else {
+    let (Some(s0), Some(s1)) = (
+        shared_data("kitti_pair/000000.bin"),
+        shared_data("kitti_pair/000001.bin"),
+    ) else {
         return;
     };
     let scans = [read_points(&s0).unwrap(), read_points(&s1).unwrap()];
