@@ -145,7 +145,8 @@ pub const MAP_ICP_MAX_ITERATIONS_AFTER_COARSE: usize = 2;
 /// KITTI replay at its own voxel (docs/ODOMETRY.md): 3 of 16 seeds accepted such a frame (map
 /// fitness 0.35–0.77 where the right pose fits at ~1.0) and the ATE rose from 0.07 cm to
 /// 0.2–51 cm. On the real logs (KAIST03, micro211, the fixtures) no frame's map fitness is
-/// below 0.73 or below 0.8× the frame before it, so the rule costs them nothing.
+/// below 0.73 or below 0.8× the frame before it: the rule costs them only the first frame's
+/// second opinion ([`MAP_FITNESS_DROP`]).
 pub const DOUBTFUL_MAP_FITNESS: f64 = 0.5;
 
 /// ... or below this fraction of the previous accepted frame's map fitness: 0.8. The first frame
