@@ -38,8 +38,9 @@ def parse(argv: list[str]):
     s = sub.add_parser("segments", help="register one long log in parallel segments and stitch")
     s.add_argument("log")
     s.add_argument("--segments", type=int, required=True, help="number of segments K")
-    s.add_argument("--overlap", type=int, default=12,
-                   help="frames shared by consecutive segments (default 12)")
+    s.add_argument("--overlap", type=int, default=24,
+                   help="frames shared by consecutive segments (default 24): the later segment "
+                        "registers them to warm its local map before its first output frame")
     s.add_argument("--out", required=True, help="stitched output MCAP")
     cluster(s)
     return p.parse_args(argv), mireg_args

@@ -4,7 +4,8 @@ overlapping segments, registered as parallel Ray tasks, then stitched by ``mireg
 Segment i covers clouds ``[i·N/K, (i+1)·N/K + overlap)`` (the last one runs to the end), so
 consecutive segments share ``overlap`` frames; each segment's output keeps only its window's
 messages (``--copy-window``) and lives in a temporary directory beside OUT. ``mireg stitch``
-aligns each segment on the last frame it shares with the one before and writes one output that
+aligns each segment on the later half of the frames it shares with the one before and writes
+one output that
 copies the whole log, with ``/tf``, ``/mireg/pose`` and ``/mireg/stats`` over all of it, then
 closes loops once over the stitched whole (``/mireg/loops``, ``/mireg/pose_optimized``; the
 segments themselves run with ``--no-loops``).
