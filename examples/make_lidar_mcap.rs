@@ -35,20 +35,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     ];
 
     let mut log = OutputLog::create(out, true, "ros2")?;
-    let clouds = log.add_channel(
-        "/velodyne_points",
-        cdr::POINT_CLOUD2_SCHEMA_NAME,
-        "ros2msg",
-        cdr::POINT_CLOUD2_SCHEMA.as_bytes(),
-        "cdr",
-    )?;
-    let reference = log.add_channel(
-        "/ground_truth/pose",
-        cdr::POSE_STAMPED_SCHEMA_NAME,
-        "ros2msg",
-        cdr::POSE_STAMPED_SCHEMA.as_bytes(),
-        "cdr",
-    )?;
+    let clouds = log.add_cdr_channel("/velodyne_points", cdr::POINT_CLOUD2)?;
+    let reference = log.add_cdr_channel("/ground_truth/pose", cdr::POSE_STAMPED)?;
     let blob = log.add_channel("/camera/raw", "", "", &[], "application/octet-stream")?;
     let mut state = 0x2545_f491_4f6c_dd1du64;
     let mut noise = vec![0u8; 1 << 20];

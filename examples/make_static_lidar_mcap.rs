@@ -28,13 +28,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let noise = Normal::new(0.0, sigma)?;
     let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(17);
     let mut log = OutputLog::create(out, true, "ros2")?;
-    let clouds = log.add_channel(
-        "/velodyne_points",
-        cdr::POINT_CLOUD2_SCHEMA_NAME,
-        "ros2msg",
-        cdr::POINT_CLOUD2_SCHEMA.as_bytes(),
-        "cdr",
-    )?;
+    let clouds = log.add_cdr_channel("/velodyne_points", cdr::POINT_CLOUD2)?;
     for k in 0..frames {
         let t = 1_700_000_000_000_000_000u64 + k as u64 * 100_000_000;
         let pts: Vec<Point3<f64>> = scan

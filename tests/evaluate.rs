@@ -41,14 +41,8 @@ fn pose_msg(stamp_ns: i64, pose: &Isometry3<f64>) -> Vec<u8> {
 fn write_log(path: &Path, est: &[Isometry3<f64>], gt: &[Isometry3<f64>], failed: &[usize]) {
     let mut log = OutputLog::create(path, true, "ros2").expect("create");
     let add_pose_channel = |log: &mut OutputLog, topic: &str| {
-        log.add_channel(
-            topic,
-            cdr::POSE_STAMPED_SCHEMA_NAME,
-            cdr::SCHEMA_ENCODING,
-            cdr::POSE_STAMPED_SCHEMA.as_bytes(),
-            cdr::MESSAGE_ENCODING,
-        )
-        .expect("channel")
+        log.add_cdr_channel(topic, cdr::POSE_STAMPED)
+            .expect("channel")
     };
     let est_ch = add_pose_channel(&mut log, "/mireg/pose");
     let gt_ch = add_pose_channel(&mut log, "/ground_truth/pose");
@@ -248,13 +242,7 @@ fn bad_inputs_name_the_file_and_topic() {
     {
         let mut log = OutputLog::create(&path, true, "ros2").expect("create");
         let ch = log
-            .add_channel(
-                "/odom/pose",
-                cdr::POSE_STAMPED_SCHEMA_NAME,
-                cdr::SCHEMA_ENCODING,
-                cdr::POSE_STAMPED_SCHEMA.as_bytes(),
-                cdr::MESSAGE_ENCODING,
-            )
+            .add_cdr_channel("/odom/pose", cdr::POSE_STAMPED)
             .expect("channel");
         log.write(ch, 1, 1, &pose_msg(1, &Isometry3::identity()))
             .expect("msg");

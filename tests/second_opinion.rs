@@ -47,13 +47,7 @@ fn a_doubtful_frame_gets_a_second_global_registration() {
     let log_path = dir.path().join("replay.mcap");
     let mut log = OutputLog::create(&log_path, false, "ros2").unwrap();
     let clouds = log
-        .add_channel(
-            "/velodyne_points",
-            cdr::POINT_CLOUD2_SCHEMA_NAME,
-            "ros2msg",
-            cdr::POINT_CLOUD2_SCHEMA.as_bytes(),
-            "cdr",
-        )
+        .add_cdr_channel("/velodyne_points", cdr::POINT_CLOUD2)
         .unwrap();
     for k in 0..3 {
         let t = T0 + k as i64 * 100_000_000;

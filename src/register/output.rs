@@ -207,20 +207,8 @@ fn pose_channels(
 ) -> Result<(u16, u16)> {
     Ok(match kind {
         CloudKind::Ros2 | CloudKind::LivoxRos2(_) => (
-            log.add_channel(
-                tf_topic,
-                cdr::TF_MESSAGE_SCHEMA_NAME,
-                cdr::SCHEMA_ENCODING,
-                cdr::TF_MESSAGE_SCHEMA.as_bytes(),
-                cdr::MESSAGE_ENCODING,
-            )?,
-            log.add_channel(
-                pose_topic,
-                cdr::POSE_STAMPED_SCHEMA_NAME,
-                cdr::SCHEMA_ENCODING,
-                cdr::POSE_STAMPED_SCHEMA.as_bytes(),
-                cdr::MESSAGE_ENCODING,
-            )?,
+            log.add_cdr_channel(tf_topic, cdr::TF_MESSAGE)?,
+            log.add_cdr_channel(pose_topic, cdr::POSE_STAMPED)?,
         ),
         CloudKind::Ros1 | CloudKind::LivoxRos1(_) => {
             // The channel metadata the ROS 1 profile (and `mcap convert` from a bag) writes.

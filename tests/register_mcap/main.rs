@@ -319,13 +319,7 @@ fn real_rosbag2_log_passes_through_untouched() {
         })
         .unwrap();
         let ch = log
-            .add_channel(
-                "/scan/points",
-                cdr::POINT_CLOUD2_SCHEMA_NAME,
-                "ros2msg",
-                cdr::POINT_CLOUD2_SCHEMA.as_bytes(),
-                "cdr",
-            )
+            .add_cdr_channel("/scan/points", cdr::POINT_CLOUD2)
             .unwrap();
         let world = scene(2);
         for k in 0..3 {

@@ -156,6 +156,32 @@ float64 z
     header_and_time_sections!()
 );
 
+/// A ROS 2 message type as an MCAP channel declares it: schema name and complete `ros2msg` text
+/// (schema encoding [`SCHEMA_ENCODING`], message encoding [`MESSAGE_ENCODING`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MessageType {
+    /// Schema name, e.g. `sensor_msgs/msg/PointCloud2`.
+    pub name: &'static str,
+    /// The schema text, dependencies included.
+    pub schema: &'static str,
+}
+
+/// `sensor_msgs/msg/PointCloud2` ([`POINT_CLOUD2_SCHEMA`]).
+pub const POINT_CLOUD2: MessageType = MessageType {
+    name: POINT_CLOUD2_SCHEMA_NAME,
+    schema: POINT_CLOUD2_SCHEMA,
+};
+/// `geometry_msgs/msg/PoseStamped` ([`POSE_STAMPED_SCHEMA`]).
+pub const POSE_STAMPED: MessageType = MessageType {
+    name: POSE_STAMPED_SCHEMA_NAME,
+    schema: POSE_STAMPED_SCHEMA,
+};
+/// `tf2_msgs/msg/TFMessage` ([`TF_MESSAGE_SCHEMA`]).
+pub const TF_MESSAGE: MessageType = MessageType {
+    name: TF_MESSAGE_SCHEMA_NAME,
+    schema: TF_MESSAGE_SCHEMA,
+};
+
 // ---------------------------------------------------------------------------------------------
 // CDR reader / writer
 // ---------------------------------------------------------------------------------------------

@@ -21,6 +21,7 @@ pub use super::read::for_each_record;
 use super::read::{for_each_record_with, mcap_err, read_summary};
 use super::write::{McapWriter, SchemaRecord};
 use crate::io::atomic_file::PendingFile;
+use crate::io::codec::cdr;
 use crate::io::damage::{Damage, ReadPolicy};
 use crate::io::io_err;
 use crate::{Error, Result};
@@ -384,6 +385,18 @@ impl OutputLog {
             schema,
             message_encoding,
             BTreeMap::new(),
+        )
+    }
+
+    /// [`add_channel`](Self::add_channel) for a ROS 2 message type in CDR, e.g.
+    /// `log.add_cdr_channel("/points", cdr::POINT_CLOUD2)`.
+    pub fn add_cdr_channel(&mut self, topic: &str, message: cdr::MessageType) -> Result<u16> {
+        self.add_channel(
+            topic,
+            message.name,
+            cdr::SCHEMA_ENCODING,
+            message.schema.as_bytes(),
+            cdr::MESSAGE_ENCODING,
         )
     }
 
