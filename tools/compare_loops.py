@@ -51,10 +51,14 @@ Rows:
   q - m >= ``--min-separation`` frames and within ``--candidate-radius`` (default 3 x the median
   odometry step). Time: pairwise registration + optimisation (mireg's odometry not included).
 
+After the table, an ``agreement`` line per pair of independent estimates (mireg and KISS-SLAM):
+how far apart they lie, and how much of their error against the reference they share (see
+``print_agreement``), which tells the reference's own error from the estimators'.
+
 Usage:
     bash tools/setup_loops_venv.sh
     tools/.venv-loops/bin/python tools/compare_loops.py /tmp/loop_micro211_s4.mcap /tmp/loop_kaist03.mcap \\
-        --mireg /work/target-helpers/release/mireg [--tools mireg,kiss-slam,open3d] [--voxel V]
+        --mireg target/release/mireg [--tools mireg,kiss-slam,open3d] [--voxel V]
         [--kiss-local-map M] [--json-out rows.json] [-- MIREG_REGISTER_ARGS]
 """
 
@@ -323,6 +327,26 @@ def print_loops(name, loops, voxel):
         print(f"    {name} loop q={lp['query_frame']} m={lp['match_frame']}: {err}{extra}")
 
 
+def print_agreement(trajectories, ates):
+    """How far two independent estimates lie from each other, next to their ATEs.
+
+    With a, b their ATEs against the reference and d their ATE against each other (same
+    alignment), the error they share against the reference is about sqrt((a² + b² − d²) / 2),
+    if their own errors are uncorrelated with each other and with the reference's. A shared part
+    near a and b says the reference (or the data itself) carries that error, and no estimate
+    can come closer to the reference than it without copying the reference's error. Open3D's
+    pose graph is left out: it starts from mireg's odometry, so it is not independent of mireg.
+    """
+    names = sorted(trajectories)
+    for i, x in enumerate(names):
+        for y in names[i + 1:]:
+            d, _rpe, n = score(trajectories[x], trajectories[y])
+            a, b = ates[x], ates[y]
+            shared = math.sqrt(max(0.0, (a * a + b * b - d * d) / 2.0))
+            print(f"    agreement: {x} vs {y} {d:.4f} m apart over {n} frames (ATE of one against the "
+                  f"other); error both share against the reference ~ {shared:.4f} m of {a:.4f} / {b:.4f} m")
+
+
 def compare(log, args, extra):
     topic, clouds, reference = read_log(log, args.topic, args.reference_topic)
     if not clouds:
@@ -340,6 +364,7 @@ def compare(log, args, extra):
 
     summary = mireg_poses = None
     loops = []
+    trajectories = {}  # tool -> its trajectory {stamp: 4x4}, for the agreement lines
     with tempfile.TemporaryDirectory() as tmp:
         if "mireg" in tools or "open3d" in tools:
             summary, mireg_poses, loops, topics, wall = run_mireg(args.mireg, log, extra, tmp)
@@ -357,6 +382,7 @@ def compare(log, args, extra):
         else:
             accepted, loop_cell, prec = [], "no topic", None
             note = f"{traj}; no /mireg/loops in the output: odometry only"
+        trajectories["mireg"] = mireg_poses[traj]
         rows.append(dict(tool="mireg", ate=ate, rpe=rpe, loops=loop_cell, precision=prec, time=wall,
                          failed=summary["failed_frames"], scored=n,
                          note=f"{note}; voxel {summary['voxel_m']:.3f} m ({summary['voxel_source']})"))
@@ -368,6 +394,7 @@ def compare(log, args, extra):
         local_map = args.kiss_local_map or reach(reference, stamps) / 4.0
         poses, closures, settings, elapsed = run_kiss_slam(frames, local_map)
         ate, rpe, n = score(poses, reference)
+        trajectories["KISS-SLAM"] = poses
         rows.append(dict(tool="KISS-SLAM", ate=ate, rpe=rpe, loops=len(closures), precision=None, time=elapsed,
                          failed="-", scored=n,
                          note=f"{settings}" + ("" if args.kiss_local_map else " (splitting = reach / 4)")
@@ -405,6 +432,7 @@ def compare(log, args, extra):
               f"{r['time']:9.2f} {str(r['failed']):>7}  {r['scored']} frames scored; {r['note']}")
     for name, lps in row_loops.items():
         print_loops(name, lps, voxel)
+    print_agreement(trajectories, {r["tool"]: r["ate"] for r in rows})
     for r in rows:
         r["log"] = log
     return rows, row_loops
