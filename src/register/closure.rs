@@ -403,16 +403,57 @@ type Verified = BTreeMap<(usize, usize), (Verification, f64)>;
 type VerifyOutcome = (Verified, BTreeSet<(usize, usize)>, usize);
 
 impl Verifier<'_> {
-    /// Whether candidate `c` would add nothing to an accepted loop: both of its frames within
-    /// [`LoopConfig::redundant_path_m`] of path of the accepted loop's.
+    /// Whether frames `a` and `b` are within [`LoopConfig::redundant_path_m`] of path.
+    fn near_in_path(&self, a: usize, b: usize) -> bool {
+        (self.travelled[a] - self.travelled[b]).abs() <= self.config.redundant_path_m
+    }
+
+    /// Whether frames `a` and `b` are within [`LoopConfig::redundant_path_m`] of each other in
+    /// the odometry.
+    fn same_place(&self, a: usize, b: usize) -> bool {
+        let (pa, pb) = (&self.poses[a].translation, &self.poses[b].translation);
+        (pa.vector - pb.vector).norm() <= self.config.redundant_path_m
+    }
+
+    /// Whether candidate `c` would add nothing to an accepted loop: its query within
+    /// [`LoopConfig::redundant_path_m`] of path of the accepted loop's, and its match within as
+    /// much of path or of odometry distance of the accepted loop's match (the same place seen on
+    /// another pass: a log that goes round the same course links each pass to the ones before
+    /// through any of them).
     fn redundant(&self, c: &Candidate, accepted: &[(usize, usize)]) -> bool {
-        let d = self.config.redundant_path_m;
-        let near = |a: usize, b: usize| (self.travelled[a] - self.travelled[b]).abs() <= d;
-        d > 0.0
+        self.config.redundant_path_m > 0.0
             && c.by != Source::Seam
-            && accepted
-                .iter()
-                .any(|&(q, m)| near(c.query, q) && near(c.matched, m))
+            && accepted.iter().any(|&(q, m)| {
+                self.near_in_path(c.query, q)
+                    && (self.near_in_path(c.matched, m) || self.same_place(c.matched, m))
+            })
+    }
+
+    /// `ready` (one frame's candidates, best first) split into leaders and followers. A
+    /// follower sees the place an earlier-ranked leader of the same query sees, on another pass
+    /// (the two matches close in the odometry, far apart in path); it is verified only if no
+    /// leader it follows was accepted, since an accepted one makes it
+    /// [`Verifier::redundant`]. Candidates on the same pass are all leaders, as before: on the
+    /// loop logs their extra edges are worth their cost. The split depends on the candidates
+    /// alone, so the verifications do not depend on the thread count.
+    fn leaders_first<'c>(&self, ready: Vec<&'c Candidate>) -> [Vec<&'c Candidate>; 2] {
+        let (mut leaders, mut followers): (Vec<&Candidate>, Vec<&Candidate>) = (vec![], vec![]);
+        for c in ready {
+            let follows = self.config.redundant_path_m > 0.0
+                && c.by != Source::Seam
+                && leaders.iter().any(|l| {
+                    l.by != Source::Seam
+                        && l.query == c.query
+                        && !self.near_in_path(c.matched, l.matched)
+                        && self.same_place(c.matched, l.matched)
+                });
+            if follows {
+                followers.push(c);
+            } else {
+                leaders.push(c);
+            }
+        }
+        [leaders, followers]
     }
 
     fn verify(
@@ -515,30 +556,45 @@ fn verify_all(
                 // idle frame), kept for the frame's next candidates while the frames in memory
                 // fit the budget, dropped when they do not.
                 let budget = verifier.config.memory_budget_bytes;
-                let mut results: Vec<(&Candidate, (Verification, f64))> = Vec::new();
-                for chunk in ready.chunks(rayon::current_num_threads().max(1)) {
-                    let verified_chunk: Vec<_> = chunk
-                        .par_iter()
-                        .map(|c| {
-                            let (q, m) = if c.query == k {
-                                (&frame, &held[&c.matched])
-                            } else {
-                                (&held[&c.query], &frame)
-                            };
-                            verifier.verify(c, q, m).map(|v| (*c, v))
-                        })
-                        .collect::<Result<_>>()?;
-                    results.extend(verified_chunk);
-                    fit_budget(budget, &mut frame, &mut held, &cached);
-                }
-                for (c, v) in results {
-                    let key = (c.query, c.matched);
-                    // Seam pairs are no loops: an accepted one makes no candidate redundant.
-                    if v.0.accepted && c.by != Source::Seam {
-                        accepted.push(key);
+                for (round, batch) in verifier.leaders_first(ready).into_iter().enumerate() {
+                    let batch = if round == 0 {
+                        batch
+                    } else {
+                        // Followers of an accepted leader would join the same places again.
+                        let (skip, keep): (Vec<&Candidate>, Vec<&Candidate>) = batch
+                            .into_iter()
+                            .partition(|c| verifier.redundant(c, &accepted));
+                        for c in skip {
+                            skipped.insert((c.query, c.matched));
+                            release(&mut done, &mut uses, &mut held, (c.query, c.matched));
+                        }
+                        keep
+                    };
+                    let mut results: Vec<(&Candidate, (Verification, f64))> = Vec::new();
+                    for chunk in batch.chunks(rayon::current_num_threads().max(1)) {
+                        let verified_chunk: Vec<_> = chunk
+                            .par_iter()
+                            .map(|c| {
+                                let (q, m) = if c.query == k {
+                                    (&frame, &held[&c.matched])
+                                } else {
+                                    (&held[&c.query], &frame)
+                                };
+                                verifier.verify(c, q, m).map(|v| (*c, v))
+                            })
+                            .collect::<Result<_>>()?;
+                        results.extend(verified_chunk);
+                        fit_budget(budget, &mut frame, &mut held, &cached);
                     }
-                    verified.insert(key, v);
-                    release(&mut done, &mut uses, &mut held, key);
+                    for (c, v) in results {
+                        let key = (c.query, c.matched);
+                        // Seam pairs are no loops: an accepted one makes no candidate redundant.
+                        if v.0.accepted && c.by != Source::Seam {
+                            accepted.push(key);
+                        }
+                        verified.insert(key, v);
+                        release(&mut done, &mut uses, &mut held, key);
+                    }
                 }
                 // A kept frame was in memory already; a new one needs room beside the kept ones.
                 if uses[&k] > 0 && (was_cached || held.len() + cached.len() < cap) {
@@ -662,4 +718,79 @@ fn for_each_needed_frame(
         Ok(ControlFlow::Continue(()))
     })?;
     Ok(seen)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Three passes along x (1 m a frame): out on frames 0–9 (x = 0..9), back on 10–19
+    /// (x = 9..0), out again on 20–29; one metre of path a frame.
+    fn three_passes() -> (Vec<Isometry3<f64>>, Vec<f64>) {
+        let x = |k: usize| match k / 10 {
+            1 => 19.0 - k as f64,
+            p => (k - 10 * p) as f64,
+        };
+        let poses = (0..30)
+            .map(|k| Isometry3::translation(x(k), 0.0, 0.0))
+            .collect();
+        (poses, (0..30).map(|k| k as f64).collect())
+    }
+
+    fn candidate(query: usize, matched: usize, by: Source) -> Candidate {
+        Candidate {
+            query,
+            matched,
+            by,
+            odometry_distance_m: 0.0,
+            descriptor_distance: 0.0,
+        }
+    }
+
+    #[test]
+    fn a_place_seen_on_an_earlier_pass_makes_its_other_passes_redundant() {
+        let (poses, travelled) = three_passes();
+        let pair = PairConfig::default();
+        // 10 voxels of 0.2 m: 2 m of path or of odometry distance.
+        let config = LoopConfig::for_voxel(0.2);
+        assert!((config.redundant_path_m - 2.0).abs() < 1e-12);
+        let verifier = Verifier {
+            poses: &poses,
+            travelled: &travelled,
+            pair: &pair,
+            config: &config,
+        };
+        // Frame 21 (x = 1, third pass) against frame 1 (first pass) accepted: its match on the
+        // second pass at the same place (frame 18, x = 1, 17 m of path from frame 1) is
+        // redundant, as is a neighbour's along the path; a match 5 m away is not, nor is a seam
+        // pair, nor a query 5 m of path further on.
+        let accepted = [(21, 1)];
+        assert!(verifier.redundant(&candidate(21, 18, Source::Place), &accepted));
+        assert!(verifier.redundant(&candidate(22, 2, Source::Appearance), &accepted));
+        assert!(!verifier.redundant(&candidate(21, 13, Source::Place), &accepted));
+        assert!(!verifier.redundant(&candidate(21, 18, Source::Seam), &accepted));
+        assert!(!verifier.redundant(&candidate(26, 18, Source::Place), &accepted));
+
+        // One keyframe's candidates, best first: the second pass's view of the best one's place
+        // follows it; a place 5 m away leads, and so does its neighbour on the same pass; a
+        // seam pair leads nothing.
+        let ready = [
+            candidate(21, 1, Source::Both),
+            candidate(21, 18, Source::Place),
+            candidate(21, 13, Source::Appearance),
+            candidate(21, 12, Source::Place),
+            candidate(21, 2, Source::Place),
+        ];
+        let [leaders, followers] = verifier.leaders_first(ready.iter().collect());
+        let pairs = |v: Vec<&Candidate>| v.iter().map(|c| (c.query, c.matched)).collect::<Vec<_>>();
+        assert_eq!(pairs(leaders), [(21, 1), (21, 13), (21, 12), (21, 2)]);
+        assert_eq!(pairs(followers), [(21, 18)]);
+        let seam_first = [
+            candidate(21, 1, Source::Seam),
+            candidate(21, 18, Source::Place),
+        ];
+        let [leaders, followers] = verifier.leaders_first(seam_first.iter().collect());
+        assert_eq!(leaders.len(), 2);
+        assert!(followers.is_empty());
+    }
 }
