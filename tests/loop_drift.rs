@@ -8,6 +8,10 @@ use mireg::loops::{LoopConfig, LoopEdge, optimize_trajectory};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
 
+#[path = "common/position_rms.rs"]
+mod position_rms;
+use position_rms::position_rms;
+
 /// Frames per side of the square.
 const SIDE: usize = 100;
 /// Step between frames [m].
@@ -29,20 +33,6 @@ fn square() -> Vec<Isometry3<f64>> {
         truth.push(truth[k - 1] * step);
     }
     truth
-}
-
-fn weights_min(w: &[f64]) -> f64 {
-    w.iter().copied().fold(f64::INFINITY, f64::min)
-}
-
-/// RMS position error [m] (both trajectories start at the identity: no alignment).
-fn position_rms(estimate: &[Isometry3<f64>], truth: &[Isometry3<f64>]) -> f64 {
-    let sum: f64 = estimate
-        .iter()
-        .zip(truth)
-        .map(|(a, b)| (a.translation.vector - b.translation.vector).norm_squared())
-        .sum();
-    (sum / truth.len() as f64).sqrt()
 }
 
 #[test]
@@ -87,7 +77,9 @@ fn true_loops_close_a_square_whose_odometry_drifts_by_metres() {
             position_rms(&odometry, &truth),
             position_rms(&optimised, &truth),
         );
-        let min_weight = weights_min(&solution.edge_weights[n - 1..]);
+        // The loop edges follow the n − 1 odometry edges.
+        let weights = &solution.edge_weights[n - 1..];
+        let min_weight = weights.iter().copied().fold(f64::INFINITY, f64::min);
         eprintln!(
             "bias {bias_deg}°/step: end error {end_error:.2} m, RMS {before:.3} -> {after:.3} m, \
              smallest loop weight {min_weight:.3}"
@@ -96,8 +88,7 @@ fn true_loops_close_a_square_whose_odometry_drifts_by_metres() {
             after < 0.5 && after < 0.1 * before,
             "bias {bias_deg}°: RMS {before} m -> {after} m"
         );
-        // The loop edges follow the n − 1 odometry edges; none is discounted as an outlier.
-        let weights = &solution.edge_weights[n - 1..];
+        // None is discounted as an outlier.
         assert_eq!(weights.len(), loops.len());
         assert!(
             weights.iter().all(|&w| w > 0.5),

@@ -8,8 +8,12 @@ use mireg::pipeline::{PairConfig, prepare_frame};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
 
+#[path = "common/position_rms.rs"]
+mod position_rms;
 #[path = "common/synthetic_log.rs"]
 mod synthetic_log;
+
+use position_rms::position_rms;
 
 /// The same room seen from the same viewpoint in two places 5 m apart (a repeated corridor
 /// module): MI-RANSAC + ICP register the two frames to the identity, with every inlier a
@@ -123,16 +127,8 @@ fn a_look_alike_loop_beyond_the_odometry_is_down_weighted_by_the_graph() {
         .collect();
     let config = LoopConfig::for_voxel(0.05);
     let registered = vec![true; n];
-    let ate = |poses: &[Isometry3<f64>]| -> f64 {
-        // Both start at the truth's first pose (node 0 is fixed): no alignment needed.
-        (poses
-            .iter()
-            .zip(&truth)
-            .map(|(p, t)| (p.translation.vector - t.translation.vector).norm_squared())
-            .sum::<f64>()
-            / n as f64)
-            .sqrt()
-    };
+    // Both start at the truth's first pose (node 0 is fixed): no alignment needed.
+    let ate = |poses: &[Isometry3<f64>]| position_rms(poses, &truth);
     let (clean, _) = optimize_trajectory(&odometry, &registered, &loops, &config).unwrap();
     assert!(
         ate(&clean) < 0.9 * ate(&odometry),

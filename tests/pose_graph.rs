@@ -11,6 +11,12 @@ use rand::{RngExt, SeedableRng};
 use rand_distr::{Distribution, StandardNormal};
 use rand_pcg::Pcg64;
 
+// Absolute trajectory error without alignment: node 0 is held at the truth's first pose by the
+// solver and by dead reckoning alike.
+#[path = "common/position_rms.rs"]
+mod position_rms;
+use position_rms::position_rms as ate;
+
 fn gaussian6(rng: &mut Pcg64, sigma_rot: f64, sigma_trans: f64) -> Vector6<f64> {
     Vector6::from_fn(|i, _| {
         let n: f64 = StandardNormal.sample(rng);
@@ -21,17 +27,6 @@ fn gaussian6(rng: &mut Pcg64, sigma_rot: f64, sigma_trans: f64) -> Vector6<f64> 
 fn diag_information(sigma_rot: f64, sigma_trans: f64) -> Matrix6<f64> {
     let (r, t) = (sigma_rot.powi(-2), sigma_trans.powi(-2));
     Matrix6::from_diagonal(&Vector6::new(r, r, r, t, t, t))
-}
-
-/// Absolute trajectory error: RMS translation error [m]. No alignment is needed: node 0 is held at
-/// the truth's first pose by the solver and by dead reckoning alike.
-fn ate(estimate: &[Isometry3<f64>], truth: &[Isometry3<f64>]) -> f64 {
-    let sum: f64 = estimate
-        .iter()
-        .zip(truth)
-        .map(|(a, b)| (a.translation.vector - b.translation.vector).norm_squared())
-        .sum();
-    (sum / truth.len() as f64).sqrt()
 }
 
 /// A 10 m square walked once in 40 one-metre steps, with a little height and tilt wobble.
