@@ -14,8 +14,9 @@
 //! still recovers: its start wins where the prediction is wrong.
 
 pub mod stream;
+pub mod uncertainty;
 
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Matrix6, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::Result;
@@ -24,7 +25,7 @@ use crate::pipeline::refine::{FineInputs, fine_stage};
 use crate::pipeline::{
     FailureReason, PairConfig, PairResult, PreparedFrame, refine_prepared, register_prepared_coarse,
 };
-use crate::refine::icp::{IcpConfig, IcpTarget, registration_icp_point_to_plane};
+use crate::refine::icp::{IcpConfig, IcpHessian, IcpTarget, registration_icp_point_to_plane};
 use crate::refine::local_map::{LocalMap, LocalMapConfig};
 
 /// Acceptance thresholds on top of the pairwise configuration.
@@ -208,6 +209,9 @@ pub struct MapFit {
     pub target_s: f64,
     /// Seconds spent in ICP against the map (every start).
     pub icp_s: f64,
+    /// The winning refinement's point-to-plane normal matrix at its pose (its ICP cloud against
+    /// the map, at the map distance): the frame's uncertainty ([`uncertainty`]).
+    pub hessian: IcpHessian,
 }
 
 /// The estimate for one frame.
@@ -235,6 +239,11 @@ pub struct FrameEstimate {
     pub num_points_downsampled: usize,
     /// The fit to the local map (`None` for the first frame, without a map, or without data).
     pub map: Option<MapFit>,
+    /// The calibrated information of this frame's step ([`uncertainty::registration_information`]:
+    /// right perturbation of `world_from_frame`, (rotation, translation) order) from the
+    /// registration its pose came from: the map ICP's, or the frame-to-frame ICP's without a
+    /// map fit. `None` for the first frame and for failed frames.
+    pub information: Option<Matrix6<f64>>,
 }
 
 /// The running state of consecutive-frame registration.
@@ -348,6 +357,7 @@ impl Odometry {
             num_points: frame.num_points,
             num_points_downsampled: frame.points.len(),
             map: None,
+            information: None,
         };
         let usable = frame.points.len() >= 3 && frame.icp.is_some();
         let Some((_, world_from_prev)) = &self.previous else {
@@ -449,6 +459,7 @@ impl Odometry {
                 est.prev_from_curr = pair.target_from_source;
                 self.velocity = pair.target_from_source;
                 est.world_from_frame = pose;
+                est.information = uncertainty::registration_information(&fit.hessian, &pose);
                 est.map = Some(fit);
                 est.pair = Some(pair);
                 self.last_map_fitness = Some(fit.fitness);
@@ -472,6 +483,9 @@ impl Odometry {
         if failure.is_none() {
             est.prev_from_curr = pair.target_from_source;
             self.velocity = pair.target_from_source;
+            est.information = pair
+                .icp_hessian
+                .and_then(|h| uncertainty::registration_information(&h, &pair.target_from_source));
         } else {
             est.success = false;
             est.failure = failure;
@@ -490,6 +504,9 @@ impl Odometry {
         if let Some((pose, fit)) = refined {
             if fit.used {
                 est.world_from_frame = pose;
+                if est.success {
+                    est.information = uncertainty::registration_information(&fit.hessian, &pose);
+                }
                 est.prev_from_curr = world_from_prev.inverse() * pose;
                 self.velocity = est.prev_from_curr;
                 self.last_map_fitness = Some(fit.fitness);
@@ -638,6 +655,7 @@ impl Odometry {
                 used: r.fitness >= self.config.min_fitness,
                 target_s,
                 icp_s: 0.0,
+                hessian: r.hessian,
             };
             Ok((r.target_from_source, fit))
         };

@@ -122,6 +122,9 @@ pub struct PairResult {
     pub inlier_rmse_m: f64,
     /// ICP iterations run (0 without ICP).
     pub icp_iterations: usize,
+    /// The point-to-plane normal matrix of the final ICP pose (its ICP cloud against the
+    /// target's, at the ICP distance), from which its covariance follows; `None` without ICP.
+    pub icp_hessian: Option<crate::refine::icp::IcpHessian>,
     /// Per-stage seconds.
     pub timings_s: PairTimings,
 }
@@ -231,6 +234,7 @@ fn register_prepared_with(
         fitness: 0.0,
         inlier_rmse_m: 0.0,
         icp_iterations: 0,
+        icp_hessian: None,
         timings_s: PairTimings {
             downsample: source.timings.downsample + target.timings.downsample,
             normals: source.timings.normals + target.timings.normals,

@@ -260,7 +260,13 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         OutputMessages::Ros1 => CloudKind::Ros1,
         OutputMessages::Foxglove => CloudKind::Foxglove,
     };
-    let outputs = Outputs::create(&mut log, family, &plan.topics, opts.loops)?;
+    let outputs = Outputs::create(
+        &mut log,
+        family,
+        &plan.topics,
+        opts.loops,
+        Some(plan.voxel_m),
+    )?;
     let mut writer = Writer::new(outputs, &opts.world_frame, opts.progress, plan.total_frames);
     writer.on_frame = opts.on_frame.clone();
     let prepare = Prepare {

@@ -72,8 +72,8 @@ fn real_ouster_ros1_log_registers_and_keeps_every_message() {
     assert_eq!(loops, 0, "two frames, no loop candidates");
     assert_eq!(
         output.messages.len(),
-        input.messages.len() + 5 * 2,
-        "ours: /tf, /mireg/pose, /mireg/stats, /mireg/tf_optimized, /mireg/pose_optimized per frame"
+        input.messages.len() + 6 * 2,
+        "ours: /tf, /mireg/pose, /mireg/stats, /mireg/pose_cov, /mireg/tf_optimized, /mireg/pose_optimized per frame"
     );
 
     // Zero returns: counted by the decoder, checked against a scan of the bytes.
@@ -109,7 +109,11 @@ fn our_channels_are_ros1_with_the_profile_metadata() {
             Record::Schema { header, data } => {
                 schemas.insert(header.id, (header.name, header.encoding, data.to_vec()));
             }
-            Record::Channel(c) if c.topic == "/tf" || c.topic == "/mireg/pose" => ours.push(c),
+            Record::Channel(c)
+                if c.topic == "/tf" || c.topic == "/mireg/pose" || c.topic == "/mireg/pose_cov" =>
+            {
+                ours.push(c)
+            }
             Record::Message { header, data } => messages.push((header.channel_id, data.to_vec())),
             _ => {}
         }
@@ -122,7 +126,7 @@ fn our_channels_are_ros1_with_the_profile_metadata() {
     profile.push_str(std::str::from_utf8(&bytes[21..21 + len]).unwrap());
     assert_eq!(bytes[8], 0x01, "header opcode");
     assert_eq!(profile, "ros1");
-    assert_eq!(ours.len(), 2);
+    assert_eq!(ours.len(), 3);
     for c in &ours {
         let (name, encoding, text) = &schemas[&c.schema_id];
         assert_eq!(c.message_encoding, "ros1");
@@ -132,6 +136,12 @@ fn our_channels_are_ros1_with_the_profile_metadata() {
                 ros1::TF_MESSAGE_SCHEMA_NAME,
                 ros1::TF_MESSAGE_SCHEMA,
                 ros1::TF_MESSAGE_MD5,
+            )
+        } else if c.topic == "/mireg/pose_cov" {
+            (
+                ros1::POSE_WITH_COVARIANCE_STAMPED_SCHEMA_NAME,
+                ros1::POSE_WITH_COVARIANCE_STAMPED_SCHEMA,
+                ros1::POSE_WITH_COVARIANCE_STAMPED_MD5,
             )
         } else {
             (

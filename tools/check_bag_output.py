@@ -21,9 +21,11 @@ Checks (each failure is printed; exit status 1 if any, 0 if none, 2 on usage err
     connection's message_definition text; every output channel on a copied topic must match one
     of the topic's connections. A schema name other than the ROS 1 type name is only a warning;
 (c) ``--expect-topic T`` (repeatable): T has at least one message in the output;
-(d) ``--ros1``: every message on the output's ``/tf`` (tf2_msgs/TFMessage) and ``/mireg/pose``
-    (geometry_msgs/PoseStamped) channels is decoded with mcap_ros1's DecoderFactory; the count and
-    the last transform / pose are printed. Both topics must be present with ros1msg schemas.
+(d) ``--ros1``: every message on the output's ``/tf`` (tf2_msgs/TFMessage), ``/mireg/pose``
+    (geometry_msgs/PoseStamped) and ``/mireg/pose_cov`` (geometry_msgs/PoseWithCovarianceStamped)
+    channels is decoded with mcap_ros1's DecoderFactory; the count and the last transform / pose are
+    printed. Every covariance must be 36 finite values, symmetric, with a positive diagonal. The
+    three topics must be present with ros1msg schemas.
 
 Usage:
     bash tools/setup_rosbags_venv.sh
@@ -36,6 +38,7 @@ Usage:
 
 import argparse
 import hashlib
+import math
 import sys
 from collections import Counter, defaultdict
 from pathlib import Path
@@ -47,7 +50,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys.msg import denormalize_msgtype
 
 MAX_REPORTED = 5  # mismatching messages reported per topic
-ROS1_TOPICS = ("/tf", "/mireg/pose")
+ROS1_TOPICS = ("/tf", "/mireg/pose", "/mireg/pose_cov")
 
 
 def fmt_time(ns):
@@ -231,6 +234,15 @@ def check_ros1_decoding(path, failures):
                                                                        log_time_order=False):
                 counts[ch.topic] += 1
                 last[ch.topic] = decoded
+                if ch.topic == "/mireg/pose_cov":
+                    c = list(decoded.pose.covariance)
+                    ok = (len(c) == 36 and all(math.isfinite(v) for v in c)
+                          and all(c[7 * i] > 0 for i in range(6))
+                          and all(abs(c[6 * i + j] - c[6 * j + i]) <= 1e-12 * max(1.0, abs(c[6 * i + j]))
+                                  for i in range(6) for j in range(6)))
+                    if not ok:
+                        failures.append(f"--ros1: {ch.topic} covariance is not 36 finite symmetric values "
+                                        f"with a positive diagonal: {c}")
         except Exception as err:  # noqa: BLE001 -- any decoder failure is a check failure
             failures.append(f"--ros1: decoding failed: {type(err).__name__}: {err}")
     for topic in ROS1_TOPICS:
@@ -250,6 +262,10 @@ def check_ros1_decoding(path, failures):
                   f"{t.header.stamp.secs}.{t.header.stamp.nsecs:09d}: "
                   f"t = ({tr.x:.6f}, {tr.y:.6f}, {tr.z:.6f}), "
                   f"q (x, y, z, w) = ({q.x:.6f}, {q.y:.6f}, {q.z:.6f}, {q.w:.6f})")
+        elif topic == "/mireg/pose_cov":
+            c = m.pose.covariance
+            print(f"{topic}: decoded {counts[topic]} PoseWithCovarianceStamped; last sigma x y z "
+                  f"({math.sqrt(c[0]):.3g}, {math.sqrt(c[7]):.3g}, {math.sqrt(c[14]):.3g}) m")
         else:
             p, q = m.pose.position, m.pose.orientation
             print(f"{topic}: decoded {counts[topic]} PoseStamped; last pose in "

@@ -9,7 +9,8 @@ use super::{PairConfig, PairResult, PreparedFrame};
 use crate::Result;
 use crate::geometry::normals::smallest_eigenvector;
 use crate::refine::icp::{
-    IcpConfig, IcpResult, IcpTarget, evaluate_registration, registration_icp_point_to_plane,
+    IcpConfig, IcpHessian, IcpResult, IcpTarget, evaluate_registration, evaluate_with_hessian,
+    registration_icp_point_to_plane,
 };
 
 /// Input points per ICP-cloud point drawn for the fine stage: its source, and its target's
@@ -201,10 +202,17 @@ pub(crate) fn fine_stage(
     if f.fitness == 0.0 {
         return Ok(None);
     }
-    let e = evaluate_registration(icp_points, target, &f.target_from_source, distance)?;
+    // The Hessian too, as the coarse stage measures it: its cloud and distance, at the final pose.
+    let (e, hessian) = if target.has_normals() {
+        evaluate_with_hessian(icp_points, target, &f.target_from_source, distance)?
+    } else {
+        let e = evaluate_registration(icp_points, target, &f.target_from_source, distance)?;
+        (e, IcpHessian::ZERO)
+    };
     Ok(Some(IcpResult {
         fitness: e.fitness,
         inlier_rmse_m: e.inlier_rmse_m,
+        hessian,
         ..f
     }))
 }
@@ -245,6 +253,7 @@ pub(super) fn refine<'a>(
     out.fitness = r.fitness;
     out.inlier_rmse_m = r.inlier_rmse_m;
     out.icp_iterations = r.iterations;
+    out.icp_hessian = Some(r.hessian);
     if !c.icp_fine || source.fine.is_empty() {
         return Ok(());
     }
@@ -269,6 +278,7 @@ pub(super) fn refine<'a>(
     out.fitness = f.fitness;
     out.inlier_rmse_m = f.inlier_rmse_m;
     out.icp_iterations += f.iterations;
+    out.icp_hessian = Some(f.hessian);
     Ok(())
 }
 

@@ -209,6 +209,72 @@ pub struct IcpResult {
     pub iterations: usize,
     /// Whether the fitness/RMSE changes fell below the thresholds before `max_iterations`.
     pub converged: bool,
+    /// The point-to-plane normal equations of the last correspondence pass (at
+    /// `target_from_source`, or at the pose one small update before it when
+    /// [`IcpConfig::evaluate_after_min_update`] is off): what the pose's covariance follows from.
+    pub hessian: IcpHessian,
+}
+
+/// The Gauss–Newton normal matrix of a point-to-plane registration at its pose, and the
+/// residuals it came from: `JᵀJ = Σ w J Jᵀ` with `J = (p × n, n)` (Low 2004, eq. 8 onwards) over
+/// the correspondences, `p` the source point moved into the target frame and `n` its partner's
+/// normal, for the left perturbation `T ← Exp(δ)·T` with `δ = (ω, t)` in the target frame.
+///
+/// Under independent residuals of variance `σ²` the estimate's covariance is `σ² (JᵀJ)⁻¹`
+/// (the Gauss–Newton covariance, e.g. Censi, "An accurate closed-form estimate of ICP's
+/// covariance", ICRA 2007, its first term); [`Self::information_in_source`] gives its inverse in
+/// the source frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IcpHessian {
+    /// `Σ w J Jᵀ` in (rotation, translation) order. Units: m² (rotation block), m (mixed), 1
+    /// (translation block).
+    pub jtj: Matrix6<f64>,
+    /// `Σ w r²` of the point-to-plane residuals `r = (p − q) · n` \[m²\].
+    pub residual_sq_sum_m2: f64,
+    /// Correspondences that contributed (weight above 0).
+    pub count: usize,
+}
+
+impl IcpHessian {
+    /// No correspondence: zero information.
+    pub const ZERO: Self = Self {
+        jtj: Matrix6::new(
+            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+            0.0, 0.0,
+        ),
+        residual_sq_sum_m2: 0.0,
+        count: 0,
+    };
+
+    /// The residual variance `σ² = Σ w r² / (n − 6)` \[m²\] (six parameters estimated);
+    /// `None` with 6 correspondences or fewer.
+    #[must_use]
+    pub fn residual_variance_m2(&self) -> Option<f64> {
+        (self.count > 6).then(|| self.residual_sq_sum_m2 / (self.count - 6) as f64)
+    }
+
+    /// The information matrix `Ω = Ad(T)ᵀ (JᵀJ / σ²) Ad(T)` of the pose `T = target_from_source`
+    /// for the right perturbation `T · Exp(δ)`, `δ` in the source frame, (rotation \[rad\],
+    /// translation \[m\]) order — the pose graph's convention ([`crate::graph::se3`]): a left
+    /// perturbation `ε` equals the right one `Ad(T⁻¹) ε`. `None` without a residual variance or
+    /// when it is 0 or not finite.
+    #[must_use]
+    pub fn information_in_source(
+        &self,
+        target_from_source: &Isometry3<f64>,
+    ) -> Option<Matrix6<f64>> {
+        let variance = self.residual_variance_m2()?;
+        if !(variance.is_finite() && variance > 0.0) {
+            return None;
+        }
+        let ad = crate::graph::se3::adjoint(target_from_source);
+        let omega = ad.transpose() * (self.jtj / variance) * ad;
+        omega
+            .iter()
+            .all(|v| v.is_finite())
+            .then(|| 0.5 * (omega + omega.transpose()))
+    }
 }
 
 /// Fitness and inlier RMSE of a pose, as Open3D's `evaluate_registration`.
@@ -229,6 +295,9 @@ struct PassSums {
     jtj_upper: [f64; 21],
     /// `Σ w J r`.
     jtr: [f64; 6],
+    /// `Σ w r²` \[m²\] and the number of weighted residuals.
+    residual_sq_sum: f64,
+    num_residuals: usize,
     /// `Σ |p − q|²` over inliers \[m²\].
     squared_distance_sum: f64,
     num_inliers: usize,
@@ -239,6 +308,8 @@ impl PassSums {
         Self {
             jtj_upper: [0.0; 21],
             jtr: [0.0; 6],
+            residual_sq_sum: 0.0,
+            num_residuals: 0,
             squared_distance_sum: 0.0,
             num_inliers: 0,
         }
@@ -253,6 +324,16 @@ impl PassSums {
         }
         self.squared_distance_sum += other.squared_distance_sum;
         self.num_inliers += other.num_inliers;
+        self.residual_sq_sum += other.residual_sq_sum;
+        self.num_residuals += other.num_residuals;
+    }
+
+    fn hessian(&self) -> IcpHessian {
+        IcpHessian {
+            jtj: self.normal_equations().0,
+            residual_sq_sum_m2: self.residual_sq_sum,
+            count: self.num_residuals,
+        }
     }
 
     /// The normal equations `(Σ w J Jᵀ, Σ w J r)`.
@@ -330,6 +411,8 @@ fn correspondence_pass(
                     if w == 0.0 {
                         continue;
                     }
+                    sums.residual_sq_sum += w * residual * residual;
+                    sums.num_residuals += 1;
                     let pxn = p.coords.cross(&n);
                     let jac = [pxn.x, pxn.y, pxn.z, n.x, n.y, n.z];
                     // Upper triangle only; mirrored once per pass.
@@ -526,8 +609,31 @@ pub fn registration_icp_point_to_plane(
         inlier_rmse_m: evaluation.inlier_rmse_m,
         iterations,
         converged,
+        hessian: sums.hessian(),
     })
+}
+
+/// [`evaluate_registration`] and the point-to-plane normal matrix at the same pose, in one pass
+/// (plain least-squares weights). `target` must have normals.
+pub(crate) fn evaluate_with_hessian(
+    source: &[Point3<f64>],
+    target: &IcpTarget,
+    target_from_source: &Isometry3<f64>,
+    max_correspondence_distance_m: f64,
+) -> Result<(RegistrationEvaluation, IcpHessian)> {
+    let grid = correspondence_grid(target, max_correspondence_distance_m)?;
+    let sums = correspondence_pass(
+        source,
+        target,
+        grid.as_ref().as_ref(),
+        target_from_source,
+        max_correspondence_distance_m,
+        Some(RobustKernel::L2),
+    );
+    Ok((sums.evaluation(source.len()), sums.hessian()))
 }
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_covariance;

@@ -3,6 +3,7 @@
 
 use std::collections::BTreeMap;
 
+use nalgebra::Matrix6;
 use serde_json::json;
 
 use super::CloudKind;
@@ -11,6 +12,7 @@ use crate::Result;
 use crate::io::codec::{self, cdr, foxglove, ros1};
 use crate::io::mcap::log::ChannelInfo;
 use crate::io::mcap::log::OutputLog;
+use crate::odometry::uncertainty::{PoseUncertainty, uninformed_information};
 use crate::trajectory::free_mireg_namespace;
 
 /// The `callerid` of our channels in a ROS 1 log.
@@ -42,6 +44,10 @@ pub fn stats_json_schema() -> serde_json::Value {
             "map_icp_iterations": {"type": ["integer", "null"]},
             "map_coarse_icp_iterations": {"type": ["integer", "null"]},
             "map_points": {"type": ["integer", "null"]},
+            "sigma_m": {"type": "number", "description": "Predicted standard deviation of the frame's step along its least certain direction [m] (the covariance of /mireg/pose_cov)"},
+            "sigma_deg": {"type": "number", "description": "Predicted standard deviation about the least certain rotation axis [deg]"},
+            "degeneracy_translation": {"type": "number", "description": "Smallest over largest eigenvalue of the registration's translation information (0: a direction unconstrained, 1: all alike); 0 for a failed frame"},
+            "degeneracy_rotation": {"type": "number", "description": "The same for the rotation"},
             "timings_s": {"type": "object", "additionalProperties": num}
         },
         "required": ["frame", "stamp_ns", "success", "failure_reason", "num_points", "num_points_downsampled",
@@ -50,13 +56,13 @@ pub fn stats_json_schema() -> serde_json::Value {
     })
 }
 
-fn frame_stats(out: &FrameOut) -> serde_json::Value {
+fn frame_stats(out: &FrameOut, u: &PoseUncertainty) -> serde_json::Value {
     let e = &out.est;
     let p = e.pair.as_ref();
     let t = p.map(|p| p.timings_s).unwrap_or_default();
     let num_corr = p.map_or(0, |p| p.num_correspondences);
     let num_inl = p.map_or(0, |p| p.num_inliers);
-    json!({
+    let mut stats = json!({
         "frame": e.index,
         "stamp_ns": out.cloud.header.stamp.to_ns(),
         "success": e.success,
@@ -102,7 +108,18 @@ fn frame_stats(out: &FrameOut) -> serde_json::Value {
             "map_icp": e.map.map_or(0.0, |m| m.icp_s),
             "register": out.register_s,
         }
-    })
+    });
+    // The step's predicted uncertainty (serde_json's macro nests too deep to take these above).
+    let object = stats.as_object_mut().expect("an object");
+    for (key, value) in [
+        ("sigma_m", u.sigma_m),
+        ("sigma_deg", u.sigma_deg),
+        ("degeneracy_translation", u.degeneracy_translation),
+        ("degeneracy_rotation", u.degeneracy_rotation),
+    ] {
+        object.insert(key.to_string(), json!(value));
+    }
+    stats
 }
 
 /// The topics of this run: a log registered before keeps its mireg topics and this run's go to
@@ -112,6 +129,8 @@ pub(super) struct Topics {
     pub(super) tf: String,
     pub(super) pose: String,
     pub(super) stats: String,
+    /// Each frame's pose with its covariance (`geometry_msgs/PoseWithCovarianceStamped`).
+    pub(super) pose_cov: String,
     /// Loop closure's: the optimised poses, their transforms, the candidates tried.
     pub(super) pose_optimized: String,
     pub(super) tf_optimized: String,
@@ -130,6 +149,7 @@ impl Topics {
             tf,
             pose: format!("{namespace}/pose"),
             stats: format!("{namespace}/stats"),
+            pose_cov: format!("{namespace}/pose_cov"),
             pose_optimized: format!("{namespace}/pose_optimized"),
             tf_optimized: format!("{namespace}/tf_optimized"),
             loops: format!("{namespace}/loops"),
@@ -142,6 +162,10 @@ pub(super) struct Outputs {
     tf: u16,
     pose: u16,
     stats: u16,
+    /// The pose-with-covariance channel and the prior information of an unmeasured step
+    /// ([`crate::odometry::uncertainty::uninformed_information`]); `None` for foxglove inputs
+    /// (no such message in that family) and where the caller has no per-frame information.
+    pose_cov: Option<(u16, Matrix6<f64>)>,
     /// Loop closure's channels, when it runs.
     pub(super) loops: Option<LoopChannels>,
 }
@@ -157,12 +181,14 @@ pub(super) struct LoopChannels {
 impl Outputs {
     /// Registers our channels in the input's message family: ROS 2 messages for ROS 2 inputs,
     /// ROS 1 messages (with the ROS 1 profile's channel metadata) for ROS 1 inputs, foxglove
-    /// protobuf messages for foxglove inputs.
+    /// protobuf messages for foxglove inputs. With `voxel_m` (the ICP voxel \[m\]), also each
+    /// frame's pose with its covariance, but for foxglove inputs.
     pub(super) fn create(
         log: &mut OutputLog,
         kind: CloudKind,
         topics: &Topics,
         loops: bool,
+        voxel_m: Option<f64>,
     ) -> Result<Self> {
         let (tf, pose) = pose_channels(log, kind, &topics.tf, &topics.pose)?;
         let schema = serde_json::to_string(&stats_json_schema()).expect("schema JSON");
@@ -173,6 +199,13 @@ impl Outputs {
             schema.as_bytes(),
             "json",
         )?;
+        let pose_cov = match (kind, voxel_m) {
+            (CloudKind::Foxglove, _) | (_, None) => None,
+            (_, Some(voxel_m)) => Some((
+                pose_cov_channel(log, kind, &topics.pose_cov)?,
+                uninformed_information(voxel_m),
+            )),
+        };
         let loops = if loops {
             let (tf, pose) =
                 pose_channels(log, kind, &topics.tf_optimized, &topics.pose_optimized)?;
@@ -193,8 +226,35 @@ impl Outputs {
             tf,
             pose,
             stats,
+            pose_cov,
             loops,
         })
+    }
+}
+
+/// The metadata of a channel of ours in a ROS 1 log: what the ROS 1 profile (and `mcap convert`
+/// from a bag) writes.
+fn ros1_channel_metadata(topic: &str, md5: &str) -> BTreeMap<String, String> {
+    BTreeMap::from([
+        ("callerid".to_string(), ROS1_CALLERID.to_string()),
+        ("latching".to_string(), "0".to_string()),
+        ("md5sum".to_string(), md5.to_string()),
+        ("topic".to_string(), topic.to_string()),
+    ])
+}
+
+/// A `geometry_msgs/PoseWithCovarianceStamped` channel on `topic` (ROS 1 or ROS 2 families).
+fn pose_cov_channel(log: &mut OutputLog, kind: CloudKind, topic: &str) -> Result<u16> {
+    match kind {
+        CloudKind::Ros1 | CloudKind::LivoxRos1(_) => log.add_channel_with_metadata(
+            topic,
+            ros1::POSE_WITH_COVARIANCE_STAMPED_SCHEMA_NAME,
+            ros1::SCHEMA_ENCODING,
+            ros1::POSE_WITH_COVARIANCE_STAMPED_SCHEMA.as_bytes(),
+            ros1::MESSAGE_ENCODING,
+            ros1_channel_metadata(topic, ros1::POSE_WITH_COVARIANCE_STAMPED_MD5),
+        ),
+        _ => log.add_cdr_channel(topic, cdr::POSE_WITH_COVARIANCE_STAMPED),
     }
 }
 
@@ -211,15 +271,7 @@ fn pose_channels(
             log.add_cdr_channel(pose_topic, cdr::POSE_STAMPED)?,
         ),
         CloudKind::Ros1 | CloudKind::LivoxRos1(_) => {
-            // The channel metadata the ROS 1 profile (and `mcap convert` from a bag) writes.
-            let meta = |topic: &str, md5: &str| {
-                BTreeMap::from([
-                    ("callerid".to_string(), ROS1_CALLERID.to_string()),
-                    ("latching".to_string(), "0".to_string()),
-                    ("md5sum".to_string(), md5.to_string()),
-                    ("topic".to_string(), topic.to_string()),
-                ])
-            };
+            let meta = ros1_channel_metadata;
             (
                 log.add_channel_with_metadata(
                     tf_topic,
@@ -270,7 +322,9 @@ pub(super) fn write_frame(
     world_frame: &str,
     out: &FrameOut,
 ) -> Result<()> {
-    let stats = serde_json::to_vec(&frame_stats(out)).expect("JSON of plain values");
+    let prior = ch.pose_cov.map_or_else(Matrix6::zeros, |(_, prior)| prior);
+    let uncertainty = PoseUncertainty::new(out.est.information.as_ref(), &prior);
+    let stats = serde_json::to_vec(&frame_stats(out, &uncertainty)).expect("JSON of plain values");
     let pose = StampedPose {
         stamp: out.cloud.header.stamp,
         child_frame: &out.cloud.header.frame_id,
@@ -278,7 +332,28 @@ pub(super) fn write_frame(
         log_time: out.cloud.log_time,
         publish_time: out.cloud.publish_time,
     };
-    write_pose(log, ch, world_frame, &pose, &stats)
+    write_pose(log, ch, world_frame, &pose, &stats)?;
+    if let Some((channel, _)) = ch.pose_cov {
+        let header = codec::Header {
+            stamp: pose.stamp,
+            frame_id: world_frame.to_string(),
+        };
+        let covariance = uncertainty.ros_covariance();
+        let message = match ch.kind {
+            CloudKind::Ros1 | CloudKind::LivoxRos1(_) => ros1::encode_pose_with_covariance_stamped(
+                &header,
+                &pose.world_from_frame,
+                &covariance,
+            ),
+            _ => cdr::encode_pose_with_covariance_stamped(
+                &header,
+                &pose.world_from_frame,
+                &covariance,
+            ),
+        };
+        log.write(channel, pose.log_time, pose.publish_time, &message)?;
+    }
+    Ok(())
 }
 
 /// One frame's pose as our channels carry it.

@@ -279,7 +279,7 @@ pub fn stitch(
     };
     let mut out = OutputLog::create(output, force, profile)?;
     out.declare_input(log, &catalog)?;
-    let ch = Outputs::create(&mut out, segs[0].kind, &topics, loops)?;
+    let ch = Outputs::create(&mut out, segs[0].kind, &topics, loops, None)?;
     let copied = input_log.pass_through(&mut out, &Default::default(), None, |_, _, _| Ok(()))?;
     for (k, (segment, f)) in stitched.iter().enumerate() {
         let mut stats = f.stats.clone();

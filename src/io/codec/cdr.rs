@@ -32,6 +32,9 @@ pub const SCHEMA_ENCODING: &str = "ros2msg";
 pub const POINT_CLOUD2_SCHEMA_NAME: &str = "sensor_msgs/msg/PointCloud2";
 /// Schema name of `geometry_msgs/msg/PoseStamped`.
 pub const POSE_STAMPED_SCHEMA_NAME: &str = "geometry_msgs/msg/PoseStamped";
+/// Schema name of `geometry_msgs/msg/PoseWithCovarianceStamped`.
+pub const POSE_WITH_COVARIANCE_STAMPED_SCHEMA_NAME: &str =
+    "geometry_msgs/msg/PoseWithCovarianceStamped";
 /// Schema name of `tf2_msgs/msg/TFMessage`.
 pub const TF_MESSAGE_SCHEMA_NAME: &str = "tf2_msgs/msg/TFMessage";
 
@@ -126,6 +129,36 @@ float64 z
     header_and_time_sections!()
 );
 
+/// Complete `ros2msg` definition of `geometry_msgs/msg/PoseWithCovarianceStamped` with
+/// `geometry_msgs/PoseWithCovariance`, `geometry_msgs/Pose`, `geometry_msgs/Point`,
+/// `geometry_msgs/Quaternion`, `std_msgs/Header` and `builtin_interfaces/Time` (rosbag2 order;
+/// see [`POINT_CLOUD2_SCHEMA`]).
+pub const POSE_WITH_COVARIANCE_STAMPED_SCHEMA: &str = concat!(
+    "\
+std_msgs/Header header
+PoseWithCovariance pose
+
+================================================================================
+MSG: geometry_msgs/PoseWithCovariance
+Pose pose
+float64[36] covariance
+
+================================================================================
+MSG: geometry_msgs/Pose
+Point position
+Quaternion orientation
+
+================================================================================
+MSG: geometry_msgs/Point
+float64 x
+float64 y
+float64 z
+",
+    quaternion_section!(),
+    "",
+    header_and_time_sections!()
+);
+
 /// Complete `ros2msg` definition of `tf2_msgs/msg/TFMessage` with
 /// `geometry_msgs/TransformStamped`, `geometry_msgs/Transform`, `geometry_msgs/Quaternion`,
 /// `geometry_msgs/Vector3`, `std_msgs/Header` and `builtin_interfaces/Time` (rosbag2 order; see
@@ -175,6 +208,11 @@ pub const POINT_CLOUD2: MessageType = MessageType {
 pub const POSE_STAMPED: MessageType = MessageType {
     name: POSE_STAMPED_SCHEMA_NAME,
     schema: POSE_STAMPED_SCHEMA,
+};
+/// `geometry_msgs/msg/PoseWithCovarianceStamped` ([`POSE_WITH_COVARIANCE_STAMPED_SCHEMA`]).
+pub const POSE_WITH_COVARIANCE_STAMPED: MessageType = MessageType {
+    name: POSE_WITH_COVARIANCE_STAMPED_SCHEMA_NAME,
+    schema: POSE_WITH_COVARIANCE_STAMPED_SCHEMA,
 };
 /// `tf2_msgs/msg/TFMessage` ([`TF_MESSAGE_SCHEMA`]).
 pub const TF_MESSAGE: MessageType = MessageType {
@@ -499,6 +537,23 @@ pub fn encode_pose_stamped(header: &Header, pose: &Isometry3<f64>) -> Vec<u8> {
     let mut w = CdrWriter::with_capacity(16 + header.frame_id.len() + 64);
     write_header(&mut w, header);
     write_isometry(&mut w, pose);
+    w.finish()
+}
+
+/// Encodes a `geometry_msgs/msg/PoseWithCovarianceStamped` (little-endian CDR): `pose` in
+/// `header.frame_id` and its `covariance` (ROS order: x, y, z, rotation about x, y, z;
+/// row-major; m², m·rad, rad²).
+pub fn encode_pose_with_covariance_stamped(
+    header: &Header,
+    pose: &Isometry3<f64>,
+    covariance: &[f64; 36],
+) -> Vec<u8> {
+    let mut w = CdrWriter::with_capacity(16 + header.frame_id.len() + 64 + 8 * 36);
+    write_header(&mut w, header);
+    write_isometry(&mut w, pose);
+    for &v in covariance {
+        w.f64(v);
+    }
     w.finish()
 }
 

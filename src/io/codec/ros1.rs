@@ -37,6 +37,11 @@ pub const TF_MESSAGE_SCHEMA_NAME: &str = "tf2_msgs/TFMessage";
 /// ROS 1 MD5 sum of `geometry_msgs/PoseStamped` (the `md5sum` a connection of this type
 /// declares; a function of the definition, not of its comments).
 pub const POSE_STAMPED_MD5: &str = "d3812c3cbc69362b77dc0b19b345f8f5";
+/// Type name of `geometry_msgs/PoseWithCovarianceStamped`.
+pub const POSE_WITH_COVARIANCE_STAMPED_SCHEMA_NAME: &str =
+    "geometry_msgs/PoseWithCovarianceStamped";
+/// ROS 1 MD5 sum of `geometry_msgs/PoseWithCovarianceStamped`.
+pub const POSE_WITH_COVARIANCE_STAMPED_MD5: &str = "953b798c0f514ff060a53a3498ce6246";
 /// ROS 1 MD5 sum of `tf2_msgs/TFMessage`.
 pub const TF_MESSAGE_MD5: &str = "94810edda583a504dfda3829e70d7eec";
 /// ROS 1 MD5 sum of `sensor_msgs/PointCloud2`.
@@ -114,6 +119,35 @@ geometry_msgs/Pose pose
 ",
     ros1_header_section!(),
     "
+================================================================================
+MSG: geometry_msgs/Pose
+Point position
+Quaternion orientation
+
+================================================================================
+MSG: geometry_msgs/Point
+float64 x
+float64 y
+float64 z
+",
+    ros1_quaternion_section!()
+);
+
+/// Complete `ros1msg` definition of `geometry_msgs/PoseWithCovarianceStamped` with
+/// `std_msgs/Header`, `geometry_msgs/PoseWithCovariance`, `geometry_msgs/Pose`,
+/// `geometry_msgs/Point` and `geometry_msgs/Quaternion`, in the order `gendeps --cat` writes them.
+pub const POSE_WITH_COVARIANCE_STAMPED_SCHEMA: &str = concat!(
+    "\
+Header header
+geometry_msgs/PoseWithCovariance pose
+",
+    ros1_header_section!(),
+    "
+================================================================================
+MSG: geometry_msgs/PoseWithCovariance
+geometry_msgs/Pose pose
+float64[36] covariance
+
 ================================================================================
 MSG: geometry_msgs/Pose
 Point position
@@ -354,6 +388,22 @@ pub fn encode_pose_stamped(header: &Header, pose: &Isometry3<f64>) -> Vec<u8> {
     w.finish()
 }
 
+/// Encodes a ROS 1 `geometry_msgs/PoseWithCovarianceStamped`: `pose` in `header.frame_id` and
+/// its `covariance` (x, y, z, rotation about x, y, z; row-major; m², m·rad, rad²).
+pub fn encode_pose_with_covariance_stamped(
+    header: &Header,
+    pose: &Isometry3<f64>,
+    covariance: &[f64; 36],
+) -> Vec<u8> {
+    let mut w = Ros1Writer::with_capacity(16 + header.frame_id.len() + 56 + 8 * 36);
+    write_header(&mut w, header);
+    write_isometry(&mut w, pose);
+    for &v in covariance {
+        w.f64(v);
+    }
+    w.finish()
+}
+
 /// Decodes a ROS 1 `geometry_msgs/PoseStamped`.
 ///
 /// # Errors
@@ -575,6 +625,16 @@ mod tests {
                 POSE_STAMPED_SCHEMA,
                 &[
                     "std_msgs/Header",
+                    "geometry_msgs/Pose",
+                    "geometry_msgs/Point",
+                    "geometry_msgs/Quaternion",
+                ][..],
+            ),
+            (
+                POSE_WITH_COVARIANCE_STAMPED_SCHEMA,
+                &[
+                    "std_msgs/Header",
+                    "geometry_msgs/PoseWithCovariance",
                     "geometry_msgs/Pose",
                     "geometry_msgs/Point",
                     "geometry_msgs/Quaternion",

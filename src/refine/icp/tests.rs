@@ -11,7 +11,7 @@ use rand_pcg::Pcg64Mcg;
 
 /// Box corner (floor + two walls) and a sphere, ~6k points at 4 cm spacing, with analytic
 /// normals. Centred near the origin; all six degrees of freedom are constrained.
-fn corner_and_sphere() -> (Vec<Point3<f64>>, Vec<Vector3<f64>>) {
+pub(super) fn corner_and_sphere() -> (Vec<Point3<f64>>, Vec<Vector3<f64>>) {
     let spacing = 0.04;
     let offset = Vector3::new(-1.0, -1.0, -0.5);
     let mut points = Vec::new();
@@ -45,7 +45,7 @@ fn corner_and_sphere() -> (Vec<Point3<f64>>, Vec<Vector3<f64>>) {
     (points, normals)
 }
 
-fn ground_truth() -> Isometry3<f64> {
+pub(super) fn ground_truth() -> Isometry3<f64> {
     let axis = Unit::new_normalize(Vector3::new(0.3, -0.5, 0.8));
     Isometry3::from_parts(
         Translation3::new(0.4, -0.2, 0.1),
@@ -80,7 +80,7 @@ fn pose_error(estimate: &Isometry3<f64>, truth: &Isometry3<f64>) -> (f64, f64) {
     )
 }
 
-fn gaussian(rng: &mut Pcg64Mcg) -> f64 {
+pub(super) fn gaussian(rng: &mut Pcg64Mcg) -> f64 {
     rand_distr::StandardNormal.sample(rng)
 }
 
