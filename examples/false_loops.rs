@@ -11,7 +11,7 @@
 
 use std::path::PathBuf;
 
-use mireg::loops::{LoopConfig, LoopEdge, optimize_trajectory};
+use mireg::loops::{LoopConfig, LoopEdge, Step, optimize_trajectory};
 use mireg::trajectory::{Trajectory, evaluate, read_mcap_pose_topic};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
@@ -25,7 +25,7 @@ fn main() -> mireg::Result<()> {
     let reference = read_mcap_pose_topic(&path, "/ground_truth/pose")?;
     let (voxel, loops) = read_run(&path)?;
     let config = LoopConfig::for_voxel(voxel);
-    let registered = vec![true; odometry.poses.len()];
+    let registered = vec![Step::Registered; odometry.poses.len()];
     let ate = |poses: Vec<Isometry3<f64>>| -> mireg::Result<f64> {
         let t = Trajectory::stamped(odometry.stamps_ns.clone(), poses);
         Ok(evaluate(&t, &reference, None, 0)?.ate_rmse_m)
@@ -60,6 +60,7 @@ fn main() -> mireg::Result<()> {
             query,
             matched,
             match_from_query: truth * wrong,
+            information: None,
         });
     }
     let (with_false, solution) =
@@ -114,6 +115,7 @@ fn read_run(path: &std::path::Path) -> mireg::Result<(f64, Vec<LoopEdge>)> {
                                 q[3], q[0], q[1], q[2],
                             )),
                         ),
+                        information: None,
                     });
                 }
             }

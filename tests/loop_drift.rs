@@ -4,7 +4,7 @@
 //! its last frames and its first. The loops must pull the trajectory back to the truth, not be
 //! discounted by the robust kernel as outliers.
 
-use mireg::loops::{LoopConfig, LoopEdge, optimize_trajectory};
+use mireg::loops::{LoopConfig, LoopEdge, Step, optimize_trajectory};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
 
@@ -67,11 +67,12 @@ fn true_loops_close_a_square_whose_odometry_drifts_by_metres() {
                 query: n - 1 - i,
                 matched: i,
                 match_from_query: truth[i].inverse() * truth[n - 1 - i],
+                information: None,
             })
             .collect();
         let config = LoopConfig::for_voxel(0.5);
         let (optimised, solution) =
-            optimize_trajectory(&odometry, &vec![true; n], &loops, &config).unwrap();
+            optimize_trajectory(&odometry, &vec![Step::Registered; n], &loops, &config).unwrap();
         let solution = solution.expect("loops were given");
         let (before, after) = (
             position_rms(&odometry, &truth),

@@ -3,7 +3,7 @@
 //! verification rejects it; where it cannot, the robust pose graph down-weights it and the
 //! trajectory stays where the odometry and the true loops put it.
 
-use mireg::loops::{LoopConfig, LoopEdge, VerifyConfig, optimize_trajectory, verify};
+use mireg::loops::{LoopConfig, LoopEdge, Step, VerifyConfig, optimize_trajectory, verify};
 use mireg::pipeline::{PairConfig, prepare_frame};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
@@ -121,12 +121,13 @@ fn a_look_alike_loop_beyond_the_odometry_is_down_weighted_by_the_graph() {
                 query: q,
                 matched: m,
                 match_from_query: truth[m].inverse() * truth[q],
+                information: None,
             }
         })
         .filter(|l| l.query - l.matched >= 5)
         .collect();
     let config = LoopConfig::for_voxel(0.05);
-    let registered = vec![true; n];
+    let registered = vec![Step::Registered; n];
     // Both start at the truth's first pose (node 0 is fixed): no alignment needed.
     let ate = |poses: &[Isometry3<f64>]| position_rms(poses, &truth);
     let (clean, _) = optimize_trajectory(&odometry, &registered, &loops, &config).unwrap();
@@ -141,6 +142,7 @@ fn a_look_alike_loop_beyond_the_odometry_is_down_weighted_by_the_graph() {
         query: n - 1,
         matched: n / 2 - 1,
         match_from_query: Isometry3::identity(),
+        information: None,
     });
     let (trapped, solution) = optimize_trajectory(&odometry, &registered, &loops, &config).unwrap();
     let weights = solution.unwrap().edge_weights;

@@ -26,6 +26,7 @@ The reference topic is ``/ground_truth/pose`` (``--reference`` sets it); covaria
 """
 
 import argparse
+import json
 import math
 import os
 import statistics
@@ -104,23 +105,31 @@ def solve(a, b):
     return [m[i][n] / m[i][i] for i in range(n)]
 
 
-def read(path, reference_topic, cov_topic):
-    cov, ref = {}, {}
+def read(path, reference_topic, cov_topic, stats_topic):
+    cov, ref, count = {}, {}, {}
     with open(path, "rb") as f:
-        reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        for _schema, channel, _message, msg in reader.iter_decoded_messages(topics=[cov_topic, reference_topic]):
+        reader = make_reader(f)
+        factory, decoders = DecoderFactory(), {}
+        for schema, channel, message in reader.iter_messages(topics=[cov_topic, reference_topic, stats_topic]):
+            if channel.topic == stats_topic:
+                s = json.loads(message.data)
+                count[s["stamp_ns"]] = s.get("map_correspondences")
+                continue
+            if channel.id not in decoders:
+                decoders[channel.id] = factory.decoder_for(channel.message_encoding, schema)
+            msg = decoders[channel.id](message.data)
             stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             if channel.topic == cov_topic:
                 cov[stamp] = (pose(msg.pose.pose), [list(msg.pose.covariance[6 * i:6 * i + 6]) for i in range(6)])
             else:
                 ref[stamp] = pose(msg.pose)
-    return cov, ref
+    return cov, ref, count
 
 
-def score(path, reference_topic, cov_topic):
-    cov, ref = read(path, reference_topic, cov_topic)
+def score(path, reference_topic, cov_topic, stats_topic):
+    cov, ref, count = read(path, reference_topic, cov_topic, stats_topic)
     stamps = sorted(s for s in cov if s in ref)
-    nees, sigmas, errors = [], [], []
+    nees, sigmas, errors, per_point = [], [], [], []
     for a, b in zip(stamps, stamps[1:]):
         (pa, _), (pb, s) = cov[a], cov[b]
         ze = compose(inverse(pa), pb)
@@ -132,6 +141,8 @@ def score(path, reference_topic, cov_topic):
         except ZeroDivisionError:
             continue
         nees.append(sum(u * v for u, v in zip(d, x)))
+        if count.get(b):
+            per_point.append(nees[-1] / count[b])
         sigmas.append(math.sqrt(max(s[0][0], s[1][1], s[2][2])))
         errors.append(math.sqrt(sum(v * v for v in d[:3])))
     if not nees:
@@ -145,6 +156,9 @@ def score(path, reference_topic, cov_topic):
         "scale_for_median": statistics.median(nees) / CHI2_6_MEDIAN,
         "sigma_m": statistics.median(sigmas),
         "error_m": statistics.median(errors),
+        # NEES of a covariance that does not shrink with the number of correspondences n
+        # (sigma^2 (J^T J / n)^-1, the scale for its median): per correspondence.
+        "per_point_scale": statistics.median(per_point) / CHI2_6_MEDIAN if per_point else float("nan"),
     }
 
 
@@ -155,12 +169,13 @@ def main():
     ap.add_argument("--mireg", default=os.environ.get("MIREG_BIN", "target/release/mireg"))
     ap.add_argument("--reference", default="/ground_truth/pose")
     ap.add_argument("--cov-topic", default="/mireg/pose_cov")
+    ap.add_argument("--stats-topic", default="/mireg/stats")
     ap.add_argument("--seed", type=int, default=None)
     ap.add_argument("extra", nargs=argparse.REMAINDER, help="after --: more mireg register flags")
     args = ap.parse_args()
     extra = [a for a in args.extra if a != "--"]
-    print("| log | steps | mean NEES | median NEES | < 12.59 | scale for mean 6 | scale for median | median sigma [m] | median error [m] |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| log | steps | mean NEES | median NEES | < 12.59 | scale for mean 6 | scale for median | median sigma [m] | median error [m] | scale per correspondence |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
         for path in args.paths:
             out = path
@@ -170,13 +185,13 @@ def main():
                 if args.seed is not None:
                     cmd += ["--seed", str(args.seed)]
                 subprocess.run(cmd, check=True)
-            r = score(out, args.reference, args.cov_topic)
+            r = score(out, args.reference, args.cov_topic, args.stats_topic)
             if r is None:
                 print(f"| {os.path.basename(path)} | no step with both a covariance and a reference | | | | | | | |")
                 continue
             print(f"| {os.path.basename(path)} | {r['steps']} | {r['mean']:.3g} | {r['median']:.3g} | "
                   f"{100 * r['under_95']:.0f} % | {r['scale_for_6']:.3g} | {r['scale_for_median']:.3g} | "
-                  f"{r['sigma_m']:.2g} | {r['error_m']:.2g} |")
+                  f"{r['sigma_m']:.2g} | {r['error_m']:.2g} | {r['per_point_scale']:.3g} |")
     return 0
 
 

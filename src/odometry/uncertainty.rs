@@ -14,14 +14,20 @@ use nalgebra::{Isometry3, Matrix3, Matrix6, SymmetricEigen, Vector6};
 
 use crate::refine::icp::IcpHessian;
 
-/// The Gauss–Newton covariance is multiplied by this before use.
+/// A registration's information counts at most this many correspondences: with `n` of them, its
+/// Gauss–Newton information is scaled by `min(1, EFFECTIVE_CORRESPONDENCES / n)`, so that the
+/// covariance follows the geometry's shape and the residuals' spread, not the number of points.
 ///
-/// NOTE: not in the paper, which has no covariance. `σ² (JᵀJ)⁻¹` treats every correspondence
-/// as an independent measurement; a frame's residuals are not (neighbouring points share the map's
-/// voxel centroids and surface-model error), so the raw covariance is over-confident by a factor
-/// that grows with the number of points. Calibrated against the references of the shared logs
-/// (normalised estimation error squared of each step, docs/ODOMETRY.md "Covariance").
-pub const COVARIANCE_SCALE: f64 = 1.0;
+/// NOTE: not in the paper, which has no covariance. `σ² (JᵀJ)⁻¹` treats every correspondence as
+/// an independent measurement; a frame's residuals are not (neighbouring points share the map's
+/// voxel centroids and its surface-model error), so the raw covariance is over-confident by a
+/// factor that grows with the number of points. Measured with `tools/calibrate_covariance.py`
+/// (docs/ODOMETRY.md "Covariance"): the raw covariance's median NEES needed a scale of 10.6
+/// (the ICL-NUIM fixture, exact ground truth), 41 (micro211) and 413 (KAIST03) — 40× apart —
+/// where the scale per correspondence was 0.005, 0.021 and 0.029: 6× apart. 100 is between the
+/// two ICL-NUIM logs' (1/0.005 and 1/0.021); KAIST03's reference, a SLAM estimate good to
+/// centimetres, adds its own step error to the NEES.
+pub const EFFECTIVE_CORRESPONDENCES: f64 = 100.0;
 
 /// Standard deviation of a step nothing measured, per voxel of the log's ICP voxel: 10 voxels
 /// of translation (each axis). A failed frame's step has this much; every frame's information is
@@ -48,17 +54,19 @@ pub fn uninformed_information(voxel_m: f64) -> Matrix6<f64> {
 }
 
 /// The calibrated information of the pose `target_from_source` that a registration with
-/// normal matrix `hessian` found: [`IcpHessian::information_in_source`] over
-/// [`COVARIANCE_SCALE`]. `None` where the registration measured nothing usable (fewer than 7
-/// correspondences, a zero residual variance).
+/// normal matrix `hessian` found: [`IcpHessian::information_in_source`] scaled by
+/// `min(1, EFFECTIVE_CORRESPONDENCES / n)` ([`EFFECTIVE_CORRESPONDENCES`]). `None` where the
+/// registration measured nothing usable (fewer than 7 correspondences, a zero residual
+/// variance).
 #[must_use]
 pub fn registration_information(
     hessian: &IcpHessian,
     target_from_source: &Isometry3<f64>,
 ) -> Option<Matrix6<f64>> {
+    let scale = (EFFECTIVE_CORRESPONDENCES / hessian.count as f64).min(1.0);
     hessian
         .information_in_source(target_from_source)
-        .map(|omega| omega / COVARIANCE_SCALE)
+        .map(|omega| omega * scale)
 }
 
 /// A step's covariance and the figures `/mireg/stats` reports of it.

@@ -26,9 +26,10 @@ use crate::Result;
 use crate::evaluate::path_distances;
 use crate::geometry::deskew::deskew;
 use crate::loops::{
-    Candidate, Descriptor, Keyframe, KeyframeSelector, LoopConfig, LoopEdge, Source, Verification,
-    find_candidates, optimize_trajectory, select_keyframes, verify,
+    Candidate, Descriptor, Keyframe, KeyframeSelector, LoopConfig, LoopEdge, Source, Step,
+    Verification, find_candidates, optimize_trajectory, select_keyframes, verify,
 };
+use crate::odometry::uncertainty::registration_information;
 use crate::pipeline::{PairConfig, PreparedFrame, prepare_frame, refine};
 
 use super::RegisterOptions;
@@ -192,7 +193,13 @@ pub(super) fn close_loops(
 ) -> Result<LoopOutcome> {
     let start = Instant::now();
     let poses: Vec<Isometry3<f64>> = estimates.iter().map(|e| e.world_from_frame).collect();
-    let registered: Vec<bool> = estimates.iter().map(|e| e.success).collect();
+    let steps: Vec<Step> = estimates
+        .iter()
+        .map(|e| match (e.success, e.information) {
+            (true, Some(omega)) => Step::Measured(omega),
+            (success, _) => Step::from_registered(success),
+        })
+        .collect();
     let travelled = path_distances(&poses);
     let keyframes: Vec<Keyframe> = select_keyframes(&poses, &travelled, &config.keyframes)?
         .into_iter()
@@ -261,10 +268,13 @@ pub(super) fn close_loops(
                 query: c.query,
                 matched: c.matched,
                 match_from_query: v.match_from_query.expect("accepted loops have a pose"),
+                information: v.pair.icp_hessian.and_then(|h| {
+                    registration_information(&h, &v.match_from_query.expect("checked above"))
+                }),
             })
         })
         .collect();
-    let (optimized, solution) = optimize_trajectory(&poses, &registered, &loops, config)?;
+    let (optimized, solution) = optimize_trajectory(&poses, &steps, &loops, config)?;
     // The loop edges come after the odometry's in the graph, in the order of `loops`.
     let weights: HashMap<(usize, usize), f64> = solution
         .as_ref()

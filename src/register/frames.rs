@@ -85,6 +85,8 @@ pub(super) struct Estimate {
     pub(super) deskew_motion: Option<(Isometry3<f64>, f64)>,
     /// The loop-closure descriptor, when computed.
     pub(super) descriptor: Option<Descriptor>,
+    /// The step's calibrated information ([`crate::odometry::FrameEstimate::information`]).
+    pub(super) information: Option<nalgebra::Matrix6<f64>>,
 }
 
 impl Estimate {

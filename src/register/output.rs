@@ -48,6 +48,7 @@ pub fn stats_json_schema() -> serde_json::Value {
             "sigma_deg": {"type": "number", "description": "Predicted standard deviation about the least certain rotation axis [deg]"},
             "degeneracy_translation": {"type": "number", "description": "Smallest over largest eigenvalue of the registration's translation information (0: a direction unconstrained, 1: all alike); 0 for a failed frame"},
             "degeneracy_rotation": {"type": "number", "description": "The same for the rotation"},
+            "map_correspondences": {"type": ["integer", "null"], "description": "Point-to-plane correspondences of the map ICP at the final pose: what the covariance was measured on"},
             "timings_s": {"type": "object", "additionalProperties": num}
         },
         "required": ["frame", "stamp_ns", "success", "failure_reason", "num_points", "num_points_downsampled",
@@ -119,6 +120,10 @@ fn frame_stats(out: &FrameOut, u: &PoseUncertainty) -> serde_json::Value {
     ] {
         object.insert(key.to_string(), json!(value));
     }
+    object.insert(
+        "map_correspondences".to_string(),
+        json!(e.map.map(|m| m.hessian.count)),
+    );
     stats
 }
 

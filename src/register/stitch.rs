@@ -484,6 +484,8 @@ fn close_stitched(
                 publish_time: f.publish_time,
                 deskew_motion,
                 descriptor: None,
+                // The segments' steps join the graph with the configured deviations.
+                information: None,
             }
         })
         .collect();

@@ -78,6 +78,7 @@ impl<'a> Writer<'a> {
             publish_time: out.cloud.publish_time,
             deskew_motion,
             descriptor: out.cloud.descriptor,
+            information: out.est.information,
         });
         if let Some(bar) = &self.progress {
             bar.inc(1);
