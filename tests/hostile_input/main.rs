@@ -559,3 +559,4 @@ fn interrupted_register_leaves_nothing_behind() {
 }
 
 mod later_findings;
+mod wal_bags;
