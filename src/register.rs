@@ -283,7 +283,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     if let Some(bytes) = opts.loop_memory_bytes {
         loop_config.memory_budget_bytes = bytes;
     }
-    let (copied, cached) = std::thread::scope(|scope| -> Result<_> {
+    let (copied, cached, times) = std::thread::scope(|scope| -> Result<_> {
         let (cloud_tx, cloud_rx) = sync_channel(QUEUE_CAPACITY);
         let (prep_tx, prep_rx) = sync_channel(QUEUE_CAPACITY);
         // Unbounded: results are small (no point data), and the reading thread, which drains them,
@@ -295,7 +295,7 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         // Message buffers back from the preparing thread once decoded (`reader.rs`).
         let (recycle_tx, recycle_rx) = std::sync::mpsc::channel();
         let prepare = &prepare;
-        scope.spawn(move || prepare.run(cloud_rx, prep_tx, motion_rx, recycle_tx));
+        let preparing = scope.spawn(move || prepare.run(cloud_rx, prep_tx, motion_rx, recycle_tx));
         let odometry = &mut odometry;
         let cache = (opts.loops && loop_config.keep_odometry_frames)
             .then(|| KeyframeCache::new(&loop_config));
@@ -314,7 +314,10 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         let cached = registrar
             .join()
             .expect("the registering thread does not panic");
-        Ok((copied, cached))
+        let times = preparing
+            .join()
+            .expect("the preparing thread does not panic");
+        Ok((copied, cached, times))
     })?;
     let loops = if opts.loops {
         let config = loop_config;
@@ -333,5 +336,9 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     } else {
         None
     };
-    writer.finish(log, plan, opts, copied, start, loops)
+    let topic = plan.topic.clone();
+    let summary = writer.finish(log, plan, opts, copied, start, loops)?;
+    // On stderr, even with --quiet or --json: points were dropped or clouds left skewed.
+    times.warn(&opts.input, &topic);
+    Ok(summary)
 }

@@ -28,7 +28,8 @@ pub(super) struct CloudInfo {
     pub(super) deskewed: Deskewed,
     /// The frame's appearance descriptor, when loop closure is on and the frame has features.
     pub(super) descriptor: Option<Descriptor>,
-    /// Points dropped by the decoder: non-finite, and zero returns of an organised cloud.
+    /// Points dropped by the decoder: non-finite, zero returns of an organised cloud, Livox
+    /// tags, glitches of the time field.
     pub(super) dropped: Dropped,
     pub(super) log_time: u64,
     pub(super) publish_time: u64,
@@ -61,6 +62,9 @@ pub(super) struct Dropped {
     pub(super) zero: usize,
     /// Livox points dropped by their tag.
     pub(super) tag: usize,
+    /// Points dropped because their per-point time was a glitch (not finite, or more than
+    /// [`crate::io::point_time::POINT_TIME_BOUND_S`] from the cloud's median point time).
+    pub(super) time: usize,
 }
 
 /// One frame registered: what the writer puts out.

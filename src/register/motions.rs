@@ -54,7 +54,8 @@ impl Motions {
     }
 
     /// Frame `k`'s motion (`prev_from_curr`, and the seconds it took), waiting for it; `None`
-    /// for the first two frames (no motion yet) or once registration has stopped.
+    /// for the first two frames (no motion yet), once registration has stopped, or when the
+    /// motion or its seconds are not finite (nothing is deskewed by them).
     pub(super) fn of(&mut self, k: Option<usize>) -> Option<(Isometry3<f64>, f64)> {
         let k = k.filter(|&k| k >= 1)?;
         while !self.known.contains_key(&k) {
@@ -62,9 +63,8 @@ impl Motions {
             self.known.insert(i, (m, dt));
         }
         self.known = self.known.split_off(&k);
-        self.known
-            .get(&k)
-            .copied()
-            .filter(|(_, dt)| dt.is_finite() && *dt > 0.0)
+        self.known.get(&k).copied().filter(|(motion, dt)| {
+            dt.is_finite() && *dt > 0.0 && motion.to_homogeneous().iter().all(|v| v.is_finite())
+        })
     }
 }

@@ -9,6 +9,7 @@ use std::time::Instant;
 use nalgebra::{Isometry3, Point3};
 
 use crate::io::codec;
+use crate::io::point_time::POINT_TIME_BOUND_S;
 use crate::loops::Descriptor;
 use crate::odometry::stream::{self, deskew_cloud, deskew_for};
 use crate::pipeline::{FailureReason, PrepareScratch, prepare_frame};
@@ -31,6 +32,52 @@ pub(super) struct Prepare<'a> {
     pub(super) descriptors: bool,
 }
 
+/// The clouds whose per-point times were unusable, for the run's warnings ([`Self::warn`]).
+#[derive(Debug, Default)]
+pub(super) struct TimeTally {
+    /// The time field of the first such cloud.
+    field: String,
+    /// Points dropped as time glitches, the clouds they were in, the first one's log time \[ns\].
+    dropped_points: usize,
+    dropped_clouds: usize,
+    first_dropped: Option<u64>,
+    /// Clouds not deskewed although a motion was known, because a time was not finite or more
+    /// than [`POINT_TIME_BOUND_S`] from the stamp, and the first one's log time \[ns\].
+    undeskewed_clouds: usize,
+    first_undeskewed: Option<u64>,
+}
+
+impl TimeTally {
+    fn field(&mut self, field: &str) {
+        if self.field.is_empty() {
+            self.field = field.to_string();
+        }
+    }
+
+    /// Warns on stderr of what was dropped or left skewed, naming `input` and `topic`; nothing
+    /// when nothing was.
+    pub(super) fn warn(&self, input: &Path, topic: &str) {
+        let (input, field) = (input.display(), &self.field);
+        if let Some(t) = self.first_dropped {
+            eprintln!(
+                "mireg: warning: {input}: {} points of {} clouds on {topic} dropped: their time \
+                 (field {field}) is not finite or more than {POINT_TIME_BOUND_S} s from their \
+                 cloud's median point time (the first such cloud at log time {t} ns)",
+                self.dropped_points, self.dropped_clouds
+            );
+        }
+        if let Some(t) = self.first_undeskewed {
+            eprintln!(
+                "mireg: warning: {input}: {} clouds on {topic} not deskewed: their point times \
+                 (field {field}) are not all finite and within {POINT_TIME_BOUND_S} s of the \
+                 header stamp (a field without times, or on another clock than the stamp; the \
+                 first such cloud at log time {t} ns)",
+                self.undeskewed_clouds
+            );
+        }
+    }
+}
+
 /// What the prepare stage carries from one cloud to the next.
 #[derive(Default)]
 struct Carry {
@@ -40,19 +87,22 @@ struct Carry {
     /// The previous cloud's points, once prepared: their buffer takes the next cloud's (a LiDAR
     /// frame's few megabytes are allocated and faulted in once, not per cloud).
     spare_points: Vec<Point3<f64>>,
+    /// The clouds whose times were unusable so far.
+    times: TimeTally,
 }
 
 impl Prepare<'_> {
     /// Prepares the clouds of `clouds` in order into `prepared`, until the clouds end, the
     /// receiver hangs up or a fatal error (sent on) stops the run. Each message buffer goes back
-    /// on `recycle` once decoded; frame motions for deskewing come on `motions`.
+    /// on `recycle` once decoded; frame motions for deskewing come on `motions`. Returns the
+    /// clouds whose per-point times were unusable, for the run's warnings.
     pub(super) fn run(
         &self,
         clouds: Receiver<CloudMsg>,
         prepared: SyncSender<Result<PreparedMsg>>,
         motions: Receiver<(usize, Isometry3<f64>, f64)>,
         recycle: Sender<Vec<u8>>,
-    ) {
+    ) -> TimeTally {
         let mut carry = Carry::default();
         let mut motions = Motions::new(motions);
         for (frame_index, msg) in clouds.into_iter().enumerate() {
@@ -62,6 +112,7 @@ impl Prepare<'_> {
                 break;
             }
         }
+        carry.times
     }
 
     /// Decodes, deskews and prepares one cloud. `Err` only for what stops the run (`--deskew
@@ -82,7 +133,19 @@ impl Prepare<'_> {
             non_finite: c.num_dropped_non_finite,
             zero: c.num_dropped_zero,
             tag: c.num_dropped_tag,
+            time: c.num_dropped_time,
         });
+        if dropped.time > 0 {
+            let tally = &mut carry.times;
+            if let Ok(c) = &decoded
+                && let Some(times) = &c.times
+            {
+                tally.field(&times.field);
+            }
+            tally.dropped_points += dropped.time;
+            tally.dropped_clouds += 1;
+            tally.first_dropped.get_or_insert(msg.log_time);
+        }
         // The message bytes are not needed past decoding: don't hold them through prepare.
         let _ = recycle.send(msg.data);
         let decode_s = t.elapsed().as_secs_f64();
@@ -111,8 +174,18 @@ impl Prepare<'_> {
                     if self.deskew_mode != DeskewMode::Off
                         && let Some((motion, dt)) = motions.of(deskew_for(frame_index))
                     {
-                        deskewed =
-                            Some(deskew_cloud(&mut cloud.points, &times.seconds, motion, dt));
+                        // Times within the bound of the stamp and a finite motion: every point
+                        // moves by a finite fraction of a finite motion, and so does the pose
+                        // referred back to the stamp.
+                        if times.deskewable() {
+                            deskewed =
+                                Some(deskew_cloud(&mut cloud.points, &times.seconds, motion, dt));
+                        } else {
+                            let tally = &mut carry.times;
+                            tally.field(&times.field);
+                            tally.undeskewed_clouds += 1;
+                            tally.first_undeskewed.get_or_insert(msg.log_time);
+                        }
                     }
                 } else if self.deskew_mode == DeskewMode::On {
                     let detail = format!(

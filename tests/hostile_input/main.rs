@@ -559,3 +559,5 @@ fn interrupted_register_leaves_nothing_behind() {
 }
 
 mod later_findings;
+mod non_finite_times;
+mod wal_bags;

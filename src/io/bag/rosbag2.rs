@@ -13,12 +13,20 @@
 //!   name and every message are kept even though no reader can decode them without the
 //!   definition (docs/INPUTS.md).
 //!
-//! SQLite files are opened read-only: nothing the user gave us is ever altered. Compressed bags
-//! (`compression_mode: file` or `message`, zstd) are read through [`super::compression`].
+//! SQLite files are never written, nor is anything created beside them ([`SqliteFile`]): a
+//! database without a write-ahead log beside it is opened in SQLite's immutable mode (no lock, no
+//! `-shm` or `-wal` file, so a bag in a read-only directory reads too); one with a non-empty
+//! `-wal` (a WAL-mode bag, rosbag2's `resilient` preset, whose recorder has not checkpointed, e.g.
+//! because it crashed) or a hot `-journal` is copied with it into a private temporary directory
+//! (`$TMPDIR/.mireg-bag-*`, removed when the bag is dropped) and the copy opened, so that the log's
+//! last messages are read as SQLite would read them. Errors name the user's file, never the copy.
+//! Compressed bags (`compression_mode: file` or `message`, zstd) are read through
+//! [`super::compression`].
 
 use std::collections::BTreeMap;
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use mcap::records::{Channel, MessageHeader, Record};
 use rusqlite::{Connection as Db, OpenFlags};
@@ -54,7 +62,25 @@ pub struct Rosbag2 {
     /// copies in `decompressed`.
     pub compression: Compression,
     /// The temporary directory of a file-compressed bag's decompressed files (shared by clones).
-    decompressed: Option<std::sync::Arc<tempfile::TempDir>>,
+    decompressed: Option<Arc<tempfile::TempDir>>,
+    /// SQLite storage: how each of `files` is opened ([`SqliteFile`]); empty for MCAP storage.
+    sqlite: Vec<SqliteFile>,
+    /// The temporary directory of the private copies of `.db3` files with a write-ahead log or
+    /// hot journal (shared by clones).
+    private_copies: Option<Arc<tempfile::TempDir>>,
+}
+
+/// How one `.db3` file of a bag is opened without altering it (see the module doc).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(crate) struct SqliteFile {
+    /// The file as the user gave it (a `.db3`, or the `.db3.zstd` it was decompressed from),
+    /// named in every error.
+    pub(crate) name: PathBuf,
+    /// The file SQLite opens: the `.db3` itself, in immutable mode, or (`private`) our copy of it
+    /// with its `-wal` or `-journal`, read-write so that SQLite can apply them.
+    pub(crate) open: PathBuf,
+    /// Whether `open` is our private copy.
+    pub(crate) private: bool,
 }
 
 fn format_err(path: &Path, detail: impl Into<String>) -> Error {
@@ -191,9 +217,15 @@ impl Rosbag2 {
             channel_maps: Vec::new(),
             compression,
             decompressed: None,
+            sqlite: Vec::new(),
+            private_copies: None,
         };
+        let names = bag.files.clone();
         if compression == Compression::File {
             bag.decompress_files()?;
+        }
+        if storage == Storage::Sqlite3 {
+            bag.open_sqlite_files(&names)?;
         }
         Ok(bag)
     }
@@ -226,6 +258,8 @@ impl Rosbag2 {
             channel_maps: Vec::new(),
             compression: Compression::File,
             decompressed: None,
+            sqlite: Vec::new(),
+            private_copies: None,
         };
         bag.decompress_files()?;
         let mut head = [0u8; 16];
@@ -234,6 +268,7 @@ impl Rosbag2 {
             .map_err(|e| crate::io::io_err(&bag.files[0], e))?;
         if head[..n] == crate::io::input_log::SQLITE_MAGIC[..] {
             bag.storage = Storage::Sqlite3;
+            bag.open_sqlite_files(&[path.to_path_buf()])?;
         }
         Ok(bag)
     }
@@ -246,7 +281,7 @@ impl Rosbag2 {
                 source,
             })?
             .len();
-        Ok(Self {
+        let mut bag = Self {
             dir: path.parent().unwrap_or(Path::new(".")).to_path_buf(),
             storage: Storage::Sqlite3,
             files: vec![path.to_path_buf()],
@@ -254,7 +289,69 @@ impl Rosbag2 {
             channel_maps: Vec::new(),
             compression: Compression::None,
             decompressed: None,
-        })
+            sqlite: Vec::new(),
+            private_copies: None,
+        };
+        bag.open_sqlite_files(&[path.to_path_buf()])?;
+        Ok(bag)
+    }
+
+    /// Decides how each of `files` (SQLite storage; `names` are the user's files they stand for)
+    /// is opened: as it is, immutable, or, when a non-empty `-wal` or `-journal` lies beside it,
+    /// through a private copy of it with that file (see the module doc).
+    fn open_sqlite_files(&mut self, names: &[PathBuf]) -> Result<()> {
+        let mut sqlite = Vec::with_capacity(self.files.len());
+        for (i, (file, name)) in self.files.iter().zip(names).enumerate() {
+            let mut companions = Vec::new();
+            for suffix in ["-wal", "-journal"] {
+                let mut companion = file.as_os_str().to_owned();
+                companion.push(suffix);
+                let companion = PathBuf::from(companion);
+                match std::fs::metadata(&companion) {
+                    Ok(m) if m.is_file() && m.len() > 0 => companions.push((suffix, companion)),
+                    Ok(m) if m.is_file() => {}
+                    Ok(m) => {
+                        return Err(format_err(
+                            &companion,
+                            format!(
+                                "is {}, not the regular file SQLite keeps the recent changes of {} in",
+                                crate::io::file_kind(&m),
+                                name.display()
+                            ),
+                        ));
+                    }
+                    Err(_) => {}
+                }
+            }
+            if companions.is_empty() {
+                sqlite.push(SqliteFile {
+                    name: name.clone(),
+                    open: file.clone(),
+                    private: false,
+                });
+                continue;
+            }
+            if self.private_copies.is_none() {
+                let temp = tempfile::Builder::new()
+                    .prefix(".mireg-bag-")
+                    .tempdir()
+                    .map_err(|e| crate::io::io_err(&std::env::temp_dir(), e))?;
+                self.private_copies = Some(Arc::new(temp));
+            }
+            let dir = self.private_copies.as_ref().expect("made above").path();
+            let copy = dir.join(format!("{i}.db3"));
+            copy_file(file, &copy, name)?;
+            for (suffix, companion) in &companions {
+                copy_file(companion, &dir.join(format!("{i}.db3{suffix}")), name)?;
+            }
+            sqlite.push(SqliteFile {
+                name: name.clone(),
+                open: copy,
+                private: true,
+            });
+        }
+        self.sqlite = sqlite;
+        Ok(())
     }
 
     /// The bag directory.
@@ -272,10 +369,10 @@ impl Rosbag2 {
     pub fn catalog(&mut self) -> Result<InputCatalog> {
         let mut m = Merge::default();
         self.channel_maps.clear();
-        for f in self.files.clone() {
+        for (i, f) in self.files.iter().enumerate() {
             let map = match self.storage {
-                Storage::Mcap => m.add_mcap(&f)?,
-                Storage::Sqlite3 => m.add_sqlite(&f)?,
+                Storage::Mcap => m.add_mcap(f)?,
+                Storage::Sqlite3 => m.add_sqlite(&self.sqlite[i])?,
             };
             self.channel_maps.push(map);
         }
@@ -292,14 +389,18 @@ impl Rosbag2 {
     ) -> Result<()> {
         assert_eq!(self.channel_maps.len(), self.files.len(), "catalog() first");
         let mut unzip = MessageDecompressor::default();
-        for (file, map) in self.files.iter().zip(&self.channel_maps) {
+        for (i, (file, map)) in self.files.iter().zip(&self.channel_maps).enumerate() {
+            let name = self
+                .sqlite
+                .get(i)
+                .map_or(file.as_path(), |s| s.name.as_path());
             let mut f = |h: &MessageHeader, data: &[u8]| match self.compression {
-                Compression::Message => f(h, unzip.decompress(file, h.log_time, data)?),
+                Compression::Message => f(h, unzip.decompress(name, h.log_time, data)?),
                 Compression::None | Compression::File => f(h, data),
             };
             let flow = match self.storage {
                 Storage::Mcap => mcap_messages(file, map, &mut f)?,
-                Storage::Sqlite3 => sqlite_messages(file, map, &mut f)?,
+                Storage::Sqlite3 => sqlite_messages(&self.sqlite[i], map, &mut f)?,
             };
             if flow.is_break() {
                 break;
@@ -339,24 +440,74 @@ fn mcap_messages(
     Ok(flow)
 }
 
-fn open_db(file: &Path) -> Result<Db> {
-    let db = Db::open_with_flags(
-        file,
-        OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX,
-    )
-    .map_err(|e| sql_err(file, "opening", e))?;
+/// Copies `src` to `dst` (a new file in our private directory, writable whatever `src`'s
+/// permissions), naming `name`, the user's file, in errors.
+fn copy_file(src: &Path, dst: &Path, name: &Path) -> Result<()> {
+    let copy = || -> std::io::Result<()> {
+        let mut from = std::fs::File::open(src)?;
+        let mut to = std::fs::File::create(dst)?;
+        std::io::copy(&mut from, &mut to)?;
+        Ok(())
+    };
+    copy().map_err(|e| {
+        format_err(
+            name,
+            format!(
+                "copying {} into a private temporary directory (to read its write-ahead log or journal without altering the bag; TMPDIR sets where): {e}",
+                src.display()
+            ),
+        )
+    })
+}
+
+/// An SQLite URI (`file://…?immutable=1`) for the file at `path`: its absolute path with every
+/// byte other than ASCII letters, digits and `/._~-` percent-encoded (so `?`, `#` and `%` in a
+/// name stay part of the path).
+pub(crate) fn immutable_uri(path: &Path) -> String {
+    let absolute = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
+    let mut uri = String::from("file://");
+    for &b in absolute.as_os_str().as_encoded_bytes() {
+        if b.is_ascii_alphanumeric() || b"/._~-".contains(&b) {
+            uri.push(char::from(b));
+        } else {
+            uri.push_str(&format!("%{b:02X}"));
+        }
+    }
+    uri.push_str("?immutable=1");
+    uri
+}
+
+fn open_db(file: &SqliteFile) -> Result<Db> {
+    let name = file.name.as_path();
+    let db = if file.private {
+        // Our own copy: SQLite applies its write-ahead log or rolls its journal back in place.
+        Db::open_with_flags(
+            &file.open,
+            OpenFlags::SQLITE_OPEN_READ_WRITE | OpenFlags::SQLITE_OPEN_NO_MUTEX,
+        )
+    } else {
+        // The user's file, which nothing (not even a lock or a `-shm` file) may alter.
+        Db::open_with_flags(
+            immutable_uri(&file.open),
+            OpenFlags::SQLITE_OPEN_READ_ONLY
+                | OpenFlags::SQLITE_OPEN_URI
+                | OpenFlags::SQLITE_OPEN_NO_MUTEX,
+        )
+    }
+    .map_err(|e| sql_err(name, "opening", e))?;
     // Fail here, naming the file, if it is not a database at all.
     db.query_row("SELECT count(*) FROM sqlite_master", [], |_| Ok(()))
-        .map_err(|e| sql_err(file, "reading its tables", e))?;
+        .map_err(|e| sql_err(name, "reading its tables", e))?;
     Ok(db)
 }
 
 fn sqlite_messages(
-    file: &Path,
+    db_file: &SqliteFile,
     map: &BTreeMap<i64, u16>,
     f: &mut impl FnMut(&MessageHeader, &[u8]) -> Result<ControlFlow<()>>,
 ) -> Result<ControlFlow<()>> {
-    let db = open_db(file)?;
+    let db = open_db(db_file)?;
+    let file = db_file.name.as_path();
     let mut stmt = db
         .prepare("SELECT topic_id, timestamp, data FROM messages ORDER BY timestamp, id")
         .map_err(|e| sql_err(file, "reading the messages table", e))?;
@@ -476,8 +627,9 @@ impl Merge {
         Ok(map)
     }
 
-    fn add_sqlite(&mut self, file: &Path) -> Result<BTreeMap<i64, u16>> {
-        let db = open_db(file)?;
+    fn add_sqlite(&mut self, db_file: &SqliteFile) -> Result<BTreeMap<i64, u16>> {
+        let db = open_db(db_file)?;
+        let file = db_file.name.as_path();
         let has_table = |name: &str| -> Result<bool> {
             db.query_row(
                 "SELECT count(*) FROM sqlite_master WHERE type = 'table' AND name = ?1",
@@ -595,5 +747,51 @@ mod tests {
         let m = parse_metadata("x:\n  relative_file_paths: [\"b.mcap\", c.mcap]\n");
         assert_eq!(m.relative_file_paths, ["b.mcap", "c.mcap"]);
         assert_eq!(m.storage_identifier, None);
+    }
+
+    #[test]
+    fn immutable_uris_keep_query_and_fragment_characters_in_the_path() {
+        assert_eq!(
+            immutable_uri(Path::new("/a b/x?y#z%1é.db3")),
+            "file:///a%20b/x%3Fy%23z%251%C3%A9.db3?immutable=1"
+        );
+        // A path starting with two slashes is not read as a URI authority.
+        assert!(immutable_uri(Path::new("//srv/b.db3")).starts_with("file:////srv/"));
+    }
+
+    /// Every kind of awkward name opens, immutable, and nothing appears beside it.
+    #[test]
+    fn a_db3_under_any_name_opens_immutable_and_nothing_is_created() {
+        let dir = tempfile::tempdir().unwrap();
+        for name in [
+            "plain.db3",
+            "q?x=1.db3",
+            "h#frag.db3",
+            "p%41.db3",
+            "sp ace é.db3",
+        ] {
+            let path = dir.path().join(name);
+            let db = Db::open(&path).unwrap();
+            db.execute_batch(
+                "PRAGMA journal_mode=WAL; CREATE TABLE t(x); INSERT INTO t VALUES (7);",
+            )
+            .unwrap();
+            drop(db);
+            let before = std::fs::read_dir(dir.path()).unwrap().count();
+            let file = SqliteFile {
+                name: path.clone(),
+                open: path.clone(),
+                private: false,
+            };
+            let db = open_db(&file).unwrap();
+            let x: i64 = db.query_row("SELECT x FROM t", [], |r| r.get(0)).unwrap();
+            assert_eq!(x, 7, "{name}");
+            drop(db);
+            assert_eq!(
+                std::fs::read_dir(dir.path()).unwrap().count(),
+                before,
+                "{name}"
+            );
+        }
     }
 }

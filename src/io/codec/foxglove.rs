@@ -193,6 +193,7 @@ pub fn decode_foxglove_point_cloud_reusing(
             num_dropped_non_finite: 0,
             num_dropped_zero: 0,
             num_dropped_tag: 0,
+            num_dropped_time: 0,
         });
     }
     let stride = u64::from(msg.point_stride);
@@ -298,6 +299,7 @@ pub fn decode_foxglove_point_cloud_reusing(
         num_dropped_non_finite: ex.num_dropped_non_finite,
         num_dropped_zero: ex.num_dropped_zero,
         num_dropped_tag: 0,
+        num_dropped_time: 0,
     })
 }
 

@@ -16,7 +16,8 @@
 //! to 4). `offset_time` becomes the cloud's per-point times (relative to the header stamp, so a
 //! header stamp that differs from `timebase` is allowed for), `reflectivity` its intensity, and
 //! `tag` decides which points are kept ([`LivoxTags`]). Points at exactly (0, 0, 0) are Livox's
-//! "no return" and are dropped, like non-finite ones.
+//! "no return" and are dropped, like non-finite ones, and so are points whose time is a glitch
+//! (more than [`crate::io::point_time::POINT_TIME_BOUND_S`] from the cloud's median point time).
 
 use nalgebra::Point3;
 
@@ -179,7 +180,7 @@ fn decode_points(
             seconds.push(base_s + f64::from(u32_at(p)) * 1e-9);
         }
     }
-    PointCloud {
+    let mut cloud = PointCloud {
         header,
         points,
         intensity: Some(intensity),
@@ -193,7 +194,10 @@ fn decode_points(
         num_dropped_non_finite: non_finite,
         num_dropped_zero: zero,
         num_dropped_tag: tag_dropped,
-    }
+        num_dropped_time: 0,
+    };
+    cloud.drop_time_glitches();
+    cloud
 }
 
 #[cfg(test)]
@@ -318,6 +322,32 @@ mod tests {
                 tags,
             );
         }
+    }
+
+    /// An `offset_time` glitch (4 s into a 100 ms sweep) is dropped with its intensity and
+    /// counted; a `timebase` 10 s off the stamp drops nothing but makes the cloud undeskewable.
+    #[test]
+    fn time_glitches_are_dropped_and_counted() {
+        let pts: [Pt; 4] = [
+            (0, 1.0, 0.0, 0.0, 1, 0, 0),
+            (50_000_000, 2.0, 0.0, 0.0, 2, 0, 0),
+            (4_000_000_000, 3.0, 0.0, 0.0, 3, 0, 0),
+            (99_000_000, 4.0, 0.0, 0.0, 4, 0, 0),
+        ];
+        let stamp = 1_700_000_000u64 * 1_000_000_000;
+        let m = ros1_message((1_700_000_000, 0), stamp, &pts);
+        let c = decode_ros1_reusing(&m, Vec::new(), LivoxTags::KeepAll).unwrap();
+        assert_eq!(c.num_dropped_time, 1);
+        let xs: Vec<f64> = c.points.iter().map(|p| p.x).collect();
+        assert_eq!(xs, [1.0, 2.0, 4.0]);
+        assert_eq!(c.intensity.unwrap(), [1.0, 2.0, 4.0]);
+        let times = c.times.unwrap();
+        assert_eq!(times.seconds.len(), 3);
+        assert!(times.deskewable());
+        let m = ros1_message((1_700_000_000, 0), stamp + 10_000_000_000, &pts[..2]);
+        let c = decode_ros1_reusing(&m, Vec::new(), LivoxTags::KeepAll).unwrap();
+        assert_eq!((c.num_dropped_time, c.points.len()), (0, 2));
+        assert!(!c.times.unwrap().deskewable());
     }
 
     #[test]

@@ -143,6 +143,43 @@ pub struct PointCloud {
     pub num_dropped_zero: usize,
     /// Livox points dropped by their `tag` ([`livox::LivoxTags`]); 0 for other messages.
     pub num_dropped_tag: usize,
+    /// Points dropped because their per-point time was not finite or further than
+    /// [`crate::io::point_time::POINT_TIME_BOUND_S`] from the cloud's median point time (a glitch
+    /// that deskewing would move anywhere); 0 without a time field.
+    pub num_dropped_time: usize,
+}
+
+impl PointCloud {
+    /// Drops the points whose time is a glitch ([`crate::io::point_time::glitches`]) with their
+    /// intensities, counting them in [`Self::num_dropped_time`].
+    pub(crate) fn drop_time_glitches(&mut self) {
+        let Some(times) = self.times.as_mut() else {
+            return;
+        };
+        if times.seconds.len() != self.points.len() {
+            return;
+        }
+        let Some(glitch) = crate::io::point_time::glitches(&times.seconds) else {
+            return;
+        };
+        retain_unmasked(&mut times.seconds, &glitch);
+        retain_unmasked(&mut self.points, &glitch);
+        if let Some(intensity) = self.intensity.as_mut() {
+            retain_unmasked(intensity, &glitch);
+        }
+        self.num_dropped_time += glitch.iter().filter(|&&g| g).count();
+    }
+}
+
+/// Keeps the elements of `v` whose `drop` is false (`v` unchanged unless of `drop`'s length).
+fn retain_unmasked<T>(v: &mut Vec<T>, drop: &[bool]) {
+    if v.len() == drop.len() {
+        let mut i = 0;
+        v.retain(|_| {
+            i += 1;
+            !drop[i - 1]
+        });
+    }
 }
 
 // ---------------------------------------------------------------------------------------------

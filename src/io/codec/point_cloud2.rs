@@ -32,6 +32,9 @@ struct RawField {
 /// - Points with a NaN or ±Inf coordinate are dropped and counted in
 ///   [`PointCloud::num_dropped_non_finite`]; points of an organised cloud (`height > 1`) exactly
 ///   at (0, 0, 0), the drivers' "no return", in [`PointCloud::num_dropped_zero`].
+/// - Points whose per-point time is a glitch (not finite, or more than
+///   [`crate::io::point_time::POINT_TIME_BOUND_S`] from the cloud's median point time) are
+///   dropped and counted in [`PointCloud::num_dropped_time`].
 /// - An empty cloud (`width·height == 0`) decodes without requiring `x`, `y`, `z` fields.
 /// - Fields other than x, y, z, intensity are not validated.
 /// - The points are written into `points` (cleared first), so that a stream of clouds can reuse
@@ -80,6 +83,7 @@ pub(crate) fn decode_body<'a>(
         num_dropped_non_finite: 0,
         num_dropped_zero: 0,
         num_dropped_tag: 0,
+        num_dropped_time: 0,
     };
     if width == 0 || height == 0 {
         return Ok(empty);
@@ -177,7 +181,7 @@ pub(crate) fn decode_body<'a>(
     let times = time_field
         .zip(ex.times)
         .map(|((name, f), raw)| crate::io::point_time::point_times(name, f.kind, raw, stamp_s));
-    Ok(PointCloud {
+    let mut cloud = PointCloud {
         points: ex.points,
         intensity: ex.intensity,
         times,
@@ -185,7 +189,9 @@ pub(crate) fn decode_body<'a>(
         num_dropped_zero: ex.num_dropped_zero,
         num_dropped_tag: 0,
         ..empty
-    })
+    };
+    cloud.drop_time_glitches();
+    Ok(cloud)
 }
 
 /// Writes the body of a little-endian `sensor_msgs/PointCloud2` (after its header) with FLOAT32 fields `x`, `y`, `z`
