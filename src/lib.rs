@@ -5,6 +5,7 @@
 //! [`correspondence`] (ranking metrics) and [`graph`] (robust pose-graph optimisation for loop
 //! closure) take slices and nalgebra types; [`io`] reads files;
 //! [`cli`] maps the command line onto them.
+#![recursion_limit = "256"]
 #![warn(missing_docs)]
 
 pub mod cli;

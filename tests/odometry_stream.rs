@@ -57,3 +57,37 @@ fn stream_odometry_gives_register_s_poses_bit_for_bit() {
         assert_eq!(got, want, "{}", log.display());
     }
 }
+
+#[path = "common/room_scene.rs"]
+mod room_scene;
+
+/// A library caller's times that are not finite or far off the stamp never deskew: every pose
+/// stays finite (with the times passed through unchecked, NaN reached every pose from the
+/// first deskewed frame on).
+#[test]
+fn stream_odometry_ignores_times_that_cannot_deskew() {
+    use mireg::odometry::OdometryConfig;
+    use mireg::odometry::stream::StreamOdometry;
+    use nalgebra::{Isometry3, Translation3};
+    for bad in [f64::NAN, f64::INFINITY, 1e300, -30.0] {
+        let mut odometry = StreamOdometry::new(OdometryConfig::default(), true, true);
+        for k in 0..6u64 {
+            let world_from_frame = Isometry3::from(Translation3::new(0.05 * k as f64, 0.0, 0.0));
+            let points: Vec<_> = room_scene::scene(6000, k)
+                .iter()
+                .map(|p| world_from_frame.inverse() * p)
+                .collect();
+            let mut times: Vec<f64> = (0..points.len()).map(|i| i as f64 * 1e-5).collect();
+            times[17] = bad;
+            let est = odometry
+                .push(points, Some(&times), (k * 100_000_000) as i64)
+                .unwrap();
+            let p = est.world_from_frame;
+            assert!(
+                p.translation.vector.iter().all(|v| v.is_finite())
+                    && p.rotation.coords.iter().all(|v| v.is_finite()),
+                "time {bad}: frame {k} pose {p}"
+            );
+        }
+    }
+}

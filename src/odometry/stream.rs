@@ -203,7 +203,9 @@ impl StreamOdometry {
     }
 
     /// Registers the next cloud: `points` in the sensor frame (metres), `times_s` per point in
-    /// seconds after `stamp_ns` (the cloud's stamp, ns) when known. Returns its estimate, the
+    /// seconds after `stamp_ns` (the cloud's stamp, ns) when known; a cloud with a time that is
+    /// not finite or further than [`crate::io::point_time::POINT_TIME_BOUND_S`] from the stamp
+    /// is not deskewed. Returns its estimate, the
     /// pose `world_from_frame` with world the first frame's sensor frame.
     ///
     /// # Errors
@@ -226,7 +228,14 @@ impl StreamOdometry {
         }
         let k = self.motions.len();
         let mut deskewed = None;
-        if let Some(times) = times_s.filter(|t| self.deskew && t.len() == points.len())
+        // Times that are not finite or not within the bound of the stamp cannot deskew: they
+        // would move points (and the pose) anywhere (`crate::io::point_time`).
+        let bounded = |t: &[f64]| {
+            t.iter()
+                .all(|t| t.abs() <= crate::io::point_time::POINT_TIME_BOUND_S)
+        };
+        if let Some(times) =
+            times_s.filter(|t| self.deskew && t.len() == points.len() && bounded(t))
             && let Some(&(motion, dt)) = deskew_for(k).and_then(|m| self.motions.get(m))
             && dt.is_finite()
             && dt > 0.0

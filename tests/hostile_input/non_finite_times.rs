@@ -174,6 +174,8 @@ fn non_finite_and_absurd_point_times_never_reach_a_pose() {
         let whole = k == 5 || k == 6;
         let want = if whole { 6000 } else { 6000 - GLITCHES.len() };
         assert_eq!(s["num_points"], want, "frame {k}: {s}");
+        let dropped = if whole { 0 } else { GLITCHES.len() };
+        assert_eq!(s["num_dropped_time"], dropped, "frame {k}: {s}");
         assert_eq!(s["deskewed"], k >= 3 && !whole, "frame {k}: {s}");
         assert_eq!(s["time_field"], "time", "frame {k}: {s}");
     }
