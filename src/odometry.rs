@@ -14,6 +14,7 @@
 //! still recovers: its start wins where the prediction is wrong.
 
 pub mod stream;
+pub mod suspect;
 pub mod uncertainty;
 
 use nalgebra::{Isometry3, Matrix6, Point3, Vector3};
@@ -242,8 +243,11 @@ pub struct FrameEstimate {
     /// The calibrated information of this frame's step ([`uncertainty::registration_information`]:
     /// right perturbation of `world_from_frame`, (rotation, translation) order) from the
     /// registration its pose came from: the map ICP's, or the frame-to-frame ICP's without a
-    /// map fit. `None` for the first frame and for failed frames.
+    /// map fit, divided by [`suspect::SUSPECT_SIGMA_FACTOR`]² when the frame is suspect. `None`
+    /// for the first frame and for failed frames.
     pub information: Option<Matrix6<f64>>,
+    /// Why a registered frame is doubtful ([`suspect::judge`]), if it is.
+    pub suspect: Option<suspect::Suspect>,
 }
 
 /// The running state of consecutive-frame registration.
@@ -358,7 +362,10 @@ impl Odometry {
             num_points_downsampled: frame.points.len(),
             map: None,
             information: None,
+            suspect: None,
         };
+        let last_map_fitness = self.last_map_fitness;
+        let max_hypotheses = self.config.pair.max_hypotheses;
         let usable = frame.points.len() >= 3 && frame.icp.is_some();
         let Some((_, world_from_prev)) = &self.previous else {
             // The first frame defines the world.
@@ -449,6 +456,34 @@ impl Odometry {
                 pair = second;
                 first = Some((pose, fit2));
             }
+            // NOTE: where both global estimates fit the map doubtfully, the constant-velocity
+            // prediction is tried too and wins if it fits better: after a frame whose own
+            // features were poor (a floor alone), global registration against it went 3 m
+            // wrong at a map fitness of 0.32 while the prediction fitted at 0.95
+            // (`tests/suspect_steps.rs`).
+            if let Some((_, fit)) = &first
+                && last_map_fitness.is_some()
+                && self.doubtful(fit.fitness)
+                && let Some((pose, tracked)) =
+                    self.refine_on_map(&frame, *target, None, &predicted)?
+                && tracked.used
+                && tracked.fitness > fit.fitness
+            {
+                pair.target_from_source = world_from_prev.inverse() * pose;
+                pair.fitness = tracked.fitness;
+                pair.inlier_rmse_m = tracked.inlier_rmse_m;
+                est.prev_from_curr = pair.target_from_source;
+                self.velocity = pair.target_from_source;
+                est.world_from_frame = pose;
+                est.information = uncertainty::registration_information(&tracked.hessian, &pose);
+                est.map = Some(tracked);
+                est.pair = Some(pair);
+                suspect::judge(&mut est, last_map_fitness, max_hypotheses);
+                self.last_map_fitness = Some(tracked.fitness);
+                self.set_previous(index, frame, pose);
+                self.map_pending = true;
+                return Ok(est);
+            }
             if let Some((pose, fit)) = first
                 && fit.used
                 && matches!(fit.guess, InitialGuess::Global | InitialGuess::SecondGlobal)
@@ -462,6 +497,7 @@ impl Odometry {
                 est.information = uncertainty::registration_information(&fit.hessian, &pose);
                 est.map = Some(fit);
                 est.pair = Some(pair);
+                suspect::judge(&mut est, last_map_fitness, max_hypotheses);
                 self.last_map_fitness = Some(fit.fitness);
                 self.set_previous(index, frame, pose);
                 self.map_pending = true;
@@ -513,6 +549,7 @@ impl Odometry {
             }
             est.map = Some(fit);
         }
+        suspect::judge(&mut est, last_map_fitness, max_hypotheses);
         self.map_pending = est.success || est.map.is_some_and(|m| m.used);
         self.set_previous(index, frame, est.world_from_frame);
         Ok(est)

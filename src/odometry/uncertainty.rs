@@ -107,13 +107,8 @@ impl PoseUncertainty {
         };
         let rotation = covariance.fixed_view::<3, 3>(0, 0).into_owned();
         let translation = covariance.fixed_view::<3, 3>(3, 3).into_owned();
-        let (degeneracy_rotation, degeneracy_translation) = match information {
-            Some(omega) => (
-                marginal_condition(omega, 0, 3),
-                marginal_condition(omega, 3, 0),
-            ),
-            None => (0.0, 0.0),
-        };
+        let (degeneracy_translation, degeneracy_rotation) =
+            information.map_or((0.0, 0.0), degeneracy);
         Self {
             covariance,
             sigma_m: block_max(translation).max(0.0).sqrt(),
@@ -137,6 +132,16 @@ impl PoseUncertainty {
         }
         out
     }
+}
+
+/// `(translation, rotation)`: smallest over largest eigenvalue of each block of the information
+/// `omega` marginalised over the other ([`PoseUncertainty::degeneracy_translation`]), in [0, 1].
+#[must_use]
+pub fn degeneracy(omega: &Matrix6<f64>) -> (f64, f64) {
+    (
+        marginal_condition(omega, 3, 0),
+        marginal_condition(omega, 0, 3),
+    )
 }
 
 /// Smallest over largest eigenvalue of the 3×3 block at `at` of `omega` marginalised over the

@@ -48,6 +48,7 @@ pub fn stats_json_schema() -> serde_json::Value {
             "sigma_deg": {"type": "number", "description": "Predicted standard deviation about the least certain rotation axis [deg]"},
             "degeneracy_translation": {"type": "number", "description": "Smallest over largest eigenvalue of the registration's translation information (0: a direction unconstrained, 1: all alike); 0 for a failed frame"},
             "degeneracy_rotation": {"type": "number", "description": "The same for the rotation"},
+            "suspect": {"type": ["string", "null"], "enum": ["degenerate", "fitness_drop", "hypothesis_cap", null], "description": "Why a registered frame is doubtful (its step's deviations are then 10x what its registration measured)"},
             "map_correspondences": {"type": ["integer", "null"], "description": "Point-to-plane correspondences of the map ICP at the final pose: what the covariance was measured on"},
             "timings_s": {"type": "object", "additionalProperties": num}
         },
@@ -121,6 +122,7 @@ fn frame_stats(out: &FrameOut, u: &PoseUncertainty) -> serde_json::Value {
     ] {
         object.insert(key.to_string(), json!(value));
     }
+    object.insert("suspect".to_string(), json!(e.suspect.map(|s| s.as_str())));
     object.insert(
         "map_correspondences".to_string(),
         json!(e.map.map(|m| m.hessian.count)),

@@ -1,0 +1,97 @@
+//! Suspect steps: a frame that registered, but whose registration is doubtful, is flagged with
+//! the reason and its step's information weakened ([`SUSPECT_SIGMA_FACTOR`]), so that the pose
+//! graph lets the loops overrule it ([`crate::loops`]).
+//!
+//! NOTE: not in the paper. A registration can meet every acceptance threshold and still be
+//! wrong: on real logs a frame "succeeded" 0.66–2.9 m off. The rules below flag what the frame's
+//! own registration shows of that; they do not change its pose.
+
+use serde::{Deserialize, Serialize};
+
+use super::FrameEstimate;
+use super::uncertainty::degeneracy;
+
+/// Why a registered frame is suspect.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Suspect {
+    /// Its registration leaves a direction nearly free: the smallest over largest eigenvalue of
+    /// the translation or rotation information is below [`SUSPECT_DEGENERACY`] (a corridor, the
+    /// ground alone, a narrow view).
+    Degenerate,
+    /// Its fit to the local map is below [`SUSPECT_FITNESS_DROP`] times the previous accepted
+    /// frame's, even after a second global registration.
+    FitnessDrop,
+    /// Global registration drew its whole hypothesis budget without its stopping rule being met,
+    /// and the pose came from that estimate.
+    HypothesisCap,
+}
+
+impl Suspect {
+    /// The snake_case name used in JSON output.
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            Suspect::Degenerate => "degenerate",
+            Suspect::FitnessDrop => "fitness_drop",
+            Suspect::HypothesisCap => "hypothesis_cap",
+        }
+    }
+}
+
+/// A registration whose information's smallest over largest eigenvalue (translation or rotation
+/// block, [`degeneracy`]) is below this is [`Suspect::Degenerate`]: 0.01. Measured on the shared
+/// logs (docs/ODOMETRY.md "Covariance"): every registered frame was at 0.05 or above (ICL-NUIM's
+/// depth camera, the narrowest view, 0.05–0.07 in translation; KAIST03 0.32); a frame of one
+/// plane is at 0.
+pub const SUSPECT_DEGENERACY: f64 = 0.01;
+
+/// A map fitness below this fraction of the previous accepted frame's is
+/// [`Suspect::FitnessDrop`]: 0.7 (below the second opinion's trigger,
+/// [`super::MAP_FITNESS_DROP`], so that a frame the second opinion could not mend is flagged).
+pub const SUSPECT_FITNESS_DROP: f64 = 0.7;
+
+/// A suspect step's standard deviations are this many times what its registration measured:
+/// 10 (its information divided by 100).
+pub const SUSPECT_SIGMA_FACTOR: f64 = 10.0;
+
+/// Flags `est` (a registered frame) as suspect where a rule applies, the first that does, and
+/// weakens its information by [`SUSPECT_SIGMA_FACTOR`]. `last_map_fitness` is the previous
+/// accepted frame's fit to the map; `max_hypotheses` RANSAC's budget.
+pub fn judge(est: &mut FrameEstimate, last_map_fitness: Option<f64>, max_hypotheses: u64) {
+    if !est.success {
+        return;
+    }
+    let degenerate = est.information.is_some_and(|omega| {
+        let (t, r) = degeneracy(&omega);
+        t.min(r) < SUSPECT_DEGENERACY
+    });
+    let fitness_drop = match (est.map, last_map_fitness) {
+        (Some(fit), Some(last)) if fit.used => fit.fitness < SUSPECT_FITNESS_DROP * last,
+        _ => false,
+    };
+    let from_global = est.map.is_none_or(|m| {
+        matches!(
+            m.guess,
+            super::InitialGuess::Global | super::InitialGuess::SecondGlobal
+        )
+    });
+    let capped = from_global
+        && est
+            .pair
+            .as_ref()
+            .is_some_and(|p| !p.converged && p.hypotheses >= max_hypotheses);
+    est.suspect = if degenerate {
+        Some(Suspect::Degenerate)
+    } else if fitness_drop {
+        Some(Suspect::FitnessDrop)
+    } else if capped {
+        Some(Suspect::HypothesisCap)
+    } else {
+        None
+    };
+    if est.suspect.is_some()
+        && let Some(omega) = est.information.as_mut()
+    {
+        *omega /= SUSPECT_SIGMA_FACTOR * SUSPECT_SIGMA_FACTOR;
+    }
+}
