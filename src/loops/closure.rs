@@ -41,7 +41,7 @@ pub const ANNEALING_FACTOR: f64 = 10.0;
 /// calibrated (NEES ≈ 6), a right edge's Mahalanobis distance is χ(6)-distributed: 2.4 on
 /// average, above 3.5 for one edge in 20 and above 5 for one in 3 000. At 1 σ (the kernel's
 /// scale when loops had a fixed deviation of 3 odometry steps) most right edges of a calibrated
-/// graph ended with weights of 0.04–0.4 (`tests/injected_steps.rs`); at 5 σ none of its 118
+/// graph ended with weights of 0.04–0.4 (`tests/injected_steps.rs`); at 5 σ none of its 115
 /// true loops ends below 0.5 and its broken steps still below 0.01.
 pub const DEFAULT_LOOP_KERNEL_SCALE: f64 = 5.0;
 
