@@ -8,6 +8,12 @@
 //! - it has at least [`VerifyConfig::min_inliers`] RANSAC inliers;
 //! - its ICP fitness (the fraction of the query's ICP cloud within the ICP distance of the match
 //!   frame: their overlap) is at least [`VerifyConfig::min_fitness`];
+//! - the overlap holds both ways: the match frame's ICP cloud, moved by the inverse pose, lies on
+//!   the query's surfaces as well (fitness at least [`VerifyConfig::min_fitness`]);
+//! - its ICP pins every direction down: the registration's information
+//!   ([`crate::odometry::uncertainty`]) has a smallest over largest eigenvalue of at least
+//!   [`crate::odometry::suspect::SUSPECT_DEGENERACY`] in translation and rotation (a corridor or
+//!   a floor seen alone registers anywhere along it);
 //! - where the path between the two frames is short enough for the odometry to be trusted
 //!   (a drift allowance is given), the loop's relative pose agrees with the odometry's within
 //!   that allowance — translation within the allowance, rotation within
@@ -21,7 +27,10 @@
 use nalgebra::Isometry3;
 
 use crate::Result;
+use crate::odometry::suspect::SUSPECT_DEGENERACY;
+use crate::odometry::uncertainty::{degeneracy, registration_information};
 use crate::pipeline::{PairConfig, PairResult, PreparedFrame, register_prepared};
+use crate::refine::icp::evaluate_registration;
 
 /// The acceptance test of [`verify`].
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -103,6 +112,22 @@ pub fn verify(
             "fitness {:.3}, below {}",
             result.fitness, config.min_fitness
         )
+    } else if let Some(reverse) = reverse_fitness(query, matched, &estimate, pair)?
+        && (reverse.is_nan() || reverse < config.min_fitness)
+    {
+        format!(
+            "fitness the other way (match onto query) {reverse:.3}, below {}",
+            config.min_fitness
+        )
+    } else if let Some((t, r)) = result
+        .icp_hessian
+        .and_then(|h| registration_information(&h, &estimate))
+        .map(|omega| degeneracy(&omega))
+        && t.min(r) < SUSPECT_DEGENERACY
+    {
+        format!(
+            "its registration leaves a direction free (degeneracy {t:.4} in translation, {r:.4} in rotation, below {SUSPECT_DEGENERACY})"
+        )
     } else if let Some(allowance) = drift_allowance_m
         && disagreement_m > allowance
     {
@@ -126,4 +151,21 @@ pub fn verify(
         disagreement_m,
         disagreement_deg,
     })
+}
+
+/// The fitness of `matched`'s ICP cloud against `query`'s at `match_from_query⁻¹`, at the ICP
+/// distance: the overlap seen from the other side. `None` when either frame has no ICP cloud.
+fn reverse_fitness(
+    query: &PreparedFrame,
+    matched: &PreparedFrame,
+    match_from_query: &Isometry3<f64>,
+    pair: &PairConfig,
+) -> Result<Option<f64>> {
+    let (Some(q), Some(m)) = (&query.icp, &matched.icp) else {
+        return Ok(None);
+    };
+    let c = pair.resolved()?;
+    let distance = c.icp_max_distance_m.unwrap_or(c.voxel_size_m);
+    let e = evaluate_registration(m.points(), q, &match_from_query.inverse(), distance)?;
+    Ok(Some(e.fitness))
 }
