@@ -462,34 +462,24 @@ impl Odometry {
             // NOTE: where both global estimates fit the map doubtfully, the constant-velocity
             // prediction is tried too and wins if it fits better: after a frame whose own
             // features were poor (a floor alone), global registration against it went 3 m
-            // wrong at a map fitness of 0.32 while the prediction fitted at 0.95
+            // wrong at a map fitness of 0.32 while the prediction fitted at 0.997
             // (`tests/suspect_steps.rs`).
+            let mut tracked = false;
             if let Some((_, fit)) = &first
                 && last_map_fitness.is_some()
                 && self.doubtful(fit.fitness)
-                && let Some((pose, tracked)) =
+                && let Some((pose, refit)) =
                     self.refine_on_map(&frame, *target, None, &predicted)?
-                && tracked.used
-                && tracked.fitness > fit.fitness
+                && refit.used
+                && refit.fitness > fit.fitness
             {
-                pair.target_from_source = world_from_prev.inverse() * pose;
-                pair.fitness = tracked.fitness;
-                pair.inlier_rmse_m = tracked.inlier_rmse_m;
-                est.prev_from_curr = pair.target_from_source;
-                self.velocity = pair.target_from_source;
-                est.world_from_frame = pose;
-                est.information = uncertainty::registration_information(&tracked.hessian, &pose);
-                est.map = Some(tracked);
-                est.pair = Some(pair);
-                suspect::judge(&mut est, last_map_fitness, max_hypotheses);
-                self.last_map_fitness = Some(tracked.fitness);
-                self.set_previous(index, frame, pose);
-                self.map_pending = true;
-                return Ok(est);
+                first = Some((pose, refit));
+                tracked = true;
             }
             if let Some((pose, fit)) = first
                 && fit.used
-                && matches!(fit.guess, InitialGuess::Global | InitialGuess::SecondGlobal)
+                && (tracked
+                    || matches!(fit.guess, InitialGuess::Global | InitialGuess::SecondGlobal))
             {
                 pair.target_from_source = world_from_prev.inverse() * pose;
                 pair.fitness = fit.fitness;

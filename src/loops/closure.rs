@@ -216,12 +216,6 @@ impl Step {
     }
 }
 
-/// The information matrix of an edge with standard deviations `sigma_m` (translation, each
-/// axis) and `sigma_deg` (rotation), in the graph's (rotation, translation) order.
-fn information(sigma_m: f64, sigma_deg: f64) -> Matrix6<f64> {
-    diagonal_information(sigma_m, sigma_deg)
-}
-
 /// Whether every entry of `m` is finite.
 fn finite(m: &Matrix6<f64>) -> bool {
     m.iter().all(|v| v.is_finite())
@@ -258,7 +252,7 @@ pub fn pose_graph(
             )));
         }
     }
-    let odometry = information(config.odometry_sigma_m, config.odometry_sigma_deg);
+    let odometry = diagonal_information(config.odometry_sigma_m, config.odometry_sigma_deg);
     let failed = odometry / (FAILED_FRAME_SIGMA_FACTOR * FAILED_FRAME_SIGMA_FACTOR);
     let mut edges: Vec<Edge> = Vec::with_capacity(poses.len() + loops.len());
     for k in 1..poses.len() {
@@ -281,7 +275,7 @@ pub fn pose_graph(
             robust: true,
         });
     }
-    let loop_information = information(config.loop_sigma_m, config.loop_sigma_deg);
+    let loop_information = diagonal_information(config.loop_sigma_m, config.loop_sigma_deg);
     for l in loops {
         if l.query >= poses.len() || l.matched >= poses.len() || l.query == l.matched {
             return Err(Error::InvalidInput(format!(

@@ -264,13 +264,17 @@ pub(super) fn close_loops(
         .iter()
         .filter_map(|c| {
             let (v, _) = verified.get(&(c.query, c.matched))?;
-            v.accepted.then(|| LoopEdge {
-                query: c.query,
-                matched: c.matched,
-                match_from_query: v.match_from_query.expect("accepted loops have a pose"),
-                information: v.pair.icp_hessian.and_then(|h| {
-                    registration_information(&h, &v.match_from_query.expect("checked above"))
-                }),
+            v.accepted.then(|| {
+                let match_from_query = v.match_from_query.expect("accepted loops have a pose");
+                LoopEdge {
+                    query: c.query,
+                    matched: c.matched,
+                    match_from_query,
+                    information: v
+                        .pair
+                        .icp_hessian
+                        .and_then(|h| registration_information(&h, &match_from_query)),
+                }
             })
         })
         .collect();

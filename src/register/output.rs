@@ -64,7 +64,7 @@ fn frame_stats(out: &FrameOut, u: &PoseUncertainty) -> serde_json::Value {
     let t = p.map(|p| p.timings_s).unwrap_or_default();
     let num_corr = p.map_or(0, |p| p.num_correspondences);
     let num_inl = p.map_or(0, |p| p.num_inliers);
-    let mut stats = json!({
+    json!({
         "frame": e.index,
         "stamp_ns": out.cloud.header.stamp.to_ns(),
         "success": e.success,
@@ -98,6 +98,12 @@ fn frame_stats(out: &FrameOut, u: &PoseUncertainty) -> serde_json::Value {
         "map_coarse_icp_iterations": e.map.map(|m| m.coarse_iterations),
         "map_fine_icp_iterations": e.map.map(|m| m.fine_iterations),
         "map_points": e.map.map(|m| m.map_points),
+        "map_correspondences": e.map.map(|m| m.hessian.count),
+        "sigma_m": u.sigma_m,
+        "sigma_deg": u.sigma_deg,
+        "degeneracy_translation": u.degeneracy_translation,
+        "degeneracy_rotation": u.degeneracy_rotation,
+        "suspect": e.suspect.map(|s| s.as_str()),
         "timings_s": {
             "decode": out.cloud.decode_s,
             "downsample": out.prep.downsample,
@@ -111,23 +117,7 @@ fn frame_stats(out: &FrameOut, u: &PoseUncertainty) -> serde_json::Value {
             "map_icp": e.map.map_or(0.0, |m| m.icp_s),
             "register": out.register_s,
         }
-    });
-    // The step's predicted uncertainty (serde_json's macro nests too deep to take these above).
-    let object = stats.as_object_mut().expect("an object");
-    for (key, value) in [
-        ("sigma_m", u.sigma_m),
-        ("sigma_deg", u.sigma_deg),
-        ("degeneracy_translation", u.degeneracy_translation),
-        ("degeneracy_rotation", u.degeneracy_rotation),
-    ] {
-        object.insert(key.to_string(), json!(value));
-    }
-    object.insert("suspect".to_string(), json!(e.suspect.map(|s| s.as_str())));
-    object.insert(
-        "map_correspondences".to_string(),
-        json!(e.map.map(|m| m.hessian.count)),
-    );
-    stats
+    })
 }
 
 /// The topics of this run: a log registered before keeps its mireg topics and this run's go to

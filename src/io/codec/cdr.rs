@@ -70,6 +70,28 @@ float64 w 1
     };
 }
 
+/// The `geometry_msgs/Pose`, `geometry_msgs/Point` and `geometry_msgs/Quaternion` dependency
+/// sections, in that order.
+macro_rules! pose_sections {
+    () => {
+        concat!(
+            "
+================================================================================
+MSG: geometry_msgs/Pose
+Point position
+Quaternion orientation
+
+================================================================================
+MSG: geometry_msgs/Point
+float64 x
+float64 y
+float64 z
+",
+            quaternion_section!()
+        )
+    };
+}
+
 /// Complete `ros2msg` definition of `sensor_msgs/msg/PointCloud2` (ROS 2 `common_interfaces`,
 /// comments stripped), with its dependencies `sensor_msgs/PointField`, `std_msgs/Header` and
 /// `builtin_interfaces/Time` in the order rosbag2 writes them (each message's dependencies sorted
@@ -112,19 +134,8 @@ pub const POSE_STAMPED_SCHEMA: &str = concat!(
     "\
 std_msgs/Header header
 Pose pose
-
-================================================================================
-MSG: geometry_msgs/Pose
-Point position
-Quaternion orientation
-
-================================================================================
-MSG: geometry_msgs/Point
-float64 x
-float64 y
-float64 z
 ",
-    quaternion_section!(),
+    pose_sections!(),
     "",
     header_and_time_sections!()
 );
@@ -142,19 +153,8 @@ PoseWithCovariance pose
 MSG: geometry_msgs/PoseWithCovariance
 Pose pose
 float64[36] covariance
-
-================================================================================
-MSG: geometry_msgs/Pose
-Point position
-Quaternion orientation
-
-================================================================================
-MSG: geometry_msgs/Point
-float64 x
-float64 y
-float64 z
 ",
-    quaternion_section!(),
+    pose_sections!(),
     "",
     header_and_time_sections!()
 );

@@ -109,16 +109,12 @@ uint32 count
 "
 );
 
-/// Complete `ros1msg` definition of `geometry_msgs/PoseStamped` with `std_msgs/Header`,
-/// `geometry_msgs/Pose`, `geometry_msgs/Point` and `geometry_msgs/Quaternion`, in the order
-/// `gendeps --cat` writes them.
-pub const POSE_STAMPED_SCHEMA: &str = concat!(
-    "\
-Header header
-geometry_msgs/Pose pose
-",
-    ros1_header_section!(),
-    "
+/// The `geometry_msgs/Pose`, `geometry_msgs/Point` and `geometry_msgs/Quaternion` sections, in
+/// the order `gendeps --cat` writes them.
+macro_rules! ros1_pose_sections {
+    () => {
+        concat!(
+            "
 ================================================================================
 MSG: geometry_msgs/Pose
 Point position
@@ -130,7 +126,21 @@ float64 x
 float64 y
 float64 z
 ",
-    ros1_quaternion_section!()
+            ros1_quaternion_section!()
+        )
+    };
+}
+
+/// Complete `ros1msg` definition of `geometry_msgs/PoseStamped` with `std_msgs/Header`,
+/// `geometry_msgs/Pose`, `geometry_msgs/Point` and `geometry_msgs/Quaternion`, in the order
+/// `gendeps --cat` writes them.
+pub const POSE_STAMPED_SCHEMA: &str = concat!(
+    "\
+Header header
+geometry_msgs/Pose pose
+",
+    ros1_header_section!(),
+    ros1_pose_sections!()
 );
 
 /// Complete `ros1msg` definition of `geometry_msgs/PoseWithCovarianceStamped` with
@@ -147,19 +157,8 @@ geometry_msgs/PoseWithCovariance pose
 MSG: geometry_msgs/PoseWithCovariance
 geometry_msgs/Pose pose
 float64[36] covariance
-
-================================================================================
-MSG: geometry_msgs/Pose
-Point position
-Quaternion orientation
-
-================================================================================
-MSG: geometry_msgs/Point
-float64 x
-float64 y
-float64 z
 ",
-    ros1_quaternion_section!()
+    ros1_pose_sections!()
 );
 
 /// Complete `ros1msg` definition of `tf2_msgs/TFMessage` with
