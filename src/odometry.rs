@@ -251,6 +251,11 @@ pub struct FrameEstimate {
     pub information: Option<Matrix6<f64>>,
     /// Why a registered frame is doubtful ([`suspect::judge`]), if it is.
     pub suspect: Option<suspect::Suspect>,
+    /// When the frame joins the local map, the map keeps only what lies within this distance of
+    /// its pose \[m\] (its farthest ICP point's range); `None` without a map or when the frame
+    /// does not join it. Loop closure reads from these which places a later frame registered
+    /// against ([`crate::loops::held_by_map`]).
+    pub map_range_m: Option<f64>,
 }
 
 /// The running state of consecutive-frame registration.
@@ -366,6 +371,7 @@ impl Odometry {
             map: None,
             information: None,
             suspect: None,
+            map_range_m: None,
         };
         let last_map_fitness = self.last_map_fitness;
         let max_hypotheses = self.config.pair.max_hypotheses;
@@ -373,6 +379,7 @@ impl Odometry {
         let Some((_, world_from_prev)) = &self.previous else {
             // The first frame defines the world.
             if usable {
+                est.map_range_m = self.map_range(&frame);
                 self.set_previous(index, frame, Isometry3::identity());
                 self.map_pending = true;
             } else {
@@ -443,18 +450,31 @@ impl Odometry {
         let (prev, _) = self.previous.as_ref().expect("checked above");
         // With a map, the RANSAC model is refined against it directly; only where that does not
         // fit is it refined frame to frame, as without a map.
-        if let Some(target) = &target
-            && pair.failure.is_none()
-            && pair.num_inliers >= self.config.min_inliers
-        {
-            let global = world_from_prev * pair.target_from_source;
-            let mut first = self.refine_on_map(&frame, *target, Some(&global), &predicted)?;
-            if let Some((_, fit)) = &first
-                && fit.guess == InitialGuess::Global
-                && self.doubtful(fit.fitness)
+        if let Some(target) = &target {
+            let found = pair.failure.is_none() && pair.num_inliers >= self.config.min_inliers;
+            let mut first = None;
+            if found {
+                let global = world_from_prev * pair.target_from_source;
+                first = self.refine_on_map(&frame, *target, Some(&global), &predicted)?;
+            }
+            // NOTE: the second opinion also answers a global registration that found no model,
+            // or stopped at its hypothesis budget unconverged: one RANSAC stream either
+            // failing (its frame then tracked from the prediction) or not decided whether a
+            // log registered right hinged on the seed (issue: a real Livox log's hard frame
+            // slid 1.4 m for some seeds, registered for others).
+            let capped = pair.hypotheses >= max_hypotheses && !pair.converged;
+            let retry = match &first {
+                None => !found,
+                Some((_, fit)) => {
+                    fit.guess == InitialGuess::Global && (capped || self.doubtful(fit.fitness))
+                }
+            };
+            if retry
                 && let Some((second, pose, fit2)) =
                     self.second_opinion(&frame, prev, *target, &world_from_prev)?
-                && fit2.fitness > fit.fitness
+                && first
+                    .as_ref()
+                    .is_none_or(|(_, fit)| fit2.fitness > fit.fitness)
             {
                 pair = second;
                 first = Some((pose, fit2));
@@ -492,6 +512,7 @@ impl Odometry {
                 est.pair = Some(pair);
                 suspect::judge(&mut est, last_map_fitness, max_hypotheses);
                 self.last_map_fitness = Some(fit.fitness);
+                est.map_range_m = self.map_range(&frame);
                 self.set_previous(index, frame, pose);
                 self.map_pending = true;
                 return Ok(est);
@@ -544,8 +565,16 @@ impl Odometry {
         }
         suspect::judge(&mut est, last_map_fitness, max_hypotheses);
         self.map_pending = est.success || est.map.is_some_and(|m| m.used);
+        if self.map_pending {
+            est.map_range_m = self.map_range(&frame);
+        }
         self.set_previous(index, frame, est.world_from_frame);
         Ok(est)
+    }
+
+    /// [`FrameEstimate::map_range_m`] of `frame`, which joins the map.
+    fn map_range(&self, frame: &PreparedFrame) -> Option<f64> {
+        self.map.as_ref().and_then(|_| map_input::map_range(frame))
     }
 
     /// Whether a global start's fit to the map is doubtful: below [`DOUBTFUL_MAP_FITNESS`], or

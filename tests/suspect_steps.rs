@@ -66,3 +66,73 @@ fn floor_only_frames_are_flagged_and_uncertain_along_the_floor() {
         }
     }
 }
+
+/// A frame whose first RANSAC stream finds no model gets a second one before it falls back on
+/// the prediction. With a budget of 60 hypotheses a stream fails now and then on these frames
+/// (the last jumps back 0.9 m and 16° against the constant-velocity prediction, as after a
+/// dropped stretch of a log); measured before the rule, with one stream, 5 of the 60 frames of
+/// seeds 0–11 failed (tracked from the prediction, right but reported failed). With the second
+/// stream fewer must fail, the second stream must have registered some, and every pose must be
+/// within 2 cm of the truth.
+#[test]
+fn a_frame_whose_first_ransac_fails_gets_a_second_stream() {
+    const HYPOTHESES: u64 = 60;
+    const ONE_STREAM_FAILURES: usize = 5;
+    let mut wrong = Vec::new();
+    let mut failed = Vec::new();
+    let mut second_streams = 0;
+    for seed in 0..12u64 {
+        let mut config = OdometryConfig::default();
+        config.pair.seed = seed;
+        config.pair.max_hypotheses = HYPOTHESES;
+        let mut odometry = StreamOdometry::new(config, true, false);
+        let mut first = None;
+        let track = [
+            (0.0, 0.0),
+            (0.08, 1.0),
+            (0.16, 2.0),
+            (0.24, 3.0),
+            (0.32, 4.0),
+            (-0.5, -10.0),
+        ];
+        for (k, &(x, yaw_deg)) in track.iter().enumerate() {
+            let world_from_frame = Isometry3::from_parts(
+                Translation3::new(0.5 + x, 0.6, 1.0),
+                UnitQuaternion::from_axis_angle(&Vector3::z_axis(), f64::to_radians(yaw_deg)),
+            );
+            let points: Vec<_> = room_scene::scene(8000, k as u64)
+                .into_iter()
+                .map(|p| world_from_frame.inverse() * p)
+                .collect();
+            let est = odometry
+                .push(points, None, (k as i64) * 100_000_000)
+                .unwrap();
+            let truth = first.get_or_insert(world_from_frame).inverse() * world_from_frame;
+            let error = (truth.inverse() * est.world_from_frame)
+                .translation
+                .vector
+                .norm();
+            if est
+                .map
+                .is_some_and(|m| m.guess == mireg::odometry::InitialGuess::SecondGlobal)
+            {
+                second_streams += 1;
+            }
+            if !est.success {
+                failed.push((seed, k));
+            }
+            if error > 0.02 {
+                wrong.push((seed, k, error));
+            }
+        }
+    }
+    assert!(wrong.is_empty(), "(seed, frame, error m): {wrong:?}");
+    assert!(
+        second_streams > 0,
+        "no frame was registered by a second stream"
+    );
+    assert!(
+        failed.len() < ONE_STREAM_FAILURES,
+        "failed (seed, frame): {failed:?}"
+    );
+}

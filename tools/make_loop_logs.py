@@ -47,6 +47,8 @@ Usage:
         --gap-len 2 --out /tmp/loop_kaist03_gap.mcap
     tools/.venv-mcap/bin/python tools/make_loop_logs.py --source kaist03 --kind out-and-back \\
         --repeat 10 --out /tmp/loop_kaist03_x10.mcap
+    tools/.venv-mcap/bin/python tools/make_loop_logs.py --source kaist03 --kind out-and-back \\
+        --cone 70 --out /tmp/loop_kaist03_cone70.mcap   # a Livox-like 70 deg field of view
     tools/.venv-mcap/bin/python tools/make_loop_logs.py --all --out-dir /tmp   # the set above + micro211 gap/x10
 """
 
@@ -55,6 +57,7 @@ import json
 import math
 import os
 import statistics
+import struct
 import sys
 
 from mcap.reader import make_reader
@@ -122,22 +125,44 @@ class Kaist03:
     def __init__(self, args):
         self.data = args.data or kaist.DEFAULT_DATA
         self.ouster_time = args.ouster_time
+        self.cone = (args.cone, args.cone_azimuth) if args.cone else None
         poses = kaist.read_kitti_poses(os.path.join(self.data, "poses_kitti.txt"))
         self.poses = dict(enumerate(poses))
         self.frames = kaist.parse_frames(args.frames, len(poses))
         times = kaist.read_times(self.data)
         self.period_ns = round(statistics.median(b - a for a, b in zip(times, times[1:])) * NS_PER_S)
         self.describe = f"KAIST03 keyframes {args.frames or 'all'} ({len(self.frames)})"
+        if self.cone:
+            self.describe += f", cut to a {args.cone:g} deg cone about azimuth {args.cone_azimuth:g} deg"
         self._cache = {}
 
     def cloud(self, k, t_ns):
         if k not in self._cache:
-            self._cache[k] = kaist.read_pcd_xyzi(kaist.scan_path(self.data, k))
+            n, data = kaist.read_pcd_xyzi(kaist.scan_path(self.data, k))
+            if self.cone:
+                n, data = cut_to_cone(n, data, *self.cone)
+            self._cache[k] = (n, data)
         n, data = self._cache[k]
         return kaist.cloud_message(t_ns, n, data, self.ouster_time)
 
     def pose(self, k):
         return self.poses[k]
+
+
+def cut_to_cone(n, data, width_deg, azimuth_deg):
+    """The points (x, y, z, intensity float32, 16 bytes each) whose azimuth atan2(y, x) lies within
+    width/2 of `azimuth_deg`: a narrow field of view like a Livox Avia's (70 deg), from a spinning
+    LiDAR's scan. KAIST03's keyframes have no points near +x (the vehicle), so 180 deg is the
+    default."""
+    half = math.radians(width_deg) / 2
+    centre = math.radians(azimuth_deg)
+    kept = bytearray()
+    for (x, y, _z, _i), raw in zip(struct.iter_unpack("<4f", data), (data[i:i + 16] for i in range(0, 16 * n, 16))):
+        d = math.atan2(y, x) - centre
+        d = (d + math.pi) % (2 * math.pi) - math.pi
+        if abs(d) <= half:
+            kept += raw
+    return len(kept) // 16, bytes(kept)
 
 
 SOURCES = {"micro211": Micro211, "kaist03": Kaist03}
@@ -246,6 +271,7 @@ ALL = [
     ("loop_kaist03", "kaist03", "out-and-back", {}),
     ("loop_kaist03_gap", "kaist03", "gap", {}),
     ("loop_kaist03_x10", "kaist03", "out-and-back", {"repeat": 10}),
+    ("loop_kaist03_cone70", "kaist03", "out-and-back", {"cone": 70.0}),
 ]
 
 
@@ -269,6 +295,8 @@ def main(argv):
     ap.add_argument("--last", type=int, default=210, help="micro211: last frame, inclusive (default 210)")
     # KAIST03 options, as tools/make_kaist03_mcap.py names them
     ap.add_argument("--frames", default="", help="kaist03: scans to use, e.g. 0-3,8-10 (default: all 21)")
+    ap.add_argument("--cone", type=float, help="kaist03: keep only a cone this wide [deg] (e.g. 70, Livox-like)")
+    ap.add_argument("--cone-azimuth", type=float, default=180.0, help="kaist03: the cone's centre azimuth [deg] (default 180)")
     ap.add_argument("--ouster-time", action="store_true", help="kaist03: add the inferred per-point time t")
     args = ap.parse_args(argv)
     if args.repeat < 1 or args.frame_stride < 1 or args.pixel_stride < 1:

@@ -273,11 +273,12 @@ fn print_summary(s: &RegisterSummary) {
     );
     if let Some(l) = &s.loops {
         println!(
-            "loops: {} keyframes, {} candidates tried ({} more skipped as redundant), {} accepted ({} down-weighted by the pose graph), {:.2} s; optimised poses on {}",
+            "loops: {} keyframes, {} candidates tried ({} more skipped as redundant), {} accepted ({} already measured by the odometry's map, {} down-weighted by the pose graph), {:.2} s; optimised poses on {}",
             l.keyframes,
             l.candidates,
             l.redundant,
             l.accepted,
+            l.held_by_map,
             l.down_weighted,
             l.elapsed_s,
             s.pose_optimized_topic.as_deref().unwrap_or("-")

@@ -36,7 +36,10 @@ pub mod scan_context;
 pub mod verify;
 
 pub use candidates::{Candidate, CandidateConfig, Keyframe, Source, find_candidates};
-pub use closure::{LoopConfig, LoopEdge, Step, optimize_trajectory, pose_graph};
+pub use closure::{
+    LOOP_INFORMATION_SCALE, LoopConfig, LoopEdge, Step, edge_prior, held_by_map, map_agreement,
+    optimize_trajectory, pose_graph,
+};
 pub use descriptor::Descriptor;
 pub use keyframes::{KeyframeConfig, KeyframeSelector, select_keyframes};
 pub use scan_context::ScanContext;

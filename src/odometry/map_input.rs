@@ -45,6 +45,12 @@ fn kept_normals(icp: &IcpTarget) -> impl FnOnce(&[u32]) -> Vec<Vector3<f64>> + S
     |at: &[u32]| icp.normals_at(at).unwrap_or_default()
 }
 
+/// How far from its pose a frame keeps the local map when it joins it \[m\]: its farthest ICP
+/// point's range (voxels beyond are dropped); `None` if it cannot join.
+pub(super) fn map_range(frame: &PreparedFrame) -> Option<f64> {
+    map_input(frame).map(|(_, range)| range)
+}
+
 /// A frame's ICP cloud, if it can join the map (it has normals, given or deferred), and its
 /// farthest point's range \[m\].
 fn map_input(frame: &PreparedFrame) -> Option<(&IcpTarget, f64)> {

@@ -18,7 +18,7 @@ use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::ops::ControlFlow;
 use std::time::Instant;
 
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Matrix6};
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -26,10 +26,11 @@ use crate::Result;
 use crate::evaluate::path_distances;
 use crate::geometry::deskew::deskew;
 use crate::loops::{
-    Candidate, Descriptor, Keyframe, KeyframeSelector, LoopConfig, LoopEdge, Source, Step,
-    Verification, find_candidates, optimize_trajectory, select_keyframes, verify,
+    Candidate, Descriptor, Keyframe, KeyframeSelector, LOOP_INFORMATION_SCALE, LoopConfig,
+    LoopEdge, Source, Step, Verification, edge_prior, find_candidates, map_agreement,
+    optimize_trajectory, select_keyframes, verify,
 };
-use crate::odometry::uncertainty::registration_information;
+use crate::odometry::uncertainty::{PoseUncertainty, registration_information};
 use crate::pipeline::{PairConfig, PreparedFrame, prepare_frame, refine};
 
 use super::RegisterOptions;
@@ -58,6 +59,12 @@ pub(super) struct LoopRecord {
     pub(super) icp_iterations: usize,
     pub(super) odometry_disagreement_m: f64,
     pub(super) odometry_disagreement_deg: f64,
+    /// An accepted loop's predicted deviations along its least certain translation \[m\] and
+    /// rotation \[deg\] directions, and its covariance in ROS order (x, y, z, rotation about x, y,
+    /// z; row-major, m² … rad²): the loop edge's information in the graph, inverted.
+    pub(super) sigma_m: Option<f64>,
+    pub(super) sigma_deg: Option<f64>,
+    pub(super) covariance: Option<Vec<f64>>,
     /// Robust weight of the loop edge at the optimum (0 for a rejected candidate).
     pub(super) weight: f64,
     pub(super) verify_s: f64,
@@ -75,8 +82,11 @@ pub struct LoopSummary {
     /// Candidates not tried because an accepted loop already joins the same two places
     /// ([`LoopConfig::redundant_path_m`]).
     pub redundant: usize,
-    /// Loops accepted (edges of the pose graph).
+    /// Loops accepted (edges of the pose graph, or held by the map).
     pub accepted: usize,
+    /// Accepted loops left out of the graph: the odometry had registered their query against
+    /// the match's place and agrees with them ([`LoopConfig::map_agreement_chi2`]).
+    pub held_by_map: usize,
     /// Accepted loops whose robust weight at the optimum is below ½ (the graph down-weighted
     /// them as inconsistent with the rest).
     pub down_weighted: usize,
@@ -270,13 +280,25 @@ pub(super) fn close_loops(
                     query: c.query,
                     matched: c.matched,
                     match_from_query,
-                    information: v
-                        .pair
-                        .icp_hessian
-                        .and_then(|h| registration_information(&h, &match_from_query)),
+                    information: loop_information(v),
                 }
             })
         })
+        .collect();
+    // Loops that repeat what the odometry measured against its map stay out of the graph.
+    let ranges: Vec<Option<f64>> = estimates.iter().map(|e| e.map_range_m).collect();
+    let mut held: HashMap<(usize, usize), f64> = HashMap::new();
+    let loops: Vec<LoopEdge> = loops
+        .into_iter()
+        .filter(
+            |l| match map_agreement(&poses, &steps, &ranges, l, config) {
+                Some(d2) if d2 <= config.map_agreement_chi2 => {
+                    held.insert((l.query, l.matched), d2);
+                    false
+                }
+                _ => true,
+            },
+        )
         .collect();
     let (optimized, solution) = optimize_trajectory(&poses, &steps, &loops, config)?;
     // The loop edges come after the odometry's in the graph, in the order of `loops`.
@@ -300,6 +322,8 @@ pub(super) fn close_loops(
                 &travelled,
                 verified.get(&(c.query, c.matched)),
                 &weights,
+                held.get(&(c.query, c.matched)).copied(),
+                &edge_prior(config),
             )
         })
         .collect();
@@ -309,7 +333,8 @@ pub(super) fn close_loops(
         kept_bytes,
         candidates: candidates.len(),
         redundant: skipped.len(),
-        accepted: loops.len(),
+        accepted: loops.len() + held.len(),
+        held_by_map: held.len(),
         down_weighted: weights.values().filter(|w| **w < 0.5).count(),
         passes,
         graph_iterations: solution.as_ref().map_or(0, |s| s.iterations),
@@ -322,6 +347,17 @@ pub(super) fn close_loops(
     })
 }
 
+/// The calibrated information of an accepted loop's registration (right perturbation of
+/// `match_from_query`, [`LOOP_INFORMATION_SCALE`] times the odometry's calibration), as its
+/// graph edge carries it.
+fn loop_information(v: &Verification) -> Option<Matrix6<f64>> {
+    let match_from_query = v.match_from_query?;
+    v.pair
+        .icp_hessian
+        .and_then(|h| registration_information(&h, &match_from_query))
+        .map(|omega| omega * LOOP_INFORMATION_SCALE)
+}
+
 /// The `/mireg/loops` record of candidate `c`.
 fn record(
     c: &Candidate,
@@ -329,7 +365,13 @@ fn record(
     travelled: &[f64],
     verified: Option<&(Verification, f64)>,
     weights: &HashMap<(usize, usize), f64>,
+    held_d2: Option<f64>,
+    prior: &Matrix6<f64>,
 ) -> LoopRecord {
+    let uncertainty = verified
+        .filter(|(v, _)| v.accepted)
+        .and_then(|(v, _)| loop_information(v))
+        .map(|omega| PoseUncertainty::new(Some(&omega), prior));
     let pose_json = |t: &Isometry3<f64>| {
         let q = t.rotation.coords;
         serde_json::json!({
@@ -338,7 +380,15 @@ fn record(
         })
     };
     let (verdict, reason) = match verified {
-        Some((v, _)) if v.accepted => ("accepted", String::new()),
+        Some((v, _)) if v.accepted => (
+            "accepted",
+            held_d2.map_or_else(String::new, |d2| {
+                format!(
+                    "left out of the graph: the odometry registered the query against the match's \
+                     place and agrees (squared Mahalanobis distance {d2:.2})"
+                )
+            }),
+        ),
         Some((v, _)) => ("rejected", v.reason.clone()),
         None => (
             "rejected",
@@ -369,7 +419,15 @@ fn record(
         icp_iterations: verified.map_or(0, |(v, _)| v.pair.icp_iterations),
         odometry_disagreement_m: verified.map_or(f64::NAN, |(v, _)| v.disagreement_m),
         odometry_disagreement_deg: verified.map_or(f64::NAN, |(v, _)| v.disagreement_deg),
-        weight: weights.get(&(c.query, c.matched)).copied().unwrap_or(0.0),
+        sigma_m: uncertainty.as_ref().map(|u| u.sigma_m),
+        sigma_deg: uncertainty.as_ref().map(|u| u.sigma_deg),
+        covariance: uncertainty.as_ref().map(|u| u.ros_covariance().to_vec()),
+        // A loop left out of the graph has no weight: null.
+        weight: if held_d2.is_some() {
+            f64::NAN
+        } else {
+            weights.get(&(c.query, c.matched)).copied().unwrap_or(0.0)
+        },
         verify_s: verified.map_or(0.0, |(_, s)| *s),
         timings_s: verified.map(|(v, _)| v.pair.timings_s),
     }

@@ -91,6 +91,8 @@ pub(super) struct Estimate {
     pub(super) descriptor: Option<Descriptor>,
     /// The step's calibrated information ([`crate::odometry::FrameEstimate::information`]).
     pub(super) information: Option<nalgebra::Matrix6<f64>>,
+    /// [`crate::odometry::FrameEstimate::map_range_m`].
+    pub(super) map_range_m: Option<f64>,
 }
 
 impl Estimate {

@@ -467,7 +467,14 @@ pub fn loops_json_schema() -> serde_json::Value {
             "inliers": int, "correspondences": int, "fitness": num, "inlier_rmse_m": num,
             "icp_iterations": int,
             "odometry_disagreement_m": nullable_num, "odometry_disagreement_deg": nullable_num,
-            "weight": num, "verify_s": num,
+            "sigma_m": {"description": "An accepted loop's predicted deviation along its least certain translation direction [m]; null otherwise", "type": ["number", "null"]},
+            "sigma_deg": {"description": "... and rotation direction [deg]", "type": ["number", "null"]},
+            "covariance": {
+                "description": "An accepted loop's covariance, ROS order (x, y, z, rotation about x, y, z), row-major; null otherwise",
+                "type": ["array", "null"], "items": num, "minItems": 36, "maxItems": 36
+            },
+            "weight": {"description": "The loop edge's robust weight at the optimum; 0 for a rejected candidate, null for an accepted loop left out of the graph (the odometry's map had measured it)", "type": ["number", "null"]},
+            "verify_s": num,
             "timings_s": {"type": ["object", "null"], "additionalProperties": num}
         },
         "required": ["query_frame", "match_frame", "query_stamp_ns", "match_stamp_ns", "found_by",

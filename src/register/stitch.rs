@@ -486,6 +486,8 @@ fn close_stitched(
                 descriptor: None,
                 // The segments' steps join the graph with the configured deviations.
                 information: None,
+                // Nor is it known what each segment's map held: every loop is new evidence.
+                map_range_m: None,
             }
         })
         .collect();

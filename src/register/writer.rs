@@ -79,6 +79,7 @@ impl<'a> Writer<'a> {
             deskew_motion,
             descriptor: out.cloud.descriptor,
             information: out.est.information,
+            map_range_m: out.est.map_range_m,
         });
         if let Some(bar) = &self.progress {
             bar.inc(1);
