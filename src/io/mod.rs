@@ -9,6 +9,7 @@ pub mod bag;
 pub mod cloud_file;
 pub mod codec;
 pub mod damage;
+pub mod input_file;
 pub mod input_log;
 pub mod log_order;
 pub mod mcap;
@@ -44,12 +45,14 @@ pub(crate) fn format_err(path: &Path, detail: impl Into<String>) -> Error {
     }
 }
 
-/// Reads a whole text file, naming it in the error.
+/// Reads a whole trajectory or pose file (a regular file of at most
+/// [`input_file::MAX_TRAJECTORY_BYTES`]), naming it in the error.
 pub(crate) fn read_text(path: &Path) -> Result<String> {
-    std::fs::read_to_string(path).map_err(|source| Error::Io {
-        path: path.to_path_buf(),
-        source,
-    })
+    input_file::read_limited_text(
+        path,
+        input_file::MAX_TRAJECTORY_BYTES,
+        "a trajectory or pose file",
+    )
 }
 
 /// What kind of file `meta` describes, for messages: "a directory", "a FIFO", ….

@@ -560,4 +560,5 @@ fn interrupted_register_leaves_nothing_behind() {
 
 mod later_findings;
 mod non_finite_times;
+mod special_files;
 mod wal_bags;

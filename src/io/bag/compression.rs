@@ -80,7 +80,7 @@ pub fn decompress_file(src: &Path, dir: &Path) -> Result<PathBuf> {
         .unwrap_or_default();
     let inner = name.strip_suffix(".zstd").unwrap_or(&name);
     let dst = dir.join(if inner.is_empty() { "file" } else { inner });
-    let input = File::open(src).map_err(|e| io_err(src, e))?;
+    let (input, _) = crate::io::input_file::open_regular(src)?;
     let mut decoder = zstd::stream::read::Decoder::new(BufReader::with_capacity(1 << 16, input))
         .map_err(|e| io_err(src, e))?;
     let out = File::create(&dst).map_err(|e| io_err(&dst, e))?;

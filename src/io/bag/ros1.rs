@@ -161,8 +161,8 @@ impl Bag {
     /// [`Bag::open`] with damage treated by `policy`: with [`ReadPolicy::strict`], a truncated
     /// file or an index beyond the end is an error too.
     pub fn open_with(path: &Path, policy: ReadPolicy) -> Result<Self> {
-        let file = File::open(path).map_err(|e| io_err(path, e))?;
-        let size = file.metadata().map_err(|e| io_err(path, e))?.len();
+        let (file, meta) = crate::io::input_file::open_regular(path)?;
+        let size = meta.len();
         let mut r = BufReader::with_capacity(1 << 16, file);
         let mut magic = [0u8; 13];
         let got = read_up_to(&mut r, &mut magic).map_err(|e| io_err(path, e))?;
@@ -613,7 +613,7 @@ impl Bag {
         &self,
         mut f: impl FnMut(u32, u64, &[u8]) -> Result<ControlFlow<()>>,
     ) -> Result<()> {
-        let file = File::open(&self.path).map_err(|e| io_err(&self.path, e))?;
+        let (file, _) = crate::io::input_file::open_regular(&self.path)?;
         let mut r = BufReader::with_capacity(1 << 20, file);
         r.seek(SeekFrom::Start(self.data_start))
             .map_err(|e| io_err(&self.path, e))?;

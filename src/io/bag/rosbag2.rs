@@ -160,7 +160,11 @@ impl Rosbag2 {
     /// or compression, or names a file that is missing; naming a compressed file that is corrupt.
     pub fn open(dir: &Path) -> Result<Self> {
         let meta_path = dir.join("metadata.yaml");
-        let text = crate::io::read_text(&meta_path)?;
+        let text = crate::io::input_file::read_limited_text(
+            &meta_path,
+            crate::io::input_file::MAX_METADATA_BYTES,
+            "a rosbag2 metadata.yaml",
+        )?;
         let meta = parse_metadata(&text);
         let compression = Compression::from_metadata(
             &meta_path,
