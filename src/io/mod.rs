@@ -29,6 +29,38 @@ use crate::{Error, Result};
 /// message a chunked log may carry.
 pub const MAX_CHUNK_BYTES: u64 = 1 << 30;
 
+/// Largest ratio of decompressed to compressed bytes accepted above [`EXPANSION_FLOOR_BYTES`]:
+/// 1000. Point clouds and logs compress 2–20× (a cloud all NaN or zeros, a few hundred times);
+/// a decompression bomb (zeros compressed by zstd or bz2) 10⁴–10⁶×. Every decompression of an
+/// input — an MCAP or ROS 1 bag chunk, a rosbag2 message or file — stops at
+/// [`expansion_limit`] of its compressed size, before the excess is held or written.
+pub const MAX_EXPANSION_RATIO: u64 = 1000;
+
+/// Decompressed bytes always accepted whatever the ratio \[bytes\]: 64 MiB (a chunk or message
+/// of a normal log is smaller).
+pub const EXPANSION_FLOOR_BYTES: u64 = 64 << 20;
+
+/// The most bytes `compressed` compressed bytes may decompress to:
+/// max([`MAX_EXPANSION_RATIO`] × `compressed`, [`EXPANSION_FLOOR_BYTES`]).
+pub fn expansion_limit(compressed: u64) -> u64 {
+    compressed
+        .saturating_mul(MAX_EXPANSION_RATIO)
+        .max(EXPANSION_FLOOR_BYTES)
+}
+
+/// "claims N uncompressed bytes from M compressed …" when a compressed block of `compressed`
+/// bytes claims more than [`expansion_limit`] of them; `Ok` otherwise.
+pub(crate) fn check_expansion(compressed: u64, claimed: u64) -> std::result::Result<(), String> {
+    if claimed > expansion_limit(compressed) {
+        return Err(format!(
+            "claims {claimed} uncompressed bytes from {compressed} compressed, more than \
+             {MAX_EXPANSION_RATIO} times as many (and than {EXPANSION_FLOOR_BYTES}): a \
+             decompression bomb or a corrupt header"
+        ));
+    }
+    Ok(())
+}
+
 /// Builds an [`Error::Io`] for `path`.
 pub(crate) fn io_err(path: &Path, source: std::io::Error) -> Error {
     Error::Io {

@@ -558,6 +558,7 @@ fn interrupted_register_leaves_nothing_behind() {
     }
 }
 
+mod decompression_bombs;
 mod far_points;
 mod later_findings;
 mod non_finite_times;

@@ -568,6 +568,10 @@ impl Bag {
             .field("compression")
             .map(|v| String::from_utf8_lossy(v).into_owned())
             .unwrap_or_default();
+        if compression != "none" {
+            crate::io::check_expansion(rec.data.len() as u64, size)
+                .map_err(|e| self.err(rec.offset, format!("chunk {e}")))?;
+        }
         out.clear();
         let result = match compression.as_str() {
             "none" if rec.data.len() as u64 == size => return Ok(&rec.data),
@@ -718,7 +722,8 @@ struct Cut {
 fn partial_chunk(rec: &RawRecord) -> Vec<u8> {
     let size = u32_field(rec, "size")
         .map_or(0, u64::from)
-        .min(MAX_CHUNK_BYTES);
+        .min(MAX_CHUNK_BYTES)
+        .min(crate::io::expansion_limit(rec.data.len() as u64));
     let mut out = Vec::new();
     match rec.field("compression") {
         Some(b"none") => read_prefix(&rec.data[..], size, &mut out),

@@ -32,6 +32,7 @@ use mcap::records::{Channel, MessageHeader, Record};
 use rusqlite::{Connection as Db, OpenFlags};
 
 use super::compression::{Compression, MessageDecompressor, decompress_file};
+use super::temp::TempFiles;
 use crate::io::codec::cdr;
 use crate::io::mcap::log::InputCatalog;
 use crate::io::mcap::read::for_each_record_until;
@@ -61,13 +62,15 @@ pub struct Rosbag2 {
     /// How the bag is compressed. With [`Compression::File`], `files` are the decompressed
     /// copies in `decompressed`.
     pub compression: Compression,
-    /// The temporary directory of a file-compressed bag's decompressed files (shared by clones).
-    decompressed: Option<Arc<tempfile::TempDir>>,
+    /// The decompressed files of a file-compressed bag (shared by clones; [`TempFiles`]).
+    decompressed: Option<Arc<TempFiles>>,
+    /// The user's files, parallel to `files` (which may be decompressed copies), named in errors.
+    names: Vec<PathBuf>,
     /// SQLite storage: how each of `files` is opened ([`SqliteFile`]); empty for MCAP storage.
     sqlite: Vec<SqliteFile>,
-    /// The temporary directory of the private copies of `.db3` files with a write-ahead log or
-    /// hot journal (shared by clones).
-    private_copies: Option<Arc<tempfile::TempDir>>,
+    /// The private copies of `.db3` files with a write-ahead log or hot journal (shared by
+    /// clones).
+    private_copies: Option<Arc<TempFiles>>,
 }
 
 /// How one `.db3` file of a bag is opened without altering it (see the module doc).
@@ -221,6 +224,7 @@ impl Rosbag2 {
             channel_maps: Vec::new(),
             compression,
             decompressed: None,
+            names: Vec::new(),
             sqlite: Vec::new(),
             private_copies: None,
         };
@@ -236,14 +240,12 @@ impl Rosbag2 {
 
     /// Replaces `files` by their decompressed copies in a new temporary directory.
     fn decompress_files(&mut self) -> Result<()> {
-        let temp = tempfile::Builder::new()
-            .prefix(".mireg-bag-")
-            .tempdir()
-            .map_err(|e| crate::io::io_err(&std::env::temp_dir(), e))?;
+        let mut temp = TempFiles::default();
+        self.names.clone_from(&self.files);
         for f in &mut self.files {
-            *f = decompress_file(f, temp.path())?;
+            *f = decompress_file(f, &mut temp)?;
         }
-        self.decompressed = Some(std::sync::Arc::new(temp));
+        self.decompressed = Some(Arc::new(temp));
         Ok(())
     }
 
@@ -262,6 +264,7 @@ impl Rosbag2 {
             channel_maps: Vec::new(),
             compression: Compression::File,
             decompressed: None,
+            names: Vec::new(),
             sqlite: Vec::new(),
             private_copies: None,
         };
@@ -293,6 +296,7 @@ impl Rosbag2 {
             channel_maps: Vec::new(),
             compression: Compression::None,
             decompressed: None,
+            names: Vec::new(),
             sqlite: Vec::new(),
             private_copies: None,
         };
@@ -336,13 +340,15 @@ impl Rosbag2 {
                 continue;
             }
             if self.private_copies.is_none() {
-                let temp = tempfile::Builder::new()
-                    .prefix(".mireg-bag-")
-                    .tempdir()
-                    .map_err(|e| crate::io::io_err(&std::env::temp_dir(), e))?;
+                let mut temp = TempFiles::default();
+                temp.dir()?;
                 self.private_copies = Some(Arc::new(temp));
             }
-            let dir = self.private_copies.as_ref().expect("made above").path();
+            let dir = self
+                .private_copies
+                .as_ref()
+                .and_then(|t| t.path())
+                .expect("made above");
             let copy = dir.join(format!("{i}.db3"));
             copy_file(file, &copy, name)?;
             for (suffix, companion) in &companions {
@@ -368,6 +374,28 @@ impl Rosbag2 {
         self.size
     }
 
+    /// `e`, an error about file `i`, naming the user's file where it names a decompressed copy.
+    fn as_input(&self, e: Error, i: usize) -> Error {
+        let (Some(copy), Some(name)) = (self.files.get(i), self.names.get(i)) else {
+            return e;
+        };
+        let rename = |path: PathBuf| if &path == copy { name.clone() } else { path };
+        match e {
+            Error::Format { path, detail } => Error::Format {
+                path: rename(path),
+                detail: format!("{detail} (in its decompressed copy)"),
+            },
+            Error::Io { path, source } => Error::Io {
+                path: rename(path),
+                source,
+            },
+            Error::InvalidInput(m) => {
+                Error::InvalidInput(m.replace(&*copy.to_string_lossy(), &name.to_string_lossy()))
+            }
+            e => e,
+        }
+    }
+
     /// The merged catalogue of every file (see the module doc); also fixes how each file's ids
     /// map to its channels.
     pub fn catalog(&mut self) -> Result<InputCatalog> {
@@ -375,7 +403,7 @@ impl Rosbag2 {
         self.channel_maps.clear();
         for (i, f) in self.files.iter().enumerate() {
             let map = match self.storage {
-                Storage::Mcap => m.add_mcap(f)?,
+                Storage::Mcap => m.add_mcap(f).map_err(|e| self.as_input(e, i))?,
                 Storage::Sqlite3 => m.add_sqlite(&self.sqlite[i])?,
             };
             self.channel_maps.push(map);
@@ -403,7 +431,9 @@ impl Rosbag2 {
                 Compression::None | Compression::File => f(h, data),
             };
             let flow = match self.storage {
-                Storage::Mcap => mcap_messages(file, map, &mut f)?,
+                Storage::Mcap => {
+                    mcap_messages(file, map, &mut f).map_err(|e| self.as_input(e, i))?
+                }
                 Storage::Sqlite3 => sqlite_messages(&self.sqlite[i], map, &mut f)?,
             };
             if flow.is_break() {

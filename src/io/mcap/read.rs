@@ -191,6 +191,10 @@ impl<'a> Source<'a> {
                 header.uncompressed_size
             )));
         }
+        if !header.compression.is_empty() {
+            crate::io::check_expansion(header.compressed_size, header.uncompressed_size)
+                .map_err(|e| bad(&e))?;
+        }
         Ok((head, header))
     }
 }
