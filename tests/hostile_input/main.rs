@@ -563,4 +563,5 @@ mod far_points;
 mod later_findings;
 mod non_finite_times;
 mod special_files;
+mod temp_files;
 mod wal_bags;
