@@ -563,5 +563,6 @@ mod far_points;
 mod later_findings;
 mod non_finite_times;
 mod special_files;
+mod stitch_checks;
 mod temp_files;
 mod wal_bags;
