@@ -226,8 +226,10 @@ impl Bag {
                 bag.connections.clear();
                 bag.message_counts.clear();
                 bag.scan_catalog(&mut r, pos)?;
-                bag.damage
-                    .cut(cut.offset, format!("the index {}", cut.reason));
+                bag.damage.cut(
+                    cut.offset,
+                    format!("the index is cut short: {}", cut.reason),
+                );
             }
         }
         Ok(bag)

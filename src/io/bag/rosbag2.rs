@@ -175,9 +175,26 @@ impl Rosbag2 {
             &meta.compression_format,
         )?;
         if meta.relative_file_paths.is_empty() {
+            let detail = if text.contains("rosbag2_bagfile_information") {
+                "lists no files (relative_file_paths is missing or empty)"
+            } else {
+                "is not a rosbag2 metadata.yaml (no rosbag2_bagfile_information; unreadable or \
+                 not YAML?); `ros2 bag reindex` rebuilds it from the bag's files"
+            };
+            return Err(format_err(&meta_path, detail));
+        }
+        let mut seen = std::collections::BTreeSet::new();
+        if let Some(twice) = meta
+            .relative_file_paths
+            .iter()
+            .find(|f| !seen.insert(f.as_str()))
+        {
             return Err(format_err(
                 &meta_path,
-                "lists no files (relative_file_paths is missing or empty)",
+                format!(
+                    "relative_file_paths lists {twice} twice: every message would be read twice; \
+                     list each file once"
+                ),
             ));
         }
         let files: Vec<PathBuf> = meta
