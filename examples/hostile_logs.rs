@@ -154,7 +154,7 @@ fn main() {
     .expect("write");
     std::fs::write(
         file_mode.join("b.mcap.zstd"),
-        zstd_zeros(&mcap::MAGIC, 3 << 30),
+        zstd_zeros(mcap::MAGIC, 3 << 30),
     )
     .expect("write");
     let message_mode = dir.join("bomb_message_mode");

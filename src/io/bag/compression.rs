@@ -93,7 +93,7 @@ pub fn decompress_file(src: &Path, temp: &mut TempFiles) -> Result<PathBuf> {
     let got =
         super::ros1::read_up_to(&mut decoder, &mut head).map_err(|e| zstd_err(src, "stream", e))?;
     let head = &head[..got];
-    if !(head.starts_with(&mcap::MAGIC) || head == crate::io::input_log::SQLITE_MAGIC) {
+    if !(head.starts_with(mcap::MAGIC) || head == crate::io::input_log::SQLITE_MAGIC) {
         return Err(format_err(
             src,
             format!(
@@ -170,6 +170,8 @@ fn free_bytes(dir: &Path) -> Option<u64> {
         }
         // SAFETY: statvfs succeeded, so it filled `st`.
         let st = unsafe { st.assume_init() };
+        // fsblkcnt_t and c_ulong are u64 here, u32 on 32-bit targets.
+        #[allow(clippy::useless_conversion)]
         Some(u64::from(st.f_bavail).saturating_mul(u64::from(st.f_frsize)))
     }
     #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
