@@ -2,9 +2,10 @@
 //!
 //! - `file`: every storage file is one zstd stream (`x.mcap.zstd`, `x.db3.zstd`). It is
 //!   decompressed once, streaming (memory bounded by zstd's window, at most 128 MiB by the format
-//!   and a few MiB as rosbag2 writes it), into a temporary directory
-//!   (`$TMPDIR`, removed when the bag is dropped), because SQLite and the MCAP summary need a
-//!   seekable file. The user's files are only read.
+//!   and a few MiB as rosbag2 writes it), into a temporary file in `$TMPDIR`
+//!   ([`super::temp`]: unnamed for MCAP, freed on any exit), because SQLite and the MCAP summary
+//!   need a seekable file; its size is bounded ([`decompress_file`]). The user's files are only
+//!   read.
 //! - `message`: every message's bytes are one zstd frame, decompressed as the message is read
 //!   into one reused buffer.
 //!
@@ -126,7 +127,8 @@ pub fn decompress_file(src: &Path, temp: &mut TempFiles) -> Result<PathBuf> {
     if (got as u64) > limit {
         return Err(too_big());
     }
-    let (out, dst) = temp.create(if inner.is_empty() { "file" } else { inner })?;
+    let unnamed = head.starts_with(mcap::MAGIC);
+    let (out, dst) = temp.create(if inner.is_empty() { "file" } else { inner }, unnamed)?;
     let write_err = |e: std::io::Error| {
         format_err(
             src,

@@ -2,11 +2,12 @@
 //! copies of a `.db3` with its write-ahead log.
 //!
 //! Nothing named is left behind, whatever ends the process:
-//! - a decompressed copy is an unnamed file (Linux `O_TMPFILE`) in `$TMPDIR`, read through its
-//!   `/proc/self/fd/N` link: the kernel frees it when the process ends, Ctrl-C, SIGTERM and
-//!   SIGKILL included. Where the file system cannot make unnamed files, and for the private
-//!   copies of a `.db3` (SQLite looks for `NAME-wal` beside `NAME`), the files go into a
-//!   directory `$TMPDIR/.mireg-bag-PID-XXXXXX`, removed when the bag is dropped;
+//! - a decompressed MCAP file is an unnamed file (Linux `O_TMPFILE`) in `$TMPDIR`, read through
+//!   its `/proc/self/fd/N` link: the kernel frees it when the process ends, Ctrl-C, SIGTERM and
+//!   SIGKILL included. Where the file system cannot make unnamed files, and for SQLite files
+//!   (a decompressed `.db3`, the private copies of a `.db3` with its `-wal`: SQLite opens files
+//!   by name), the files go into a directory `$TMPDIR/.mireg-bag-PID-XXXXXX`, removed when the
+//!   bag is dropped;
 //! - such a directory left by a process that was killed (no `/proc/PID`) is removed by the
 //!   next run that opens a bag ([`remove_stale`]).
 
@@ -29,13 +30,14 @@ pub struct TempFiles {
 }
 
 impl TempFiles {
-    /// A new file for writing: unnamed where the file system allows it, else `name` in our
-    /// directory (made on first need, after the stale ones of dead processes are removed).
-    /// Returns the file and the path it is read through.
-    pub fn create(&mut self, name: &str) -> Result<(File, PathBuf)> {
+    /// A new file for writing: with `may_be_unnamed`, unnamed where the file system allows it,
+    /// else `name` in our directory (made on first need, after the stale ones of dead processes
+    /// are removed). Returns the file and the path it is read through. (SQLite resolves the
+    /// `/proc/self/fd/N` link to a name that no longer exists: its files must be named.)
+    pub fn create(&mut self, name: &str, may_be_unnamed: bool) -> Result<(File, PathBuf)> {
         let tmp = std::env::temp_dir();
         remove_stale(&tmp);
-        if let Some(file) = unnamed(&tmp) {
+        if let Some(file) = unnamed(&tmp).filter(|_| may_be_unnamed) {
             // The link names the descriptor held here, which outlives the caller's.
             let held = file.try_clone().map_err(|e| io_err(&tmp, e))?;
             let path = fd_path(&held);
