@@ -50,6 +50,10 @@ use crate::{Error, Result};
 pub const QUEUE_CAPACITY: usize = 2;
 /// Default of [`RegisterOptions::reorder_window`]: 16 clouds.
 pub const REORDER_WINDOW: usize = 16;
+/// Most bytes of cloud messages the reorder window holds \[bytes\]: 128 MiB (16 clouds of a
+/// 64-beam LiDAR; 10 of an Ouster OS1-128). Past it the earliest cloud is handed on as if the
+/// window were full, so that clouds of hostile size (a decompression bomb) cannot pile up.
+pub const REORDER_WINDOW_BYTES: usize = 128 << 20;
 
 /// Topic of the reference poses used for the summary, when the log has one.
 pub const DEFAULT_REFERENCE_TOPIC: &str = "/ground_truth/pose";

@@ -88,6 +88,16 @@ pub struct RegistrationFlags {
     pub seed: Option<u64>,
 }
 
+/// The text of the `--config` file: a regular file of at most
+/// [`crate::io::input_file::MAX_CONFIG_BYTES`].
+fn read_config(path: &std::path::Path) -> Result<String> {
+    Ok(crate::io::input_file::read_limited_text(
+        path,
+        crate::io::input_file::MAX_CONFIG_BYTES,
+        "a configuration file",
+    )?)
+}
+
 impl RegistrationFlags {
     /// Whether the voxel was given, by `--voxel` or as `voxel_size_m` in the `--config` file.
     pub fn voxel_configured(&self) -> Result<bool> {
@@ -97,8 +107,7 @@ impl RegistrationFlags {
         let Some(path) = &self.config else {
             return Ok(false);
         };
-        let text =
-            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let text = read_config(path)?;
         let table: toml::Table = toml::from_str(&text)
             .with_context(|| format!("{}: invalid configuration", path.display()))?;
         Ok(table.contains_key("voxel_size_m"))
@@ -108,8 +117,7 @@ impl RegistrationFlags {
     pub fn config(&self) -> Result<PairConfig> {
         let mut c = match &self.config {
             Some(path) => {
-                let text = std::fs::read_to_string(path)
-                    .with_context(|| format!("reading {}", path.display()))?;
+                let text = read_config(path)?;
                 toml::from_str::<PairConfig>(&text)
                     .with_context(|| format!("{}: invalid configuration", path.display()))?
             }

@@ -72,6 +72,16 @@ pub(super) fn run_map(args: &MapArgs) -> Result<()> {
         topic: args.topic.clone(),
     };
     let (map, summary) = build_map(&args.input, &opts)?;
+    if map.is_empty() && summary.clouds_used > 0 && summary.points_out_of_range > 0 {
+        bail!(
+            "{}: every point of the {} clouds with a pose ({} points) is out of the map's voxel \
+             grid at voxel {} m: choose a larger --voxel",
+            args.input.display(),
+            summary.clouds_used,
+            summary.points_out_of_range,
+            summary.voxel_m
+        );
+    }
     if map.is_empty() {
         bail!(
             "{}: no cloud on {} has a pose on {} ({} clouds without one): the map would be empty",

@@ -90,8 +90,7 @@ fn load_gt(args: &PairArgs, path: &Path) -> Result<Isometry3<f64>> {
             frame(t)?.inverse() * frame(s)?
         }
         GtFormat::Bunny => {
-            let text = std::fs::read_to_string(path)
-                .with_context(|| format!("reading {}", path.display()))?;
+            let text = crate::io::read_text(path)?;
             let name = |p: &Path| {
                 p.file_name()
                     .map(|n| n.to_string_lossy().into_owned())

@@ -112,7 +112,7 @@ fn pairs_from_file(
         Ok(clouds.len() - 1)
     };
     let mut pairs = Vec::new();
-    let text = std::fs::read_to_string(gt).map_err(|e| anyhow::anyhow!("{}: {e}", gt.display()))?;
+    let text = crate::io::read_text(gt)?;
     if text.lines().any(|l| l.starts_with("bmesh")) {
         let scans = pose_file::parse_bunny_conf(&text, gt)?;
         for (a, sa) in scans.iter().enumerate() {

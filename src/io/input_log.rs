@@ -99,11 +99,22 @@ impl InputLog {
             return Self::open_with(dir.unwrap_or(Path::new(".")), policy);
         }
         if meta.is_dir() {
-            if !path.join("metadata.yaml").is_file() {
-                return Err(Error::InvalidInput(format!(
-                    "{}: is a directory without a metadata.yaml, so not a ROS 2 bag; {ACCEPTED}",
-                    path.display()
-                )));
+            let meta_path = path.join("metadata.yaml");
+            match std::fs::metadata(&meta_path) {
+                Ok(m) if m.is_file() => {}
+                Ok(m) => {
+                    return Err(Error::InvalidInput(format!(
+                        "{}: is {}, not the regular file a ROS 2 bag describes itself in",
+                        meta_path.display(),
+                        super::file_kind(&m)
+                    )));
+                }
+                Err(_) => {
+                    return Err(Error::InvalidInput(format!(
+                        "{}: is a directory without a metadata.yaml, so not a ROS 2 bag; {ACCEPTED}",
+                        path.display()
+                    )));
+                }
             }
             let mut bag = Rosbag2::open(path)?;
             if let (Storage::Mcap, Compression::None, [file]) =
@@ -269,7 +280,7 @@ fn starts_with(path: &Path, prefix: &[u8]) -> Result<bool> {
         path: path.to_path_buf(),
         source,
     };
-    let mut f = std::fs::File::open(path).map_err(io)?;
+    let (mut f, _) = crate::io::input_file::open_regular(path)?;
     let mut b = vec![0u8; prefix.len()];
     let got = ros1::read_up_to(&mut f, &mut b).map_err(io)?;
     Ok(got == b.len() && b == prefix)

@@ -76,15 +76,19 @@ fn read_chunk_indexes(path: &Path) -> Result<Option<Vec<ChunkIndex>>> {
 }
 
 /// Items keyed by log time, handed on in (log time, arrival) order once no earlier item can
-/// arrive: when more than `window` are pending (the earliest goes), or when the chunk index
-/// proves it ([`Reorder::observe`]).
+/// arrive: when more than `window` are pending or they hold more than the byte limit (the
+/// earliest goes), or when the chunk index proves it ([`Reorder::observe`]).
 #[derive(Debug)]
 pub struct Reorder<T> {
     window: usize,
+    /// Bytes the pending items may hold ([`Reorder::with_byte_limit`]); `usize::MAX` by default.
+    max_bytes: usize,
+    /// Bytes the pending items hold, as given to [`Reorder::push_sized`].
+    bytes: usize,
     chunks: Option<ChunkTimes>,
     /// Every message still to be read has a log time ≥ this, by the chunk index.
     bound: Option<u64>,
-    pending: BTreeMap<(u64, u64), T>,
+    pending: BTreeMap<(u64, u64), (T, usize)>,
     arrivals: u64,
     /// Log time of the last item handed on.
     handed: Option<u64>,
@@ -96,12 +100,21 @@ impl<T> Reorder<T> {
     pub fn new(window: usize, chunks: Option<ChunkTimes>) -> Self {
         Self {
             window,
+            max_bytes: usize::MAX,
+            bytes: 0,
             chunks,
             bound: None,
             pending: BTreeMap::new(),
             arrivals: 0,
             handed: None,
         }
+    }
+
+    /// The same, holding at most `max_bytes` \[bytes\] of pending items (counted as given to
+    /// [`Reorder::push_sized`]): past it the earliest goes, as past the window.
+    pub fn with_byte_limit(mut self, max_bytes: usize) -> Self {
+        self.max_bytes = max_bytes;
+        self
     }
 
     /// The log time of the last item handed on, when it is later than `log_time`: an item read
@@ -130,8 +143,15 @@ impl<T> Reorder<T> {
 
     /// Adds an item read at `log_time`, [observing](Reorder::observe) its message.
     pub fn push(&mut self, log_time: u64, item: T) {
+        self.push_sized(log_time, 0, item);
+    }
+
+    /// [`Reorder::push`] of an item holding `bytes` \[bytes\].
+    pub fn push_sized(&mut self, log_time: u64, bytes: usize, item: T) {
         self.observe(log_time);
-        self.pending.insert((log_time, self.arrivals), item);
+        self.pending
+            .insert((log_time, self.arrivals), (item, bytes));
+        self.bytes = self.bytes.saturating_add(bytes);
         self.arrivals += 1;
     }
 
@@ -140,9 +160,12 @@ impl<T> Reorder<T> {
     pub fn pop_ready(&mut self) -> Option<T> {
         let &(log_time, _) = self.pending.keys().next()?;
         let proven = self.bound.is_some_and(|bound| log_time <= bound);
-        if proven || self.pending.len() > self.window {
+        if proven || self.pending.len() > self.window || self.bytes > self.max_bytes {
             self.handed = Some(log_time);
-            self.pending.pop_first().map(|(_, item)| item)
+            self.pending.pop_first().map(|(_, (item, bytes))| {
+                self.bytes -= bytes;
+                item
+            })
         } else {
             None
         }
@@ -160,7 +183,7 @@ impl<T> Reorder<T> {
 
     /// Everything still pending, in order (at the end of the file).
     pub fn into_remaining(self) -> impl Iterator<Item = T> {
-        self.pending.into_values()
+        self.pending.into_values().map(|(item, _)| item)
     }
 }
 
@@ -182,6 +205,17 @@ mod tests {
         }
         out.extend(r.into_remaining());
         (out, most)
+    }
+
+    #[test]
+    fn the_byte_limit_hands_the_earliest_on_before_the_window_fills() {
+        let mut r = Reorder::new(16, None).with_byte_limit(100);
+        r.push_sized(30, 60, 30);
+        assert_eq!(r.pop_ready(), None);
+        r.push_sized(20, 60, 20);
+        assert_eq!(r.pop_ready(), Some(20), "120 bytes held, over 100");
+        assert_eq!(r.pop_ready(), None);
+        assert_eq!(r.too_late(10), Some(20));
     }
 
     #[test]

@@ -80,6 +80,16 @@ impl CloudKind {
         self.decode_reusing(payload, Vec::new())
     }
 
+    /// The header and the points (`height · width`) a PointCloud2 message declares, read before
+    /// decoding it; `None` for other messages or when too short to say.
+    pub(super) fn declared_points(self, payload: &[u8]) -> Option<(codec::Header, u64)> {
+        match self {
+            CloudKind::Ros2 => cdr::point_cloud2_declared_points(payload),
+            CloudKind::Ros1 => ros1::point_cloud2_declared_points(payload),
+            _ => None,
+        }
+    }
+
     /// [`Self::decode`] writing the points into `points` (cleared first: the previous cloud's
     /// buffer, reused).
     pub(super) fn decode_reusing(

@@ -59,6 +59,9 @@ pub(super) struct PreparedMsg {
 #[derive(Debug, Clone, Copy, Default)]
 pub(super) struct Dropped {
     pub(super) non_finite: usize,
+    /// Points dropped because a coordinate's magnitude was at least
+    /// [`crate::io::codec::MAX_COORDINATE_M`].
+    pub(super) far: usize,
     pub(super) zero: usize,
     /// Livox points dropped by their tag.
     pub(super) tag: usize,

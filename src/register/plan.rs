@@ -74,7 +74,20 @@ impl Plan {
         } else {
             None
         };
-        let resolved = resolve_config(&opts.config, first.as_deref(), opts.derive_voxel)?;
+        let resolved = resolve_config(
+            &opts.config,
+            first.as_ref().map(|(_, points)| points.as_slice()),
+            opts.derive_voxel,
+        )
+        .map_err(|e| match &first {
+            // What the first cloud could not be sized for (a voxel too small for its extent):
+            // name the cloud.
+            Some((log_time, _)) => crate::Error::InvalidInput(format!(
+                "{}: first cloud on {topic} at log time {log_time} ns: sizing the voxels: {e}",
+                input.display()
+            )),
+            None => e,
+        })?;
         drop(first);
         let voxel_source = if resolved.voxel_derived {
             "first_cloud"
@@ -127,12 +140,12 @@ impl Plan {
 }
 
 /// The first cloud on the channels `ids` that decodes to at least 3 finite, non-zero points (one that
-/// [`voxel_for_cloud`] can size); `None` when none does.
+/// [`voxel_for_cloud`] can size), with its log time \[ns\]; `None` when none does.
 fn first_usable_cloud(
     input: &InputLog,
     ids: &[u16],
     kind: CloudKind,
-) -> Result<Option<Vec<nalgebra::Point3<f64>>>> {
+) -> Result<Option<(u64, Vec<nalgebra::Point3<f64>>)>> {
     use std::ops::ControlFlow::{Break, Continue};
     let mut first = None;
     input.for_each_message_until(|header, data| {
@@ -140,7 +153,7 @@ fn first_usable_cloud(
             && let Ok(cloud) = kind.decode(data)
             && voxel_for_cloud(&cloud.points).is_some()
         {
-            first = Some(cloud.points);
+            first = Some((header.log_time, cloud.points));
         }
         Ok(if first.is_some() {
             Break(())

@@ -9,6 +9,7 @@ use std::time::Instant;
 use nalgebra::{Isometry3, Point3};
 
 use crate::io::codec;
+use crate::io::codec::MAX_COORDINATE_M;
 use crate::io::point_time::POINT_TIME_BOUND_S;
 use crate::loops::Descriptor;
 use crate::odometry::stream::{self, deskew_cloud, deskew_for};
@@ -32,7 +33,8 @@ pub(super) struct Prepare<'a> {
     pub(super) descriptors: bool,
 }
 
-/// The clouds whose per-point times were unusable, for the run's warnings ([`Self::warn`]).
+/// The clouds whose per-point times were unusable, or that had points beyond
+/// [`MAX_COORDINATE_M`], for the run's warnings ([`Self::warn`]).
 #[derive(Debug, Default)]
 pub(super) struct TimeTally {
     /// The time field of the first such cloud.
@@ -45,6 +47,11 @@ pub(super) struct TimeTally {
     /// than [`POINT_TIME_BOUND_S`] from the stamp, and the first one's log time \[ns\].
     undeskewed_clouds: usize,
     first_undeskewed: Option<u64>,
+    /// Points dropped beyond [`MAX_COORDINATE_M`], the clouds they were in, the first one's log
+    /// time \[ns\].
+    far_points: usize,
+    far_clouds: usize,
+    first_far: Option<u64>,
 }
 
 impl TimeTally {
@@ -64,6 +71,15 @@ impl TimeTally {
                  (field {field}) is not finite or more than {POINT_TIME_BOUND_S} s from their \
                  cloud's median point time (the first such cloud at log time {t} ns)",
                 self.dropped_points, self.dropped_clouds
+            );
+        }
+        if let Some(t) = self.first_far {
+            eprintln!(
+                "mireg: warning: {input}: {} points of {} clouds on {topic} dropped: a coordinate \
+                 is {MAX_COORDINATE_M} m or more from the sensor (a glitch, or a wrong \
+                 is_bigendian or point_step; the first such cloud at log time {t} ns; counted \
+                 per frame as num_dropped_far in /mireg/stats)",
+                self.far_points, self.far_clouds
             );
         }
         if let Some(t) = self.first_undeskewed {
@@ -127,17 +143,38 @@ impl Prepare<'_> {
     ) -> Result<PreparedMsg> {
         let (kind, config, topic) = (self.plan.kind, &self.plan.config, self.plan.topic.as_str());
         let t = Instant::now();
-        let decoded = kind.decode_reusing(&msg.data, std::mem::take(&mut carry.spare_points));
+        let max_points = self.max_points;
+        // A PointCloud2 declaring more points than --max-points is flagged without being
+        // decoded: a cloud of hostile size (a decompression bomb of zeros) is never held twice.
+        let declared = kind
+            .declared_points(&msg.data)
+            .filter(|&(_, n)| n > max_points as u64);
+        let decoded = match declared {
+            Some((header, n)) => Err((header, n)),
+            None => Ok(kind.decode_reusing(&msg.data, std::mem::take(&mut carry.spare_points))),
+        };
         let (mut time_field, mut deskewed, mut fatal) = (None, None, None);
-        let dropped = decoded.as_ref().map_or(Dropped::default(), |c| Dropped {
-            non_finite: c.num_dropped_non_finite,
-            zero: c.num_dropped_zero,
-            tag: c.num_dropped_tag,
-            time: c.num_dropped_time,
-        });
+        let dropped =
+            decoded
+                .as_ref()
+                .ok()
+                .and_then(|d| d.as_ref().ok())
+                .map_or(Dropped::default(), |c| Dropped {
+                    non_finite: c.num_dropped_non_finite,
+                    far: c.num_dropped_far,
+                    zero: c.num_dropped_zero,
+                    tag: c.num_dropped_tag,
+                    time: c.num_dropped_time,
+                });
+        if dropped.far > 0 {
+            let tally = &mut carry.times;
+            tally.far_points += dropped.far;
+            tally.far_clouds += 1;
+            tally.first_far.get_or_insert(msg.log_time);
+        }
         if dropped.time > 0 {
             let tally = &mut carry.times;
-            if let Ok(c) = &decoded
+            if let Ok(Ok(c)) = &decoded
                 && let Some(times) = &c.times
             {
                 tally.field(&times.field);
@@ -151,9 +188,14 @@ impl Prepare<'_> {
         let decode_s = t.elapsed().as_secs_f64();
         // A cloud that cannot be decoded, is too large, or that the pipeline cannot take (e.g. a
         // glitch at 1e38 m) is one bad frame: flag it, keep going.
-        let max_points = self.max_points;
         let (header, prepared) = match decoded {
-            Err(e) => {
+            Err((header, n)) => {
+                let detail = format!(
+                    "declares {n} points, more than the bound of {max_points} (--max-points)"
+                );
+                (header, Err((FailureReason::TooManyPoints, detail)))
+            }
+            Ok(Err(e)) => {
                 let detail = decode_detail(topic, msg.log_time, &e);
                 let header = codec::Header {
                     stamp: stamp_of_log_time(msg.log_time),
@@ -161,14 +203,14 @@ impl Prepare<'_> {
                 };
                 (header, Err((FailureReason::InvalidCloud, detail)))
             }
-            Ok(cloud) if cloud.points.len() > max_points => {
+            Ok(Ok(cloud)) if cloud.points.len() > max_points => {
                 let detail = format!(
                     "{} points, more than the bound of {max_points} (--max-points)",
                     cloud.points.len()
                 );
                 (cloud.header, Err((FailureReason::TooManyPoints, detail)))
             }
-            Ok(mut cloud) => {
+            Ok(Ok(mut cloud)) => {
                 if let Some(times) = &cloud.times {
                     time_field = Some(times.field.clone());
                     if self.deskew_mode != DeskewMode::Off

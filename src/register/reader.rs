@@ -70,7 +70,8 @@ pub(super) fn read(
     // Clouds are handed on in log-time order: at once where the chunk index proves nothing
     // earlier follows, else after a window of REORDER_WINDOW clouds.
     let reorder_window = opts.reorder_window;
-    let mut pending = Reorder::new(reorder_window, plan.chunk_times.clone());
+    let mut pending = Reorder::new(reorder_window, plan.chunk_times.clone())
+        .with_byte_limit(super::REORDER_WINDOW_BYTES);
     let mut buffers = Buffers {
         recycled,
         allocated: 0,
@@ -91,14 +92,16 @@ pub(super) fn read(
                     return Err(Error::Format {
                         path: input.to_path_buf(),
                         detail: format!(
-                            "cloud on {topic} at log time {} ns comes after the cloud at log time {handed} ns was registered: the log is out of log-time order by more than the reorder window of {reorder_window} clouds; rerun with a larger --reorder-window (each holds one cloud in memory)",
-                            header.log_time
+                            "cloud on {topic} at log time {} ns comes after the cloud at log time {handed} ns was registered: the log is out of log-time order by more than the reorder window of {reorder_window} clouds (and at most {} MiB); rerun with a larger --reorder-window (each holds one cloud in memory)",
+                            header.log_time,
+                            super::REORDER_WINDOW_BYTES >> 20
                         ),
                     });
                 }
                 let data = buffers.copy(data, pending.len());
-                pending.push(
+                pending.push_sized(
                     header.log_time,
+                    data.len(),
                     CloudMsg {
                         log_time: header.log_time,
                         publish_time: header.publish_time,

@@ -142,6 +142,12 @@ fn read_segment(path: &Path) -> Result<Segment> {
             if header.channel_id == pose_id {
                 let (h, p) =
                     decode(&data).map_err(|e| format_err(path, format!("{}: {e}", at())))?;
+                if !p.to_homogeneous().iter().all(|v| v.is_finite()) {
+                    return Err(format_err(
+                        path,
+                        format!("{}: a pose on {pose_topic} is not finite", at()),
+                    ));
+                }
                 world_frame = h.frame_id;
                 poses.insert(header.log_time, (h.stamp.to_ns(), header.publish_time, p));
             } else if Some(header.channel_id) == stats_id {
@@ -212,10 +218,34 @@ pub fn stitch(
             output.display()
         )));
     }
-    let segs = segments
+    let mut segs = segments
         .iter()
         .map(|p| read_segment(p))
         .collect::<Result<Vec<_>>>()?;
+    // In log order whatever order they were given in (stable: equal starts keep theirs).
+    segs.sort_by_key(|s| s.frames[0].stamp_ns);
+    let (input_log, catalog) = InputLog::open(log)?;
+    let channels = catalog.channel_infos();
+    let seg_topic = segs[0].meta.get("topic").cloned();
+    for seg in &segs {
+        if seg.meta.get("topic") != seg_topic.as_ref() {
+            return Err(Error::InvalidInput(format!(
+                "{} registered {}, {} {}: segments of one stitch register one topic",
+                segs[0].path.display(),
+                seg_topic.as_deref().unwrap_or("no recorded topic"),
+                seg.path.display(),
+                seg.meta
+                    .get("topic")
+                    .map_or("no recorded topic", |t| t.as_str()),
+            )));
+        }
+    }
+    let (topic, _) = choose_topic(log, &channels, seg_topic.as_deref()).map_err(|e| {
+        Error::InvalidInput(format!(
+            "{e} (the topic {} registered; was it registered from another log?)",
+            segs[0].path.display()
+        ))
+    })?;
     let mut stitched: Vec<(usize, SegFrame)> =
         segs[0].frames.iter().cloned().map(|f| (0, f)).collect();
     let mut seams = Vec::new();
@@ -269,9 +299,6 @@ pub fn stitch(
         );
     }
 
-    let (input_log, catalog) = InputLog::open(log)?;
-    let channels = catalog.channel_infos();
-    let (topic, _) = choose_topic(log, &channels, None)?;
     let topics = Topics::for_input(&channels);
     let profile = match segs[0].kind {
         CloudKind::Ros1 => "ros1",
@@ -280,7 +307,31 @@ pub fn stitch(
     let mut out = OutputLog::create(output, force, profile)?;
     out.declare_input(log, &catalog)?;
     let ch = Outputs::create(&mut out, segs[0].kind, &topics, loops, None)?;
-    let copied = input_log.pass_through(&mut out, &Default::default(), None, |_, _, _| Ok(()))?;
+    // Every stitched frame must be a cloud of the log: segments of another log are refused
+    // (the output, not finished, is never committed).
+    let cloud_ids: std::collections::BTreeSet<u16> = channels
+        .iter()
+        .filter(|c| c.topic == topic)
+        .map(|c| c.id)
+        .collect();
+    let mut cloud_times = std::collections::BTreeSet::new();
+    let copied = input_log.pass_through(&mut out, &cloud_ids, None, |_, h, _| {
+        cloud_times.insert(h.log_time);
+        Ok(())
+    })?;
+    if let Some((segment, f)) = stitched
+        .iter()
+        .find(|(_, f)| !cloud_times.contains(&f.log_time))
+    {
+        return Err(Error::InvalidInput(format!(
+            "{}: its frame at log time {} ns is no cloud of {} on {topic} ({} clouds there): was \
+             the segment registered from another log?",
+            segs[*segment].path.display(),
+            f.log_time,
+            log.display(),
+            cloud_times.len()
+        )));
+    }
     for (k, (segment, f)) in stitched.iter().enumerate() {
         let mut stats = f.stats.clone();
         if let Some(o) = stats.as_object_mut() {
@@ -324,9 +375,9 @@ pub fn stitch(
         (
             "stitched_from".to_string(),
             serde_json::to_string(
-                &segments
+                &segs
                     .iter()
-                    .map(|p| p.display().to_string())
+                    .map(|s| s.path.display().to_string())
                     .collect::<Vec<_>>(),
             )
             .expect("JSON"),
@@ -336,6 +387,10 @@ pub fn stitch(
             serde_json::to_string(&seams).expect("JSON"),
         ),
     ]);
+    // The voxel the segments registered with: `mireg map` sizes its map by it.
+    if let Some(v) = segs[0].meta.get("voxel_m") {
+        meta.insert("voxel_m".to_string(), v.clone());
+    }
     if let Some((_, outcome, config)) = &closed {
         loop_metadata(&mut meta, &topics, outcome, config);
     }

@@ -558,6 +558,12 @@ fn interrupted_register_leaves_nothing_behind() {
     }
 }
 
+mod decompression_bombs;
+mod far_points;
 mod later_findings;
+mod messages;
 mod non_finite_times;
+mod special_files;
+mod stitch_checks;
+mod temp_files;
 mod wal_bags;

@@ -5,3 +5,4 @@
 pub mod compression;
 pub mod ros1;
 pub mod rosbag2;
+pub mod temp;

@@ -161,8 +161,8 @@ impl Bag {
     /// [`Bag::open`] with damage treated by `policy`: with [`ReadPolicy::strict`], a truncated
     /// file or an index beyond the end is an error too.
     pub fn open_with(path: &Path, policy: ReadPolicy) -> Result<Self> {
-        let file = File::open(path).map_err(|e| io_err(path, e))?;
-        let size = file.metadata().map_err(|e| io_err(path, e))?.len();
+        let (file, meta) = crate::io::input_file::open_regular(path)?;
+        let size = meta.len();
         let mut r = BufReader::with_capacity(1 << 16, file);
         let mut magic = [0u8; 13];
         let got = read_up_to(&mut r, &mut magic).map_err(|e| io_err(path, e))?;
@@ -226,8 +226,10 @@ impl Bag {
                 bag.connections.clear();
                 bag.message_counts.clear();
                 bag.scan_catalog(&mut r, pos)?;
-                bag.damage
-                    .cut(cut.offset, format!("the index {}", cut.reason));
+                bag.damage.cut(
+                    cut.offset,
+                    format!("the index is cut short: {}", cut.reason),
+                );
             }
         }
         Ok(bag)
@@ -568,6 +570,10 @@ impl Bag {
             .field("compression")
             .map(|v| String::from_utf8_lossy(v).into_owned())
             .unwrap_or_default();
+        if compression != "none" {
+            crate::io::check_expansion(rec.data.len() as u64, size)
+                .map_err(|e| self.err(rec.offset, format!("chunk {e}")))?;
+        }
         out.clear();
         let result = match compression.as_str() {
             "none" if rec.data.len() as u64 == size => return Ok(&rec.data),
@@ -613,7 +619,7 @@ impl Bag {
         &self,
         mut f: impl FnMut(u32, u64, &[u8]) -> Result<ControlFlow<()>>,
     ) -> Result<()> {
-        let file = File::open(&self.path).map_err(|e| io_err(&self.path, e))?;
+        let (file, _) = crate::io::input_file::open_regular(&self.path)?;
         let mut r = BufReader::with_capacity(1 << 20, file);
         r.seek(SeekFrom::Start(self.data_start))
             .map_err(|e| io_err(&self.path, e))?;
@@ -718,7 +724,8 @@ struct Cut {
 fn partial_chunk(rec: &RawRecord) -> Vec<u8> {
     let size = u32_field(rec, "size")
         .map_or(0, u64::from)
-        .min(MAX_CHUNK_BYTES);
+        .min(MAX_CHUNK_BYTES)
+        .min(crate::io::expansion_limit(rec.data.len() as u64));
     let mut out = Vec::new();
     match rec.field("compression") {
         Some(b"none") => read_prefix(&rec.data[..], size, &mut out),

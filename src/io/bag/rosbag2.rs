@@ -32,11 +32,15 @@ use mcap::records::{Channel, MessageHeader, Record};
 use rusqlite::{Connection as Db, OpenFlags};
 
 use super::compression::{Compression, MessageDecompressor, decompress_file};
+use super::temp::TempFiles;
+
+mod metadata;
 use crate::io::codec::cdr;
 use crate::io::mcap::log::InputCatalog;
 use crate::io::mcap::read::for_each_record_until;
 use crate::io::mcap::write::SchemaRecord;
 use crate::{Error, Result};
+pub(crate) use metadata::parse_metadata;
 
 /// The storage of a bag's files.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -61,13 +65,15 @@ pub struct Rosbag2 {
     /// How the bag is compressed. With [`Compression::File`], `files` are the decompressed
     /// copies in `decompressed`.
     pub compression: Compression,
-    /// The temporary directory of a file-compressed bag's decompressed files (shared by clones).
-    decompressed: Option<Arc<tempfile::TempDir>>,
+    /// The decompressed files of a file-compressed bag (shared by clones; [`TempFiles`]).
+    decompressed: Option<Arc<TempFiles>>,
+    /// The user's files, parallel to `files` (which may be decompressed copies), named in errors.
+    names: Vec<PathBuf>,
     /// SQLite storage: how each of `files` is opened ([`SqliteFile`]); empty for MCAP storage.
     sqlite: Vec<SqliteFile>,
-    /// The temporary directory of the private copies of `.db3` files with a write-ahead log or
-    /// hot journal (shared by clones).
-    private_copies: Option<Arc<tempfile::TempDir>>,
+    /// The private copies of `.db3` files with a write-ahead log or hot journal (shared by
+    /// clones).
+    private_copies: Option<Arc<TempFiles>>,
 }
 
 /// How one `.db3` file of a bag is opened without altering it (see the module doc).
@@ -91,66 +97,6 @@ fn sql_err(path: &Path, what: &str, e: rusqlite::Error) -> Error {
     format_err(path, format!("SQLite 3 storage, {what}: {e}"))
 }
 
-/// A YAML scalar without its quotes.
-fn unquote(v: &str) -> String {
-    let v = v.trim();
-    for q in ['\'', '"'] {
-        if v.len() >= 2 && v.starts_with(q) && v.ends_with(q) {
-            return v[1..v.len() - 1].to_string();
-        }
-    }
-    v.to_string()
-}
-
-/// The keys of a rosbag2 `metadata.yaml` we need: `storage_identifier`, the list
-/// `relative_file_paths` (block or flow style), `compression_mode` and `compression_format`. A
-/// small reader for the layout rosbag2 (and rosbags) write, not a YAML parser.
-#[derive(Debug, Default, PartialEq, Eq)]
-pub(crate) struct Metadata {
-    storage_identifier: Option<String>,
-    relative_file_paths: Vec<String>,
-    compression_mode: String,
-    compression_format: String,
-}
-
-pub(crate) fn parse_metadata(text: &str) -> Metadata {
-    let mut m = Metadata::default();
-    let mut lines = text.lines().peekable();
-    while let Some(line) = lines.next() {
-        let t = line.trim_start();
-        let indent = line.len() - t.len();
-        if let Some(v) = t.strip_prefix("storage_identifier:") {
-            m.storage_identifier = Some(unquote(v));
-        } else if let Some(v) = t.strip_prefix("compression_mode:") {
-            m.compression_mode = unquote(v);
-        } else if let Some(v) = t.strip_prefix("compression_format:") {
-            m.compression_format = unquote(v);
-        } else if let Some(v) = t.strip_prefix("relative_file_paths:") {
-            let v = v.trim();
-            if let Some(inner) = v.strip_prefix('[').and_then(|v| v.strip_suffix(']')) {
-                m.relative_file_paths = inner
-                    .split(',')
-                    .map(unquote)
-                    .filter(|s| !s.is_empty())
-                    .collect();
-                continue;
-            }
-            while let Some(next) = lines.peek() {
-                let nt = next.trim_start();
-                let nindent = next.len() - nt.len();
-                match nt.strip_prefix("- ") {
-                    Some(item) if nindent >= indent => {
-                        m.relative_file_paths.push(unquote(item));
-                        lines.next();
-                    }
-                    _ => break,
-                }
-            }
-        }
-    }
-    m
-}
-
 impl Rosbag2 {
     /// Reads `dir/metadata.yaml` and checks that every file it names exists; the files of a
     /// file-compressed bag are decompressed into a temporary directory.
@@ -160,7 +106,11 @@ impl Rosbag2 {
     /// or compression, or names a file that is missing; naming a compressed file that is corrupt.
     pub fn open(dir: &Path) -> Result<Self> {
         let meta_path = dir.join("metadata.yaml");
-        let text = crate::io::read_text(&meta_path)?;
+        let text = crate::io::input_file::read_limited_text(
+            &meta_path,
+            crate::io::input_file::MAX_METADATA_BYTES,
+            "a rosbag2 metadata.yaml",
+        )?;
         let meta = parse_metadata(&text);
         let compression = Compression::from_metadata(
             &meta_path,
@@ -168,9 +118,26 @@ impl Rosbag2 {
             &meta.compression_format,
         )?;
         if meta.relative_file_paths.is_empty() {
+            let detail = if text.contains("rosbag2_bagfile_information") {
+                "lists no files (relative_file_paths is missing or empty)"
+            } else {
+                "is not a rosbag2 metadata.yaml (no rosbag2_bagfile_information; unreadable or \
+                 not YAML?); `ros2 bag reindex` rebuilds it from the bag's files"
+            };
+            return Err(format_err(&meta_path, detail));
+        }
+        let mut seen = std::collections::BTreeSet::new();
+        if let Some(twice) = meta
+            .relative_file_paths
+            .iter()
+            .find(|f| !seen.insert(f.as_str()))
+        {
             return Err(format_err(
                 &meta_path,
-                "lists no files (relative_file_paths is missing or empty)",
+                format!(
+                    "relative_file_paths lists {twice} twice: every message would be read twice; \
+                     list each file once"
+                ),
             ));
         }
         let files: Vec<PathBuf> = meta
@@ -217,6 +184,7 @@ impl Rosbag2 {
             channel_maps: Vec::new(),
             compression,
             decompressed: None,
+            names: Vec::new(),
             sqlite: Vec::new(),
             private_copies: None,
         };
@@ -232,14 +200,12 @@ impl Rosbag2 {
 
     /// Replaces `files` by their decompressed copies in a new temporary directory.
     fn decompress_files(&mut self) -> Result<()> {
-        let temp = tempfile::Builder::new()
-            .prefix(".mireg-bag-")
-            .tempdir()
-            .map_err(|e| crate::io::io_err(&std::env::temp_dir(), e))?;
+        let mut temp = TempFiles::default();
+        self.names.clone_from(&self.files);
         for f in &mut self.files {
-            *f = decompress_file(f, temp.path())?;
+            *f = decompress_file(f, &mut temp)?;
         }
-        self.decompressed = Some(std::sync::Arc::new(temp));
+        self.decompressed = Some(Arc::new(temp));
         Ok(())
     }
 
@@ -258,6 +224,7 @@ impl Rosbag2 {
             channel_maps: Vec::new(),
             compression: Compression::File,
             decompressed: None,
+            names: Vec::new(),
             sqlite: Vec::new(),
             private_copies: None,
         };
@@ -289,6 +256,7 @@ impl Rosbag2 {
             channel_maps: Vec::new(),
             compression: Compression::None,
             decompressed: None,
+            names: Vec::new(),
             sqlite: Vec::new(),
             private_copies: None,
         };
@@ -332,13 +300,15 @@ impl Rosbag2 {
                 continue;
             }
             if self.private_copies.is_none() {
-                let temp = tempfile::Builder::new()
-                    .prefix(".mireg-bag-")
-                    .tempdir()
-                    .map_err(|e| crate::io::io_err(&std::env::temp_dir(), e))?;
+                let mut temp = TempFiles::default();
+                temp.dir()?;
                 self.private_copies = Some(Arc::new(temp));
             }
-            let dir = self.private_copies.as_ref().expect("made above").path();
+            let dir = self
+                .private_copies
+                .as_ref()
+                .and_then(|t| t.path())
+                .expect("made above");
             let copy = dir.join(format!("{i}.db3"));
             copy_file(file, &copy, name)?;
             for (suffix, companion) in &companions {
@@ -364,6 +334,28 @@ impl Rosbag2 {
         self.size
     }
 
+    /// `e`, an error about file `i`, naming the user's file where it names a decompressed copy.
+    fn as_input(&self, e: Error, i: usize) -> Error {
+        let (Some(copy), Some(name)) = (self.files.get(i), self.names.get(i)) else {
+            return e;
+        };
+        let rename = |path: PathBuf| if &path == copy { name.clone() } else { path };
+        match e {
+            Error::Format { path, detail } => Error::Format {
+                path: rename(path),
+                detail: format!("{detail} (in its decompressed copy)"),
+            },
+            Error::Io { path, source } => Error::Io {
+                path: rename(path),
+                source,
+            },
+            Error::InvalidInput(m) => {
+                Error::InvalidInput(m.replace(&*copy.to_string_lossy(), &name.to_string_lossy()))
+            }
+            e => e,
+        }
+    }
+
     /// The merged catalogue of every file (see the module doc); also fixes how each file's ids
     /// map to its channels.
     pub fn catalog(&mut self) -> Result<InputCatalog> {
@@ -371,7 +363,7 @@ impl Rosbag2 {
         self.channel_maps.clear();
         for (i, f) in self.files.iter().enumerate() {
             let map = match self.storage {
-                Storage::Mcap => m.add_mcap(f)?,
+                Storage::Mcap => m.add_mcap(f).map_err(|e| self.as_input(e, i))?,
                 Storage::Sqlite3 => m.add_sqlite(&self.sqlite[i])?,
             };
             self.channel_maps.push(map);
@@ -399,7 +391,9 @@ impl Rosbag2 {
                 Compression::None | Compression::File => f(h, data),
             };
             let flow = match self.storage {
-                Storage::Mcap => mcap_messages(file, map, &mut f)?,
+                Storage::Mcap => {
+                    mcap_messages(file, map, &mut f).map_err(|e| self.as_input(e, i))?
+                }
                 Storage::Sqlite3 => sqlite_messages(&self.sqlite[i], map, &mut f)?,
             };
             if flow.is_break() {
@@ -735,19 +729,6 @@ fn builtin_definition(ty: &str) -> Option<&'static str> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn metadata_block_and_flow_lists_and_quotes() {
-        let m = parse_metadata(
-            "rosbag2_bagfile_information:\n  compression_format: ''\n  compression_mode: ''\n  relative_file_paths:\n  - a_0.db3\n  - 'a_1.db3'\n  storage_identifier: sqlite3\n  topics_with_message_count:\n  - message_count: 8\n",
-        );
-        assert_eq!(m.storage_identifier.as_deref(), Some("sqlite3"));
-        assert_eq!(m.relative_file_paths, ["a_0.db3", "a_1.db3"]);
-        assert_eq!(m.compression_mode, "");
-        let m = parse_metadata("x:\n  relative_file_paths: [\"b.mcap\", c.mcap]\n");
-        assert_eq!(m.relative_file_paths, ["b.mcap", "c.mcap"]);
-        assert_eq!(m.storage_identifier, None);
-    }
 
     #[test]
     fn immutable_uris_keep_query_and_fragment_characters_in_the_path() {

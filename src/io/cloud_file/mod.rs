@@ -126,10 +126,7 @@ pub fn read_points(path: &Path) -> Result<Vec<Point3<f64>>> {
             ));
         }
     };
-    let bytes = std::fs::read(path).map_err(|source| Error::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let bytes = crate::io::input_file::read_regular(path)?;
     parse(&bytes, path)
 }
 

@@ -492,6 +492,16 @@ pub fn decode_point_cloud2(payload: &[u8]) -> Result<PointCloud, DecodeError> {
     decode_point_cloud2_reusing(payload, Vec::new())
 }
 
+/// The header of a `sensor_msgs/msg/PointCloud2` and the points it declares (`height · width`),
+/// read without decoding the rest: what a cloud would take is known before it is decoded.
+/// `None` when the message is too short to say.
+pub fn point_cloud2_declared_points(payload: &[u8]) -> Option<(Header, u64)> {
+    let mut r = CdrReader::new(payload).ok()?;
+    let header = read_header(&mut r, "header.").ok()?;
+    let (height, width) = (r.u32("height").ok()?, r.u32("width").ok()?);
+    Some((header, u64::from(height) * u64::from(width)))
+}
+
 /// [`decode_point_cloud2`] writing the points into `points` (cleared first): a stream of clouds
 /// reuses one buffer, that of the previous cloud, instead of allocating (and faulting in) a new
 /// one for each.

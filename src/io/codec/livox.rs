@@ -163,13 +163,15 @@ fn decode_points(
     points.clear();
     points.reserve(n);
     let (mut intensity, mut seconds) = (Vec::with_capacity(n), Vec::with_capacity(n));
-    let (mut non_finite, mut zero, mut tag_dropped) = (0, 0, 0);
+    let (mut non_finite, mut far, mut zero, mut tag_dropped) = (0, 0, 0, 0);
     for i in 0..n {
         let p = &raw[i * stride..i * stride + POINT_BYTES];
         let (x, y, z) = (f32_at(&p[4..]), f32_at(&p[8..]), f32_at(&p[12..]));
         let (reflectivity, tag) = (p[16], p[17]);
         if !(x.is_finite() && y.is_finite() && z.is_finite()) {
             non_finite += 1;
+        } else if !super::within_bound(f64::from(x), f64::from(y), f64::from(z)) {
+            far += 1;
         } else if x == 0.0 && y == 0.0 && z == 0.0 {
             zero += 1;
         } else if !tags.keeps(tag) {
@@ -192,6 +194,7 @@ fn decode_points(
         width: u32::try_from(n).unwrap_or(u32::MAX),
         height: 1,
         num_dropped_non_finite: non_finite,
+        num_dropped_far: far,
         num_dropped_zero: zero,
         num_dropped_tag: tag_dropped,
         num_dropped_time: 0,

@@ -27,6 +27,22 @@ pub mod ros1;
 
 use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion};
 
+/// Largest coordinate magnitude a decoded point may have \[m\]: 10⁶ m (1000 km). A sensor sees
+/// a few kilometres at most; a point at or beyond this bound (a driver glitch, a cloud with
+/// `is_bigendian` or `point_step` wrong, a hostile message) is dropped and counted
+/// ([`PointCloud::num_dropped_far`]) at decoding, so that one such point cannot stretch a
+/// cloud's extent past what the voxel grids index (`i32` voxel indices: a cloud spanning
+/// 2·10⁶ m needs voxels of at least 1 mm). Clouds in a geodetic frame (UTM, ECEF) are outside
+/// this bound and must be expressed in the sensor or a local frame.
+pub const MAX_COORDINATE_M: f64 = 1e6;
+
+/// Whether each coordinate of `(x, y, z)` is finite and of magnitude below
+/// [`MAX_COORDINATE_M`].
+#[inline(always)]
+pub(crate) fn within_bound(x: f64, y: f64, z: f64) -> bool {
+    x.abs() < MAX_COORDINATE_M && y.abs() < MAX_COORDINATE_M && z.abs() < MAX_COORDINATE_M
+}
+
 /// `sensor_msgs/PointField` datatype constants (`INT8 = 1` … `FLOAT64 = 8`), the same in ROS 1
 /// and ROS 2.
 pub mod datatype {
@@ -137,6 +153,9 @@ pub struct PointCloud {
     pub height: u32,
     /// Points skipped because a coordinate was NaN or ±Inf.
     pub num_dropped_non_finite: usize,
+    /// Points skipped because a (finite) coordinate's magnitude was at least
+    /// [`MAX_COORDINATE_M`].
+    pub num_dropped_far: usize,
     /// Points of an organised cloud (`height > 1`) skipped because they are exactly (0, 0, 0):
     /// how LiDAR drivers (Ouster, Hesai) and depth cameras mark "no return" (and Livox points
     /// at (0, 0, 0), organised or not).

@@ -86,6 +86,7 @@ pub(crate) struct Extracted {
     pub(crate) intensity: Option<Vec<f32>>,
     pub(crate) times: Option<Vec<f64>>,
     pub(crate) num_dropped_non_finite: usize,
+    pub(crate) num_dropped_far: usize,
     pub(crate) num_dropped_zero: usize,
 }
 
@@ -93,7 +94,8 @@ pub(crate) struct Extracted {
 /// `points` (cleared first: a buffer of an earlier cloud, whose capacity is reused). The caller
 /// has checked that every point lies inside `data` and every field inside `point_step`.
 ///
-/// Points with a non-finite coordinate are dropped and counted; so are points exactly at
+/// Points with a non-finite coordinate are dropped and counted, and so are points with a
+/// coordinate of magnitude [`super::MAX_COORDINATE_M`] or more; so are points exactly at
 /// (0, 0, 0) when the cloud is organised (`rows > 1`), which is how organised LiDAR and depth
 /// clouds mark a pixel without a return.
 pub(crate) fn extract(
@@ -176,16 +178,19 @@ impl Cloud<'_> {
         let intensity_f32_le = layout.le_f32_offset(layout.intensity);
         let mut intensity = layout.intensity.map(|_| Vec::with_capacity(n));
         let mut times = layout.time.map(|_| Vec::with_capacity(n));
-        let mut dropped = 0;
-        let mut dropped_zero = 0;
+        let (mut dropped, mut dropped_far, mut dropped_zero) = (0, 0, 0);
         let organised = rows > 1;
         for row in 0..rows {
             for col in 0..cols {
                 let start = row * row_step + col * point_step;
                 let point = &data[start..start + point_step];
                 let [x, y, z] = xyz(point);
-                if !(x.is_finite() && y.is_finite() && z.is_finite()) {
-                    dropped += 1;
+                if !super::within_bound(x, y, z) {
+                    if x.is_finite() && y.is_finite() && z.is_finite() {
+                        dropped_far += 1;
+                    } else {
+                        dropped += 1;
+                    }
                     continue;
                 }
                 if organised && x == 0.0 && y == 0.0 && z == 0.0 {
@@ -209,6 +214,7 @@ impl Cloud<'_> {
             intensity,
             times,
             num_dropped_non_finite: dropped,
+            num_dropped_far: dropped_far,
             num_dropped_zero: dropped_zero,
         }
     }

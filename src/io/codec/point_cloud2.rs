@@ -81,6 +81,7 @@ pub(crate) fn decode_body<'a>(
         width,
         height,
         num_dropped_non_finite: 0,
+        num_dropped_far: 0,
         num_dropped_zero: 0,
         num_dropped_tag: 0,
         num_dropped_time: 0,
@@ -186,6 +187,7 @@ pub(crate) fn decode_body<'a>(
         intensity: ex.intensity,
         times,
         num_dropped_non_finite: ex.num_dropped_non_finite,
+        num_dropped_far: ex.num_dropped_far,
         num_dropped_zero: ex.num_dropped_zero,
         num_dropped_tag: 0,
         ..empty

@@ -347,6 +347,15 @@ pub fn decode_point_cloud2(payload: &[u8]) -> Result<PointCloud, DecodeError> {
     decode_point_cloud2_reusing(payload, Vec::new())
 }
 
+/// The header of a ROS 1 `sensor_msgs/PointCloud2` and the points it declares
+/// (`height · width`), read without decoding the rest; `None` when the message is too short.
+pub fn point_cloud2_declared_points(payload: &[u8]) -> Option<(Header, u64)> {
+    let mut r = Ros1Reader::new(payload);
+    let header = read_header(&mut r, "header.").ok()?;
+    let (height, width) = (r.u32("height").ok()?, r.u32("width").ok()?);
+    Some((header, u64::from(height) * u64::from(width)))
+}
+
 /// [`decode_point_cloud2`] writing the points into `points` (cleared first), as
 /// [`super::cdr::decode_point_cloud2_reusing`].
 pub fn decode_point_cloud2_reusing(

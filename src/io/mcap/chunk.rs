@@ -62,6 +62,8 @@ impl ChunkDecoder {
         let records: &[u8] = match header.compression.as_str() {
             "" => data,
             "zstd" | "lz4" => {
+                crate::io::check_expansion(data.len() as u64, size)
+                    .map_err(|e| format!("chunk {e}"))?;
                 self.buf.clear();
                 let n = usize::try_from(size).map_err(|_| format!("chunk of {size} bytes"))?;
                 self.buf.try_reserve_exact(n).map_err(|_| {

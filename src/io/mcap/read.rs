@@ -20,6 +20,7 @@ use super::chunk::{self, ChunkDecoder};
 use super::record::{check_lengths, parse_record};
 use super::salvage::decompress_prefix;
 use crate::io::damage::{Damage, ReadPolicy};
+use crate::io::input_file::open_regular;
 use crate::io::{MAX_CHUNK_BYTES, io_err};
 use crate::{Error, Result};
 
@@ -45,11 +46,7 @@ impl<'a> Source<'a> {
     /// Opens `path` and reads its magic and header record; the next record is the first of the
     /// data section. `buffer` is the read buffer's size in bytes.
     pub fn open(path: &'a Path, buffer: usize) -> Result<Self> {
-        let file = File::open(path).map_err(|e| io_err(path, e))?;
-        let meta = file.metadata().map_err(|e| io_err(path, e))?;
-        if !meta.is_file() {
-            return Err(not_a_regular_file(path, &meta));
-        }
+        let (file, meta) = open_regular(path)?;
         let mut src = Source {
             reader: BufReader::with_capacity(buffer, file),
             pos: 0,
@@ -194,17 +191,12 @@ impl<'a> Source<'a> {
                 header.uncompressed_size
             )));
         }
+        if !header.compression.is_empty() {
+            crate::io::check_expansion(header.compressed_size, header.uncompressed_size)
+                .map_err(|e| bad(&e))?;
+        }
         Ok((head, header))
     }
-}
-
-/// "not a regular file" for an input that is a directory, FIFO, device or socket.
-pub(crate) fn not_a_regular_file(path: &Path, meta: &std::fs::Metadata) -> Error {
-    Error::InvalidInput(format!(
-        "{}: is {}, not a regular file",
-        path.display(),
-        crate::io::file_kind(meta)
-    ))
 }
 
 /// Calls `f` on every record of the data section of `path` in file order, and on the records
@@ -372,8 +364,8 @@ fn partial_chunk_header(body: &[u8]) -> Option<(ChunkHeader, &[u8])> {
 /// record of the summary may claim more bytes than the file holds, nor hold a string longer than
 /// itself ([`check_lengths`]: the summary reader would allocate what it claims).
 pub(crate) fn read_summary(path: &Path) -> Result<Option<mcap::Summary>> {
-    let mut file = File::open(path).map_err(|e| io_err(path, e))?;
-    let size = file.metadata().map_err(|e| io_err(path, e))?.len();
+    let (mut file, meta) = open_regular(path)?;
+    let size = meta.len();
     if !summary_lengths_hold(&mut file, size).map_err(|e| io_err(path, e))? {
         return Ok(None);
     }

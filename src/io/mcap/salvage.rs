@@ -23,7 +23,10 @@ use crate::io::damage::read_prefix;
 /// to, at most `header.uncompressed_size` (and [`crate::io::MAX_CHUNK_BYTES`]): everything up to
 /// where the stream stops or stops making sense. Unknown compressions give nothing.
 pub fn decompress_prefix(header: &ChunkHeader, data: &[u8]) -> Vec<u8> {
-    let limit = header.uncompressed_size.min(crate::io::MAX_CHUNK_BYTES);
+    let limit = header
+        .uncompressed_size
+        .min(crate::io::MAX_CHUNK_BYTES)
+        .min(crate::io::expansion_limit(data.len() as u64));
     let mut out = Vec::new();
     match header.compression.as_str() {
         "" => read_prefix(data, limit, &mut out),
