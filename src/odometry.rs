@@ -65,6 +65,11 @@ pub struct OdometryConfig {
     /// consecutive frames sample the surface alike, the centroids' biases cancel between frame
     /// and map and the input points' do not: that is the parked car at 0.5 m.
     pub map_fine: bool,
+    /// Refine each frame on the local map from the constant-velocity prediction first, and run
+    /// global registration (features, matching, MI-RANSAC) only when that fit is doubtful
+    /// ([`TRACK_FITNESS_RATIO`], [`DOUBTFUL_MAP_FITNESS`]). Default `false`: every frame is
+    /// registered globally (`--track-first` turns this on).
+    pub track_first: bool,
 }
 
 /// Input points per ICP-cloud point in the map ICP's fine stage ([`OdometryConfig::map_fine`]).
@@ -106,6 +111,7 @@ impl Default for OdometryConfig {
             map_max_points_per_voxel: 5,
             feature_points: crate::pipeline::DEFAULT_FEATURE_POINTS,
             map_fine: true,
+            track_first: false,
         }
     }
 }
@@ -160,6 +166,16 @@ pub const DOUBTFUL_MAP_FITNESS: f64 = 0.5;
 /// where the right pose fits at 0.81, and the ATE was 0.227 cm instead of 0.067.
 pub const MAP_FITNESS_DROP: f64 = 0.8;
 
+/// With [`OdometryConfig::track_first`], the prediction refined on the map is accepted without
+/// global registration when its fitness is at least this fraction of the previous accepted
+/// frame's (and at least [`DOUBTFUL_MAP_FITNESS`]): 0.9.
+///
+/// NOTE: not in the paper, which registers every pair globally. On a log whose motion the
+/// prediction follows, global registration only confirms it, and it is most of a frame's cost
+/// on small clouds (docs/ODOMETRY.md); a frame the prediction does not fit as well as the last
+/// one gets the global registration as before.
+pub const TRACK_FITNESS_RATIO: f64 = 0.9;
+
 /// The second opinion's RANSAC seed is the configured seed plus this (the 64-bit golden ratio,
 /// SplitMix64's increment): another stream, the same for any thread count.
 pub const SECOND_OPINION_SEED_OFFSET: u64 = 0x9E37_79B9_7F4A_7C15;
@@ -175,6 +191,8 @@ pub enum InitialGuess {
     /// A second global estimate, from another RANSAC stream, where the first fitted the map
     /// doubtfully ([`DOUBTFUL_MAP_FITNESS`], [`MAP_FITNESS_DROP`]) and the second fitted better.
     SecondGlobal,
+    /// The prediction, accepted without global registration ([`OdometryConfig::track_first`]).
+    Tracked,
 }
 
 impl InitialGuess {
@@ -184,6 +202,7 @@ impl InitialGuess {
             InitialGuess::Global => "global",
             InitialGuess::ConstantVelocity => "constant_velocity",
             InitialGuess::SecondGlobal => "second_global",
+            InitialGuess::Tracked => "tracked",
         }
     }
 }
@@ -408,6 +427,7 @@ impl Odometry {
         // Global registration, and meanwhile the map (with the previous frame added) as an ICP
         // target for this frame's refinements.
         let distance = map_icp_distance(&self.config.pair)?;
+        let tracking = self.config.track_first && last_map_fitness.is_some();
         let Self {
             config,
             previous,
@@ -416,32 +436,25 @@ impl Odometry {
             ..
         } = &mut *self;
         let (prev, _) = previous.as_ref().expect("checked above");
-        let (pair, target) = rayon::join(
-            || register_prepared_coarse(&frame, prev, &config.pair),
-            || -> Result<Option<f64>> {
-                let t = std::time::Instant::now();
-                let Some(map) = map.as_mut() else {
-                    return Ok(None);
-                };
-                let pending = std::mem::take(map_pending);
-                if frame.icp.is_none() {
-                    if pending {
-                        add_to_map(map, prev, &world_from_prev);
-                    }
-                    return Ok(None);
-                }
-                let target = if pending {
-                    add_to_map_and_target(map, prev, &world_from_prev, distance)?
-                } else {
-                    map.target(distance)?
-                };
-                let Some(target) = target else {
-                    return Ok(None);
-                };
-                target.prepare_for_distance(distance)?;
-                Ok(Some(t.elapsed().as_secs_f64()))
-            },
-        );
+        let (pair, target) = if tracking {
+            // The map first: the prediction refined on it may make global registration needless.
+            let target = map_target(map, map_pending, &frame, prev, &world_from_prev, distance);
+            if let Some(s) = target.as_ref().ok().copied().flatten()
+                && let Some(tracked) = self.track(&frame, s, &predicted, last_map_fitness)?
+            {
+                return Ok(self.accept_tracked(est, frame, tracked, &world_from_prev));
+            }
+            let (prev, _) = self.previous.as_ref().expect("checked above");
+            (
+                register_prepared_coarse(&frame, prev, &self.config.pair),
+                target,
+            )
+        } else {
+            rayon::join(
+                || register_prepared_coarse(&frame, prev, &config.pair),
+                || map_target(map, map_pending, &frame, prev, &world_from_prev, distance),
+            )
+        };
         let (mut pair, target_s) = (pair?, target?);
         let target = target_s.and_then(|s| {
             let map = self.map.as_ref()?;
@@ -570,6 +583,59 @@ impl Odometry {
         }
         self.set_previous(index, frame, est.world_from_frame);
         Ok(est)
+    }
+
+    /// With [`OdometryConfig::track_first`]: the prediction refined on the built map target
+    /// (built in `target_s` seconds), if it fits well enough to skip global registration.
+    fn track(
+        &self,
+        frame: &PreparedFrame,
+        target_s: f64,
+        predicted: &Isometry3<f64>,
+        last_map_fitness: Option<f64>,
+    ) -> Result<Option<(Isometry3<f64>, MapFit)>> {
+        let (Some(target), Some(last)) = (
+            self.map.as_ref().and_then(LocalMap::built_target),
+            last_map_fitness,
+        ) else {
+            return Ok(None);
+        };
+        let Some((pose, fit)) = self.refine_on_map(frame, (target, target_s), None, predicted)?
+        else {
+            return Ok(None);
+        };
+        let good = fit.used
+            && fit.fitness >= DOUBTFUL_MAP_FITNESS
+            && fit.fitness >= TRACK_FITNESS_RATIO * last;
+        Ok(good.then_some((
+            pose,
+            MapFit {
+                guess: InitialGuess::Tracked,
+                ..fit
+            },
+        )))
+    }
+
+    /// Accepts a tracked frame ([`Self::track`]) as the global path accepts a map fit.
+    fn accept_tracked(
+        &mut self,
+        mut est: FrameEstimate,
+        frame: PreparedFrame,
+        (pose, fit): (Isometry3<f64>, MapFit),
+        world_from_prev: &Isometry3<f64>,
+    ) -> FrameEstimate {
+        let last_map_fitness = self.last_map_fitness;
+        est.prev_from_curr = world_from_prev.inverse() * pose;
+        self.velocity = est.prev_from_curr;
+        est.world_from_frame = pose;
+        est.information = uncertainty::registration_information(&fit.hessian, &pose);
+        est.map = Some(fit);
+        suspect::judge(&mut est, last_map_fitness, self.config.pair.max_hypotheses);
+        self.last_map_fitness = Some(fit.fitness);
+        est.map_range_m = self.map_range(&frame);
+        self.set_previous(est.index, frame, pose);
+        self.map_pending = true;
+        est
     }
 
     /// [`FrameEstimate::map_range_m`] of `frame`, which joins the map.
@@ -779,6 +845,40 @@ impl Odometry {
 }
 
 /// The correspondence distance of ICP against the map \[m\]: the ICP distance.
+/// The local map (with the previous frame `prev` added at `world_from_prev` if it is still
+/// pending) built as an ICP target at `distance` \[m\] for `frame`: the seconds it took, or
+/// `None` without a map or target.
+fn map_target(
+    map: &mut Option<LocalMap>,
+    map_pending: &mut bool,
+    frame: &PreparedFrame,
+    prev: &PreparedFrame,
+    world_from_prev: &Isometry3<f64>,
+    distance: f64,
+) -> Result<Option<f64>> {
+    let t = std::time::Instant::now();
+    let Some(map) = map.as_mut() else {
+        return Ok(None);
+    };
+    let pending = std::mem::take(map_pending);
+    if frame.icp.is_none() {
+        if pending {
+            add_to_map(map, prev, world_from_prev);
+        }
+        return Ok(None);
+    }
+    let target = if pending {
+        add_to_map_and_target(map, prev, world_from_prev, distance)?
+    } else {
+        map.target(distance)?
+    };
+    let Some(target) = target else {
+        return Ok(None);
+    };
+    target.prepare_for_distance(distance)?;
+    Ok(Some(t.elapsed().as_secs_f64()))
+}
+
 fn map_icp_distance(pair: &PairConfig) -> Result<f64> {
     let c = pair.resolved()?;
     Ok(c.icp_max_distance_m.unwrap_or(c.voxel_size_m))

@@ -44,6 +44,12 @@ pub struct RegisterArgs {
     /// scripts written when it was opt-in still run).
     #[arg(long)]
     pub map_fine: bool,
+    /// Refine each frame on the local map from the constant-velocity prediction first; run
+    /// global registration (features matched, MI-RANSAC) only when that fit is doubtful (below
+    /// 0.9× the previous frame's map fitness). Faster where the motion is smooth
+    /// (docs/ODOMETRY.md has the measured rates and ATE); off by default.
+    #[arg(long)]
+    pub track_first: bool,
     /// Motion-compensate clouds with per-point times (Ouster t, Velodyne time, Hesai timestamp,
     /// Livox offset_time, time_stamp): auto when the field is present, on (required), off.
     #[arg(long, value_enum, default_value_t = crate::register::DeskewMode::Auto)]
@@ -149,6 +155,7 @@ pub fn register_options(args: &RegisterArgs) -> Result<RegisterOptions> {
         map_fine: !args.no_map_fine,
         map_max_points_per_voxel: args.map_points_per_voxel,
         feature_points: args.feature_points,
+        track_first: args.track_first,
     };
     let opts = RegisterOptions {
         input: args.input.clone(),
