@@ -38,7 +38,7 @@ pub fn stats_json_schema() -> serde_json::Value {
             "best_found_at": {"type": ["integer", "null"]}, "fitness": num, "inlier_rmse_m": num,
             "icp_iterations": int,
             "deskewed": {"type": "boolean"}, "time_field": {"type": ["string", "null"]},
-            "map_guess": {"type": ["string", "null"], "enum": ["global", "constant_velocity", "second_global", null]},
+            "map_guess": {"type": ["string", "null"], "enum": ["global", "constant_velocity", "second_global", "tracked", null]},
             "map_used": {"type": "boolean"}, "map_fitness": {"type": ["number", "null"]},
             "map_inlier_rmse_m": {"type": ["number", "null"]},
             "map_icp_iterations": {"type": ["integer", "null"]},
