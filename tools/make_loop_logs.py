@@ -49,6 +49,8 @@ Usage:
         --repeat 10 --out /tmp/loop_kaist03_x10.mcap
     tools/.venv-mcap/bin/python tools/make_loop_logs.py --source kaist03 --kind out-and-back \\
         --cone 70 --out /tmp/loop_kaist03_cone70.mcap   # a Livox-like 70 deg field of view
+    tools/.venv-mcap/bin/python tools/make_loop_logs.py --source kaist03 --kind out-and-back \\
+        --degenerate 5,14 --out /tmp/loop_kaist03_degenerate.mcap   # two frames of road alone
     tools/.venv-mcap/bin/python tools/make_loop_logs.py --all --out-dir /tmp   # the set above + micro211 gap/x10
 """
 
@@ -149,6 +151,20 @@ class Kaist03:
         return self.poses[k]
 
 
+def ground_only(cloud, ground_z):
+    """The cloud message with only its points below `ground_z` metres (KAIST03's x, y, z,
+    intensity float32 layout): the road around the sensor and little else, a frame whose
+    registration leaves x, y and yaw nearly free (a degenerate frame, issue "Loops that hold")."""
+    step = cloud["point_step"]
+    data = cloud["data"]
+    kept = bytearray()
+    for i in range(0, len(data), step):
+        if struct.unpack_from("<f", data, i + 8)[0] < ground_z:
+            kept += data[i:i + step]
+    n = len(kept) // step
+    return {**cloud, "width": n, "row_step": step * n, "data": bytes(kept)}
+
+
 def cut_to_cone(n, data, width_deg, azimuth_deg):
     """The points (x, y, z, intensity float32, 16 bytes each) whose azimuth atan2(y, x) lies within
     width/2 of `azimuth_deg`: a narrow field of view like a Livox Avia's (70 deg), from a spinning
@@ -175,6 +191,11 @@ def build(args, out):
     start = args.start_sec * NS_PER_S
     first_inv = fx.rigid_inverse(src.pose(seq[0][1]))
     expected = []  # (stamp, cloud width, first_from_sensor)
+    degenerate = {int(i) for i in args.degenerate.split(",") if i.strip()} if args.degenerate else set()
+    if degenerate and args.source != "kaist03":
+        raise SystemExit("--degenerate needs --source kaist03 (its clouds are x, y, z, intensity)")
+    if any(not 0 <= i < len(seq) for i in degenerate):
+        raise SystemExit(f"--degenerate: message indices must lie in 0..{len(seq) - 1}")
     tmp = out + ".tmp"
     os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
     with open(tmp, "wb") as f:
@@ -184,6 +205,8 @@ def build(args, out):
         for seq_no, (i, k) in enumerate(seq):
             t_ns = start + i * period
             cloud = src.cloud(k, t_ns)
+            if seq_no in degenerate:
+                cloud = ground_only(cloud, args.ground_z)
             ref = fx.mat_mul(first_inv, src.pose(k))
             writer.write_message(src.cloud_topic, cloud_schema, cloud, log_time=t_ns, publish_time=t_ns, sequence=seq_no)
             writer.write_message(fx.POSE_TOPIC, pose_schema, fx.pose_message(t_ns, ref),
@@ -196,6 +219,7 @@ def build(args, out):
             "source_frames": json.dumps([k for _i, k in seq]),
             "period_ns": str(period),
             "gap": json.dumps(gap_description(args, seq)),
+            "degenerate": json.dumps({"messages": sorted(degenerate), "ground_z_m": args.ground_z} if degenerate else None),
             "licence": src.licence,
             "pose_source": "the frame's own reference (micro211: Open3D's estimate; KAIST03: SC-A-LOAM's), not ground truth",
             "poses": "first_from_sensor_k = T_first^-1 * T_k, frame world",
@@ -297,6 +321,8 @@ def main(argv):
     ap.add_argument("--frames", default="", help="kaist03: scans to use, e.g. 0-3,8-10 (default: all 21)")
     ap.add_argument("--cone", type=float, help="kaist03: keep only a cone this wide [deg] (e.g. 70, Livox-like)")
     ap.add_argument("--cone-azimuth", type=float, default=180.0, help="kaist03: the cone's centre azimuth [deg] (default 180)")
+    ap.add_argument("--degenerate", help="kaist03: messages (indices in the log, e.g. 5,12) cut to their ground points")
+    ap.add_argument("--ground-z", type=float, default=-1.5, help="--degenerate: keep points below this z [m] (default -1.5: KAIST03's road lies at about -1.6 to -1.9 m)")
     ap.add_argument("--ouster-time", action="store_true", help="kaist03: add the inferred per-point time t")
     args = ap.parse_args(argv)
     if args.repeat < 1 or args.frame_stride < 1 or args.pixel_stride < 1:
