@@ -38,7 +38,7 @@ use std::path::{Path, PathBuf};
 use std::sync::mpsc::sync_channel;
 use std::time::Instant;
 
-use crate::io::atomic_file::same_file;
+use crate::io::atomic_file::{check_target, same_file};
 use crate::io::codec::livox::LivoxTags;
 use crate::io::damage::{Damage, ReadPolicy};
 use crate::io::mcap::log::OutputLog;
@@ -252,6 +252,8 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
             opts.output.display()
         )));
     }
+    // Before the input is opened: a missing folder or an existing output fails at once.
+    check_target(&opts.output, opts.force)?;
     let plan = Plan::new(opts)?;
     let mut odometry = Odometry::new(plan.config.clone())?;
     let mut log = OutputLog::create(&opts.output, opts.force, plan.kind.profile())?;

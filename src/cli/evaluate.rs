@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 
+use super::inputs::registered_log;
 use crate::io::mcap::log::list_channels;
 use crate::trajectory::{self, DEFAULT_GROUND_TRUTH_TOPIC, DEFAULT_STATS_TOPIC, Evaluation};
 
@@ -113,7 +114,7 @@ pub(super) fn run_topics(
 pub fn evaluate_log(args: &EvaluateArgs) -> Result<(Evaluation, String)> {
     let input = &args.input;
     let max_dt = max_dt_ns(args.max_dt)?;
-    let channels = list_channels(input)?;
+    let channels = registered_log(input, "evaluate", args.est_topic.is_some())?;
     let (est_topic, stats_topic) = run_topics(&channels, args.est_topic.as_deref(), args.odometry);
     let (estimate, reference, name) = match &args.gt {
         Some(path) => {

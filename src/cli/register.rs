@@ -11,15 +11,23 @@ use crate::io::damage::ReadPolicy;
 use crate::odometry::OdometryConfig;
 use crate::register::{RegisterOptions, RegisterSummary, default_output, register_log};
 
+/// Help of `--voxel` in `mireg register`, whose default derives from the first cloud (`pair`
+/// keeps [`crate::pipeline::PairConfig`]'s 0.05 m).
+const REGISTER_VOXEL_HELP: &str = "Voxel size in metres; normal, feature, inlier and ICP radii \
+     derive from it [default: the first cloud's median range / 40; the summary prints it]";
+
 /// Arguments of `mireg register`.
 #[derive(Debug, Args)]
+#[command(mut_arg("voxel", |a| a.help(REGISTER_VOXEL_HELP)))]
 pub struct RegisterArgs {
-    /// Input MCAP log (never modified).
+    /// Input log (never modified): an MCAP file, a ROS 1 bag (.bag), or a ROS 2 bag directory
+    /// (or its metadata.yaml).
     pub input: PathBuf,
     /// Output MCAP [default: INPUT's name with .mireg.mcap, next to it].
     #[arg(short, long)]
     pub output: Option<PathBuf>,
-    /// Point cloud topic [default: the only sensor_msgs/msg/PointCloud2 topic].
+    /// Point cloud topic [default: the only point cloud topic: sensor_msgs PointCloud2,
+    /// foxglove.PointCloud or Livox CustomMsg].
     #[arg(long)]
     pub topic: Option<String>,
     /// Registration settings.
