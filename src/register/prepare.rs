@@ -213,7 +213,10 @@ impl Prepare<'_> {
             Ok(Ok(mut cloud)) => {
                 if let Some(times) = &cloud.times {
                     time_field = Some(times.field.clone());
+                    // One time for every point measures no sweep: nothing to deskew, and the
+                    // statistics must not say `deskewed`.
                     if self.deskew_mode != DeskewMode::Off
+                        && times.varies()
                         && let Some((motion, dt)) = motions.of(deskew_for(frame_index))
                     {
                         // Times within the bound of the stamp and a finite motion: every point
