@@ -5,8 +5,9 @@
 //! overlap, connected by bounded queues: the calling thread streams records (`reader.rs`, copying
 //! each into the output, and `writer.rs`, putting out each registered frame), a *prepare* thread
 //! (`prepare.rs`) decodes, downsamples and computes features for frame `k + 1` while a *register*
-//! thread (`registrar.rs`) registers frame `k` against the local map. Memory is bounded by one
-//! chunk plus the queue capacity, whatever the log length.
+//! thread (`registrar.rs`) registers frame `k` against the local map. The stages hold one chunk
+//! plus the queue capacity, whatever the log length; each frame's `Estimate` (`frames.rs`, under
+//! 1 kB) is kept for the summary and loop closure (docs/ARCHITECTURE.md).
 
 mod closure;
 mod clouds;
@@ -61,7 +62,7 @@ pub const DEFAULT_REFERENCE_TOPIC: &str = "/ground_truth/pose";
 /// Everything `mireg register` needs.
 #[derive(Debug, Clone)]
 pub struct RegisterOptions {
-    /// Input MCAP (never modified).
+    /// Input log (never modified): an MCAP file, a ROS 1 bag, or a ROS 2 bag directory.
     pub input: PathBuf,
     /// Output MCAP.
     pub output: PathBuf,
