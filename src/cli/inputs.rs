@@ -50,7 +50,7 @@ fn mcap_channels(path: &Path, command: &str) -> Result<Vec<ChannelInfo>> {
             ));
         }
         return invalid(format!(
-            "is a directory; {} (NAME.mireg.mcap), not a directory{}",
+            "is a directory, not a regular file; {} (NAME.mireg.mcap){}",
             reads(command),
             mcap_files_in(path)
         ));
