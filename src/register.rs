@@ -5,8 +5,9 @@
 //! overlap, connected by bounded queues: the calling thread streams records (`reader.rs`, copying
 //! each into the output, and `writer.rs`, putting out each registered frame), a *prepare* thread
 //! (`prepare.rs`) decodes, downsamples and computes features for frame `k + 1` while a *register*
-//! thread (`registrar.rs`) registers frame `k` against the local map. Memory is bounded by one
-//! chunk plus the queue capacity, whatever the log length.
+//! thread (`registrar.rs`) registers frame `k` against the local map. The stages hold one chunk
+//! plus the queue capacity, whatever the log length; each frame's `Estimate` (`frames.rs`, under
+//! 1 kB) is kept for the summary and loop closure (docs/ARCHITECTURE.md).
 
 mod closure;
 mod clouds;
@@ -38,7 +39,7 @@ use std::path::{Path, PathBuf};
 use std::sync::mpsc::sync_channel;
 use std::time::Instant;
 
-use crate::io::atomic_file::same_file;
+use crate::io::atomic_file::{check_target, same_file};
 use crate::io::codec::livox::LivoxTags;
 use crate::io::damage::{Damage, ReadPolicy};
 use crate::io::mcap::log::OutputLog;
@@ -61,7 +62,7 @@ pub const DEFAULT_REFERENCE_TOPIC: &str = "/ground_truth/pose";
 /// Everything `mireg register` needs.
 #[derive(Debug, Clone)]
 pub struct RegisterOptions {
-    /// Input MCAP (never modified).
+    /// Input log (never modified): an MCAP file, a ROS 1 bag, or a ROS 2 bag directory.
     pub input: PathBuf,
     /// Output MCAP.
     pub output: PathBuf,
@@ -193,6 +194,73 @@ pub struct ReferenceErrors {
     pub rpe_trans_mean_m: f64,
     /// Mean RPE rotation per frame \[deg\].
     pub rpe_rot_mean_deg: f64,
+    /// The one step that carries most of the relative error, when one does.
+    pub dominant_step: Option<DominantStep>,
+}
+
+/// One step that carries most of a trajectory's relative error against the reference
+/// ([`ReferenceErrors::dominant_step`]): more than [`DOMINANT_SHARE`] of the sum of the per-step
+/// RPE translation (or rotation) over at least [`DOMINANT_MIN_STEPS`] steps. Such a step broke
+/// the trajectory there (a wrong registration, a jump in the log), and the ATE mostly measures it.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct DominantStep {
+    /// Frame index of the step's second frame (the step from the frame before it).
+    pub frame: u64,
+    /// Its header stamp \[ns\].
+    pub stamp_ns: Option<i64>,
+    /// Which error it dominates.
+    pub error: StepError,
+    /// Its RPE: \[m\] for translation, \[deg\] for rotation.
+    pub value: f64,
+    /// The sum of that RPE over every step, same unit.
+    pub total: f64,
+    /// `value / total`, in (0.5, 1].
+    pub share: f64,
+    /// Steps compared.
+    pub steps: usize,
+}
+
+/// The part of a step's relative pose error ([`DominantStep::error`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StepError {
+    /// RPE translation \[m\].
+    Translation,
+    /// RPE rotation \[deg\].
+    Rotation,
+}
+
+/// A step is [`DominantStep`] when it carries more than this share of the summed RPE: 0.5 (most).
+pub const DOMINANT_SHARE: f64 = 0.5;
+/// Steps needed before one can be said to dominate: 3.
+pub const DOMINANT_MIN_STEPS: usize = 3;
+
+/// Flagged frames a summary lists, the first in frame order: 10 (the others are counted in
+/// [`RegisterSummary::failed_frames`] and [`RegisterSummary::suspect_frames`]; every frame's
+/// flags are in `/mireg/stats`).
+pub const FLAGGED_FRAMES_LISTED: usize = 10;
+
+/// How a frame was flagged ([`FlaggedFrame::flag`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Flag {
+    /// Global registration failed; the pose came from the fallback.
+    Failed,
+    /// Registered, but doubtful (`suspect` in `/mireg/stats`).
+    Suspect,
+}
+
+/// A frame flagged failed or suspect, as the summary names it.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct FlaggedFrame {
+    /// Frame index (0-based, in log-time order).
+    pub frame: usize,
+    /// The cloud's header stamp \[ns\].
+    pub stamp_ns: i64,
+    /// Failed or suspect.
+    pub flag: Flag,
+    /// Why: `failure_reason` or `suspect` of `/mireg/stats` (`too_few_inliers`, `degenerate`, …).
+    pub reason: &'static str,
 }
 
 /// What a run did.
@@ -211,6 +279,10 @@ pub struct RegisterSummary {
     pub frames: usize,
     /// Frames whose global registration failed (flagged; pose from the fallback).
     pub failed_frames: usize,
+    /// Registered frames flagged as doubtful (`suspect` in `/mireg/stats`).
+    pub suspect_frames: usize,
+    /// The first [`FLAGGED_FRAMES_LISTED`] failed or suspect frames, in frame order, with why.
+    pub flagged: Vec<FlaggedFrame>,
     /// Mean RANSAC inliers over registered frames.
     pub mean_inliers: f64,
     /// Input messages copied.
@@ -252,6 +324,8 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
             opts.output.display()
         )));
     }
+    // Before the input is opened: a missing folder or an existing output fails at once.
+    check_target(&opts.output, opts.force)?;
     let plan = Plan::new(opts)?;
     let mut odometry = Odometry::new(plan.config.clone())?;
     let mut log = OutputLog::create(&opts.output, opts.force, plan.kind.profile())?;

@@ -2,12 +2,13 @@
 //! a ground-truth relative pose, run every sampler (uniform, PROSAC, Lévy with several μ) for each
 //! ranking, M seeded runs each, and report recall and precision per cell.
 //!
-//! Protocol (DESIGN.md §2, after Choi et al.): a registration is **reported** when it passes the
-//! acceptance test `mireg register` uses to flag failures ([`Acceptance`]: no failure, at least
-//! `min_inliers` RANSAC inliers, ICP fitness at least `min_fitness`), and **correct** when it is
-//! reported and its error against the ground truth is within [`Thresholds`] (Choi's
-//! information-matrix error when the pair has a `gt.info` record, else rotation and translation). Over the `pairs × runs`
-//! attempts of a cell, recall = correct / attempts and precision = correct / reported.
+//! Protocol (../shared/docs/DESIGN.md §2, after Choi et al.): a registration is **reported** when
+//! it passes the acceptance test `mireg register` uses to flag failures ([`Acceptance`]: no
+//! failure, at least `min_inliers` RANSAC inliers, ICP fitness at least `min_fitness`), and
+//! **correct** when it is reported and its error against the ground truth is within
+//! [`Thresholds`] (Choi's information-matrix error when the pair has a `gt.info` record, else
+//! rotation and translation). Over the `pairs × runs` attempts of a cell, recall = correct /
+//! attempts and precision = correct / reported.
 //!
 //! Pure: frames come in prepared ([`crate::pipeline::prepare_frame`], once per frame, shared by
 //! every cell), pairs as indices with their ground truth. Every registration is seeded by its run

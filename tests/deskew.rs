@@ -423,3 +423,74 @@ fn deskewing_a_truly_skewed_log_recovers_its_motion_without_oscillating() {
         "deskewed: {on:?}, raw: {off:?}"
     );
 }
+
+/// A time field that holds one value for every point (Livox drivers that leave `offset_time` at
+/// zero) measures no sweep: no frame is reported `deskewed`, the field is still named, and the
+/// poses are those of the same log registered with `--deskew off`.
+#[test]
+fn times_that_do_not_vary_deskew_nothing_and_say_so() {
+    use mireg::register::{DeskewMode, RegisterOptions, register_log};
+    let dir = tempfile::tempdir().unwrap();
+    let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(5);
+    let room: Vec<Point3<f64>> = (0..4000)
+        .map(|_| {
+            let (u, v): (f64, f64) = (rng.random_range(-6.0..6.0), rng.random_range(-1.0..2.0));
+            match rng.random_range(0..4u32) {
+                0 => Point3::new(u, 6.0, v),
+                1 => Point3::new(u, -6.0, v),
+                2 => Point3::new(6.0, u, v),
+                _ => Point3::new(u, rng.random_range(-6.0..6.0), -1.0),
+            }
+        })
+        .collect();
+    let frames = (0..6u64).map(|k| {
+        let sensor = Isometry3::translation(0.1 * k as f64, 0.0, 0.0);
+        let pts: Vec<Point3<f64>> = room.iter().map(|p| sensor.inverse() * p).collect();
+        let times = vec![0.0; pts.len()];
+        (pts, times)
+    });
+    let input = dir.path().join("zero_times.mcap");
+    std::fs::write(&input, timed_cloud_log(frames)).unwrap();
+    let run = |mode: DeskewMode, name: &str| {
+        let output = dir.path().join(name);
+        let config = mireg::odometry::OdometryConfig {
+            pair: mireg::pipeline::PairConfig {
+                voxel_size_m: 0.2,
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let opts = RegisterOptions {
+            deskew: mode,
+            loops: false,
+            ..RegisterOptions::new(&input, &output, config)
+        };
+        register_log(&opts).unwrap();
+        let poses = mireg::trajectory::read_mcap_pose_topic(&output, "/mireg/pose").unwrap();
+        let mut stats: Vec<serde_json::Value> = Vec::new();
+        let mut channel = None;
+        mireg::io::mcap::read::for_each_record(&output, |r| {
+            match r {
+                mcap::records::Record::Channel(c) if c.topic == "/mireg/stats" => {
+                    channel = Some(c.id)
+                }
+                mcap::records::Record::Message { header, data }
+                    if Some(header.channel_id) == channel =>
+                {
+                    stats.push(serde_json::from_slice(&data).unwrap())
+                }
+                _ => {}
+            }
+            Ok(())
+        })
+        .unwrap();
+        (poses, stats)
+    };
+    let (auto_poses, auto) = run(DeskewMode::Auto, "auto.mcap");
+    assert_eq!(auto.len(), 6);
+    assert!(auto.iter().all(|s| s["time_field"] == "t"), "{auto:?}");
+    let deskewed: Vec<&serde_json::Value> = auto.iter().map(|s| &s["deskewed"]).collect();
+    assert!(deskewed.iter().all(|d| **d == false), "{deskewed:?}");
+    let (off_poses, _) = run(DeskewMode::Off, "off.mcap");
+    assert_eq!(auto_poses, off_poses);
+}

@@ -249,7 +249,19 @@ fn bad_inputs_name_the_file_and_topic() {
         log.finish().expect("finish");
     }
     let p = path.to_str().expect("utf8");
+    // No estimate: the log was never registered (issue 47); the PoseStamped topic it has is named
+    // as the one --est-topic could choose.
     let out = mireg(&["evaluate", p]);
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("nogt.mcap")
+            && err.contains("run `mireg register")
+            && err.contains("--est-topic: /odom/pose"),
+        "{err}"
+    );
+    // An estimate but no reference: the reference topic is named, and the topics to choose from.
+    let out = mireg(&["evaluate", p, "--est-topic", "/odom/pose"]);
     assert_eq!(out.status.code(), Some(2));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(

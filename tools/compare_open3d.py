@@ -25,7 +25,7 @@ refuses voxels below 1 cm: for the bunny (5 mm) both clouds and the voxel are sc
 radii and noise bounds are gains times the voxel) and the translation is scaled back.
 
 Open3D (in this process, timed with ``time.perf_counter``, file reading excluded, settings of
-docs/DESIGN.md §3): voxel_down_sample(v); estimate_normals(Hybrid(2v, 30)); compute_fpfh_feature
+../shared/docs/DESIGN.md §3): voxel_down_sample(v); estimate_normals(Hybrid(2v, 30)); compute_fpfh_feature
 (Hybrid(5v, 100)); registration_ransac_based_on_feature_matching(mutual_filter=False, max distance
 1.5v, PointToPoint, ransac_n=3, checkers [EdgeLength(0.9), Distance(1.5v)],
 RANSACConvergenceCriteria(100000, 0.999)). ``o3d.utility.random.seed`` is set per trial.

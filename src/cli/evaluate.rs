@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 
+use super::inputs::registered_log;
 use crate::io::mcap::log::list_channels;
 use crate::trajectory::{self, DEFAULT_GROUND_TRUTH_TOPIC, DEFAULT_STATS_TOPIC, Evaluation};
 
@@ -113,9 +114,8 @@ pub(super) fn run_topics(
 pub fn evaluate_log(args: &EvaluateArgs) -> Result<(Evaluation, String)> {
     let input = &args.input;
     let max_dt = max_dt_ns(args.max_dt)?;
-    let channels = list_channels(input)?;
-    let (est_topic, stats_topic) = run_topics(&channels, args.est_topic.as_deref(), args.odometry);
-    let (estimate, reference, name) = match &args.gt {
+    // A --gt file is read first: a wrong one is named before the log is looked at.
+    let gt_file = match &args.gt {
         Some(path) => {
             let reference = match args.gt_format {
                 TrajectoryFormat::Tum => trajectory::read_tum(path)?,
@@ -125,6 +125,14 @@ pub fn evaluate_log(args: &EvaluateArgs) -> Result<(Evaluation, String)> {
             if reference.is_empty() {
                 bail!("{}: no poses", path.display());
             }
+            Some(reference)
+        }
+        None => None,
+    };
+    let channels = registered_log(input, "evaluate", args.est_topic.is_some())?;
+    let (est_topic, stats_topic) = run_topics(&channels, args.est_topic.as_deref(), args.odometry);
+    let (estimate, reference, name) = match gt_file {
+        Some(reference) => {
             let estimate = trajectory::read_mcap_pose_topic(input, &est_topic)?;
             (estimate, reference, reference_name(args, None))
         }

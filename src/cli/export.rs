@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 
-use crate::io::atomic_file::{PendingFile, same_file};
-use crate::io::mcap::log::list_channels;
+use super::inputs::registered_log;
+use crate::io::atomic_file::{PendingFile, check_target, same_file};
 use crate::trajectory::{self, Trajectory};
 
 use super::evaluate::{ignore_broken_pipe, run_topics};
@@ -53,11 +53,12 @@ fn write_trajectory(t: &Trajectory, format: ExportFormat, out: &mut impl Write) 
 
 /// Runs `mireg export`.
 pub(super) fn run_export(args: &ExportArgs) -> Result<()> {
-    let (topic, _) = run_topics(
-        &list_channels(&args.input)?,
-        args.topic.as_deref(),
-        args.odometry,
-    );
+    if let Some(path) = &args.output {
+        // Before the log is read: an output in a missing folder fails at once.
+        check_target(path, true)?;
+    }
+    let channels = registered_log(&args.input, "export", args.topic.is_some())?;
+    let (topic, _) = run_topics(&channels, args.topic.as_deref(), args.odometry);
     let t = trajectory::read_mcap_pose_topic(&args.input, &topic)?;
     if t.is_empty() {
         bail!("{}: topic {topic} has no messages", args.input.display());

@@ -7,6 +7,7 @@ use std::path::PathBuf;
 use anyhow::{Result, bail};
 use clap::{Args, ValueEnum};
 
+use super::inputs::registered_log;
 use crate::io::atomic_file::{PendingFile, check_target, same_file};
 use crate::io::cloud_file::CloudFileFormat;
 use crate::map::{MapOptions, TrajectoryChoice, build_map};
@@ -62,6 +63,7 @@ pub(super) fn run_map(args: &MapArgs) -> Result<()> {
     }
     // Fail before reading the whole log, not after.
     check_target(out, args.force)?;
+    registered_log(&args.input, "map", false)?;
     let opts = MapOptions {
         voxel_m: args.voxel,
         trajectory: match args.trajectory {

@@ -8,6 +8,7 @@ mod evaluate;
 mod export;
 mod flags;
 mod info;
+mod inputs;
 mod map;
 mod pair;
 mod process;
@@ -46,7 +47,8 @@ pub enum Command {
     Simulate(SimulateArgs),
     /// Register one point cloud (SRC) to another (TGT): prints target_from_source.
     Pair(PairArgs),
-    /// Register consecutive point clouds of an MCAP log; write poses and statistics to a new MCAP.
+    /// Register consecutive point clouds of a log (MCAP, ROS 1 bag or ROS 2 bag directory);
+    /// write poses and statistics to a new MCAP.
     Register(RegisterArgs),
     /// Compare the estimated trajectory of a `register` output with a reference (ATE, RPE, drift).
     Evaluate(EvaluateArgs),

@@ -9,17 +9,28 @@ use std::path::{Path, PathBuf};
 use crate::io::codec::livox::LivoxTags;
 use crate::io::damage::ReadPolicy;
 use crate::odometry::OdometryConfig;
-use crate::register::{RegisterOptions, RegisterSummary, default_output, register_log};
+use crate::register::{
+    FLAGGED_FRAMES_LISTED, Flag, RegisterOptions, RegisterSummary, StepError, default_output,
+    register_log,
+};
+
+/// Help of `--voxel` in `mireg register`, whose default derives from the first cloud (`pair`
+/// keeps [`crate::pipeline::PairConfig`]'s 0.05 m).
+const REGISTER_VOXEL_HELP: &str = "Voxel size in metres; normal, feature, inlier and ICP radii \
+     derive from it [default: the first cloud's median range / 40; the summary prints it]";
 
 /// Arguments of `mireg register`.
 #[derive(Debug, Args)]
+#[command(mut_arg("voxel", |a| a.help(REGISTER_VOXEL_HELP)))]
 pub struct RegisterArgs {
-    /// Input MCAP log (never modified).
+    /// Input log (never modified): an MCAP file, a ROS 1 bag (.bag), or a ROS 2 bag directory
+    /// (or its metadata.yaml).
     pub input: PathBuf,
     /// Output MCAP [default: INPUT's name with .mireg.mcap, next to it].
     #[arg(short, long)]
     pub output: Option<PathBuf>,
-    /// Point cloud topic [default: the only sensor_msgs/msg/PointCloud2 topic].
+    /// Point cloud topic [default: the only point cloud topic: sensor_msgs PointCloud2,
+    /// foxglove.PointCloud or Livox CustomMsg].
     #[arg(long)]
     pub topic: Option<String>,
     /// Registration settings.
@@ -278,6 +289,7 @@ fn print_summary(s: &RegisterSummary) {
         s.tf_topic,
         s.pose_topic
     );
+    print_flagged(s);
     if let Some(l) = &s.loops {
         println!(
             "loops: {} keyframes, {} candidates tried ({} more skipped as redundant), {} accepted ({} already measured by the odometry's map, {} down-weighted by the pose graph), {:.2} s; optimised poses on {}",
@@ -309,6 +321,64 @@ fn print_summary(s: &RegisterSummary) {
                 "{what} vs {} ({} frames): ATE RMSE {:.4} m, RPE mean {:.4} m / {:.3} deg per frame",
                 r.topic, r.frames, r.ate_rmse_m, r.rpe_trans_mean_m, r.rpe_rot_mean_deg
             );
+            if let Some(d) = &r.dominant_step {
+                let (error, unit) = match d.error {
+                    StepError::Translation => ("translation", "m"),
+                    StepError::Rotation => ("rotation", "deg"),
+                };
+                println!(
+                    "{what}: warning: the step to frame {}{} carries {:.0} % of the {error} error \
+                     ({:.4} {unit} of {:.4} {unit} summed over {} steps): estimate and reference part \
+                     there (a wrong registration, or a jump in either), and the ATE mostly \
+                     measures that one step",
+                    d.frame,
+                    d.stamp_ns
+                        .map(|ns| format!(" (stamp {})", stamp_s(ns)))
+                        .unwrap_or_default(),
+                    100.0 * d.share,
+                    d.value,
+                    d.total,
+                    d.steps
+                );
+            }
         }
+    }
+}
+
+/// A stamp in nanoseconds as seconds with nine decimals.
+fn stamp_s(ns: i64) -> String {
+    let sign = if ns < 0 { "-" } else { "" };
+    let abs = ns.unsigned_abs();
+    format!("{sign}{}.{:09} s", abs / 1_000_000_000, abs % 1_000_000_000)
+}
+
+/// The failed and suspect frames, at most [`FLAGGED_FRAMES_LISTED`] of them by index, stamp and
+/// reason, then how many more.
+fn print_flagged(s: &RegisterSummary) {
+    let flagged = s.failed_frames + s.suspect_frames;
+    if flagged == 0 {
+        return;
+    }
+    println!(
+        "flagged frames ({} failed, {} suspect; each frame's flags in /mireg/stats):",
+        s.failed_frames, s.suspect_frames
+    );
+    for f in &s.flagged {
+        let flag = match f.flag {
+            Flag::Failed => "failed",
+            Flag::Suspect => "suspect",
+        };
+        println!(
+            "  frame {} (stamp {}): {flag}, {}",
+            f.frame,
+            stamp_s(f.stamp_ns),
+            f.reason
+        );
+    }
+    if flagged > s.flagged.len() {
+        println!(
+            "  ... and {} more (the first {FLAGGED_FRAMES_LISTED} are listed)",
+            flagged - s.flagged.len()
+        );
     }
 }

@@ -34,8 +34,10 @@ enum Temp {
     Named(tempfile::TempPath),
 }
 
-/// Fails unless `target` may be written: absent, or a regular file when `overwrite` is set.
+/// Fails unless `target` may be written: in a folder that exists, and absent, or a regular file
+/// when `overwrite` is set. The error names `target` as the user gave it and says what to do.
 pub fn check_target(target: &Path, overwrite: bool) -> Result<()> {
+    check_folder(target)?;
     match std::fs::metadata(target) {
         Ok(meta) if !meta.is_file() => Err(Error::InvalidInput(format!(
             "{}: is {}; mireg only ever replaces regular files",
@@ -48,6 +50,24 @@ pub fn check_target(target: &Path, overwrite: bool) -> Result<()> {
         ))),
         _ => Ok(()),
     }
+}
+
+/// Fails unless the folder `target` is to be written in exists and is a folder, naming `target`
+/// and the folder (not a temporary file beside it).
+fn check_folder(target: &Path) -> Result<()> {
+    let dir = target_dir(target);
+    let problem = match std::fs::metadata(&dir) {
+        Ok(meta) if meta.is_dir() => return Ok(()),
+        Ok(meta) => format!("is {}, not a folder", super::file_kind(&meta)),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => "does not exist".to_string(),
+        Err(e) => format!("cannot be read ({e})"),
+    };
+    Err(Error::InvalidInput(format!(
+        "{}: cannot be written: its folder {} {problem}; create the folder first or choose \
+         another output path",
+        target.display(),
+        dir.display()
+    )))
 }
 
 /// Whether `a` and `b` are the same file (same device and inode; same canonical path elsewhere).

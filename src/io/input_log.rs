@@ -133,24 +133,31 @@ impl InputLog {
                 super::file_kind(&meta)
             )));
         }
-        if starts_with(path, &ros1::MAGIC[..9])? {
-            let bag = Bag::open_with(path, policy)?;
-            let catalog = bag.catalog();
-            return Ok((InputLog::Bag(bag), catalog));
+        match file_kind(path)? {
+            FileKind::Ros1Bag => {
+                let bag = Bag::open_with(path, policy)?;
+                let catalog = bag.catalog();
+                Ok((InputLog::Bag(bag), catalog))
+            }
+            FileKind::Db3 => {
+                // A rosbag2 `.db3` file on its own.
+                let mut bag = Rosbag2::single_db3(path)?;
+                let catalog = bag.catalog()?;
+                Ok((InputLog::Rosbag2(bag), catalog))
+            }
+            FileKind::Zstd => {
+                // A zstd-compressed rosbag2 storage file on its own (`x.mcap.zstd`, `x.db3.zstd`).
+                let mut bag = Rosbag2::single_compressed(path)?;
+                let catalog = bag.catalog()?;
+                Ok((InputLog::Rosbag2(bag), catalog))
+            }
+            FileKind::Mcap => Self::open_mcap(path, policy),
+            FileKind::Other(head) => Err(Error::InvalidInput(format!(
+                "{}: {}; {ACCEPTED}",
+                path.display(),
+                not_a_log(path, &head)
+            ))),
         }
-        if starts_with(path, SQLITE_MAGIC)? {
-            // A rosbag2 `.db3` file on its own.
-            let mut bag = Rosbag2::single_db3(path)?;
-            let catalog = bag.catalog()?;
-            return Ok((InputLog::Rosbag2(bag), catalog));
-        }
-        if starts_with(path, &ZSTD_MAGIC)? {
-            // A zstd-compressed rosbag2 storage file on its own (`x.mcap.zstd`, `x.db3.zstd`).
-            let mut bag = Rosbag2::single_compressed(path)?;
-            let catalog = bag.catalog()?;
-            return Ok((InputLog::Rosbag2(bag), catalog));
-        }
-        Self::open_mcap(path, policy)
     }
 
     fn open_mcap(path: &Path, policy: ReadPolicy) -> Result<(Self, InputCatalog)> {
@@ -275,13 +282,75 @@ fn bag_header(conn: u32, time_ns: u64) -> MessageHeader {
     }
 }
 
-fn starts_with(path: &Path, prefix: &[u8]) -> Result<bool> {
-    let io = |source| Error::Io {
+/// What a regular file holds, by its first bytes.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum FileKind {
+    /// An MCAP file (its magic, or a file too short to hold it whose bytes begin it: the MCAP
+    /// reader then says how it is cut).
+    Mcap,
+    /// A ROS 1 bag (`#ROSBAG V`).
+    Ros1Bag,
+    /// An SQLite database: a rosbag2 `.db3` storage file.
+    Db3,
+    /// A zstd frame: a compressed rosbag2 storage file.
+    Zstd,
+    /// None of these; its first bytes (at most [`HEAD_BYTES`]), for messages.
+    Other(Vec<u8>),
+}
+
+/// Bytes read to tell a file's kind ([`file_kind`]): 16, the longest magic (SQLite's).
+pub const HEAD_BYTES: usize = 16;
+
+/// The kind of the regular file `path`, by its first [`HEAD_BYTES`] bytes.
+///
+/// # Errors
+/// Those of [`crate::io::input_file::open_regular`] (a path that is not a regular file, or
+/// cannot be read), naming `path`.
+pub fn file_kind(path: &Path) -> Result<FileKind> {
+    let (mut f, _) = crate::io::input_file::open_regular(path)?;
+    let mut head = [0u8; HEAD_BYTES];
+    let got = ros1::read_up_to(&mut f, &mut head).map_err(|source| Error::Io {
         path: path.to_path_buf(),
         source,
+    })?;
+    let head = &head[..got];
+    Ok(if head.starts_with(&ros1::MAGIC[..9]) {
+        FileKind::Ros1Bag
+    } else if head.starts_with(SQLITE_MAGIC) {
+        FileKind::Db3
+    } else if head.starts_with(&ZSTD_MAGIC) {
+        FileKind::Zstd
+    } else if head.starts_with(mcap::MAGIC) || !head.is_empty() && mcap::MAGIC.starts_with(head) {
+        FileKind::Mcap
+    } else {
+        FileKind::Other(head.to_vec())
+    })
+}
+
+/// Why a file of [`FileKind::Other`] whose first bytes are `head` is no log: "not an MCAP file,
+/// a ROS 1 bag nor ROS 2 bag storage: it is empty" or "…: it starts with the text "hello"",
+/// and, for a file named `.bag`, that a ROS 1 bag starts with `#ROSBAG V2.0`.
+pub fn not_a_log(path: &Path, head: &[u8]) -> String {
+    let named = |ext: &str| path.extension().is_some_and(|e| e == ext);
+    let what = if named("bag") {
+        "named .bag, but not a ROS 1 bag (those start with `#ROSBAG V2.0`)"
+    } else if named("mcap") {
+        "named .mcap, but not an MCAP file (no MCAP magic at its start)"
+    } else {
+        "not an MCAP file, a ROS 1 bag nor ROS 2 bag storage"
     };
-    let (mut f, _) = crate::io::input_file::open_regular(path)?;
-    let mut b = vec![0u8; prefix.len()];
-    let got = ros1::read_up_to(&mut f, &mut b).map_err(io)?;
-    Ok(got == b.len() && b == prefix)
+    if head.is_empty() {
+        return format!("{what}: it is empty");
+    }
+    let text = std::str::from_utf8(head).ok().filter(|t| {
+        t.chars()
+            .all(|c| !c.is_control() || c.is_ascii_whitespace())
+    });
+    match text {
+        Some(t) => format!("{what}: it starts with the text {t:?}"),
+        None => {
+            let hex: Vec<String> = head.iter().map(|b| format!("{b:02x}")).collect();
+            format!("{what}: it starts with the bytes {}", hex.join(" "))
+        }
+    }
 }

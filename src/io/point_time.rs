@@ -68,6 +68,15 @@ impl PointTimes {
     pub fn deskewable(&self) -> bool {
         self.seconds.iter().all(|t| t.abs() <= POINT_TIME_BOUND_S)
     }
+
+    /// Whether the times differ from point to point: a field that holds one value for every
+    /// point (a Livox driver writing `offset_time` 0 throughout) measures no sweep, and the cloud
+    /// is not deskewed by it.
+    pub fn varies(&self) -> bool {
+        self.seconds
+            .first()
+            .is_some_and(|first| self.seconds.iter().any(|t| t != first))
+    }
 }
 
 /// Which of a cloud's point times `seconds` are glitches: not finite, or further than
@@ -156,6 +165,19 @@ mod tests {
         let t = point_times("timestamp", Scalar::F64, vec![stamp, stamp + 0.08], stamp);
         assert_eq!(t.convention, TimeConvention::AbsoluteS);
         assert!((t.seconds[1] - 0.08).abs() < 1e-6 && t.seconds[0] == 0.0);
+    }
+
+    #[test]
+    fn only_times_that_differ_vary() {
+        let times = |seconds: Vec<f64>| PointTimes {
+            field: "offset_time".into(),
+            convention: TimeConvention::RelativeNs,
+            seconds,
+        };
+        assert!(!times(vec![]).varies());
+        assert!(!times(vec![0.0; 5]).varies());
+        assert!(!times(vec![0.03; 3]).varies());
+        assert!(times(vec![0.0, 0.0, 1e-9]).varies());
     }
 
     #[test]

@@ -35,6 +35,7 @@ use crate::pipeline::{PairConfig, PreparedFrame, prepare_frame, refine};
 
 use super::RegisterOptions;
 use super::frames::Estimate;
+use super::output::{FoundBy, Verdict};
 use super::plan::Plan;
 
 /// One candidate tried: what `/mireg/loops` carries ([`loops_json_schema`]).
@@ -44,11 +45,11 @@ pub(super) struct LoopRecord {
     pub(super) match_frame: usize,
     pub(super) query_stamp_ns: i64,
     pub(super) match_stamp_ns: i64,
-    pub(super) found_by: &'static str,
+    pub(super) found_by: FoundBy,
     pub(super) descriptor_distance: f64,
     pub(super) odometry_distance_m: f64,
     pub(super) path_between_m: f64,
-    pub(super) verdict: &'static str,
+    pub(super) verdict: Verdict,
     pub(super) reason: String,
     pub(super) match_from_query: Option<serde_json::Value>,
     pub(super) inliers: usize,
@@ -381,7 +382,7 @@ fn record(
     };
     let (verdict, reason) = match verified {
         Some((v, _)) if v.accepted => (
-            "accepted",
+            Verdict::Accepted,
             held_d2.map_or_else(String::new, |d2| {
                 format!(
                     "left out of the graph: the odometry registered the query against the match's \
@@ -389,9 +390,9 @@ fn record(
                 )
             }),
         ),
-        Some((v, _)) => ("rejected", v.reason.clone()),
+        Some((v, _)) => (Verdict::Rejected, v.reason.clone()),
         None => (
-            "rejected",
+            Verdict::Rejected,
             "a frame could not be read or prepared".to_string(),
         ),
     };
@@ -400,12 +401,7 @@ fn record(
         match_frame: c.matched,
         query_stamp_ns: estimates[c.query].stamp_ns(),
         match_stamp_ns: estimates[c.matched].stamp_ns(),
-        found_by: match c.by {
-            Source::Place => "place",
-            Source::Appearance => "appearance",
-            Source::Both => "both",
-            Source::Seam => "seam",
-        },
+        found_by: c.by.into(),
         descriptor_distance: c.descriptor_distance,
         odometry_distance_m: c.odometry_distance_m,
         path_between_m: travelled[c.query] - travelled[c.matched],

@@ -12,6 +12,7 @@ use crate::Result;
 use crate::io::codec::{self, cdr, foxglove, ros1};
 use crate::io::mcap::log::ChannelInfo;
 use crate::io::mcap::log::OutputLog;
+use crate::loops::Source;
 use crate::odometry::uncertainty::{PoseUncertainty, uninformed_information};
 use crate::trajectory::free_mireg_namespace;
 
@@ -440,6 +441,59 @@ fn encode_pose(kind: CloudKind, world_frame: &str, p: &StampedPose<'_>) -> (Vec<
     }
 }
 
+/// How a loop candidate was found: `found_by` of `/mireg/loops` ([`loops_json_schema`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub(super) enum FoundBy {
+    /// Odometry positions close, allowing for drift.
+    Place,
+    /// Descriptors close.
+    Appearance,
+    /// Both searches.
+    Both,
+    /// A stitched segment's first frame against the frame before its window (`mireg stitch`).
+    Seam,
+}
+
+impl FoundBy {
+    /// Every value, in the schema's order.
+    pub(super) const ALL: [Self; 4] = [Self::Place, Self::Appearance, Self::Both, Self::Seam];
+}
+
+impl From<Source> for FoundBy {
+    fn from(s: Source) -> Self {
+        match s {
+            Source::Place => Self::Place,
+            Source::Appearance => Self::Appearance,
+            Source::Both => Self::Both,
+            Source::Seam => Self::Seam,
+        }
+    }
+}
+
+/// What verification decided of a loop candidate: `verdict` of `/mireg/loops`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub(super) enum Verdict {
+    /// A loop (in the pose graph, or left out of it when the odometry's map measured it).
+    Accepted,
+    /// Not a loop; `reason` says why.
+    Rejected,
+}
+
+impl Verdict {
+    /// Every value, in the schema's order.
+    pub(super) const ALL: [Self; 2] = [Self::Accepted, Self::Rejected];
+}
+
+/// The JSON strings of `values`, as the schema's `enum` lists them.
+fn json_names<T: serde::Serialize>(values: &[T]) -> Vec<serde_json::Value> {
+    values
+        .iter()
+        .map(|v| serde_json::to_value(v).expect("a unit variant serialises to a string"))
+        .collect()
+}
+
 /// JSON Schema of the `/mireg/loops` messages: one per loop candidate tried.
 pub fn loops_json_schema() -> serde_json::Value {
     let num = json!({"type": "number"});
@@ -452,9 +506,9 @@ pub fn loops_json_schema() -> serde_json::Value {
         "type": "object",
         "properties": {
             "query_frame": int, "match_frame": int, "query_stamp_ns": int, "match_stamp_ns": int,
-            "found_by": {"type": "string", "enum": ["place", "appearance", "both", "seam"]},
+            "found_by": {"type": "string", "enum": json_names(&FoundBy::ALL)},
             "descriptor_distance": nullable_num, "odometry_distance_m": num, "path_between_m": num,
-            "verdict": {"type": "string", "enum": ["accepted", "rejected"]},
+            "verdict": {"type": "string", "enum": json_names(&Verdict::ALL)},
             "reason": {"type": "string"},
             "match_from_query": {
                 "description": "The query sensor's pose in the match sensor's frame (p_match = T p_query); null when the registration failed",
@@ -481,4 +535,42 @@ pub fn loops_json_schema() -> serde_json::Value {
         "required": ["query_frame", "match_frame", "query_stamp_ns", "match_stamp_ns", "found_by",
                      "verdict", "reason", "match_from_query", "inliers", "fitness", "weight"]
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `found_by` and `verdict` were strings: as enums they must write the same JSON strings,
+    /// the ones the schema has always listed, and every search's candidates must map onto one.
+    #[test]
+    fn loop_record_enums_write_the_strings_the_schema_lists() {
+        let schema = loops_json_schema();
+        let listed = |field: &str| schema["properties"][field]["enum"].clone();
+        assert_eq!(
+            listed("found_by"),
+            json!(["place", "appearance", "both", "seam"])
+        );
+        assert_eq!(listed("verdict"), json!(["accepted", "rejected"]));
+        let sources = [
+            (Source::Place, "place"),
+            (Source::Appearance, "appearance"),
+            (Source::Both, "both"),
+            (Source::Seam, "seam"),
+        ];
+        for (source, name) in sources {
+            assert_eq!(
+                serde_json::to_string(&FoundBy::from(source)).unwrap(),
+                format!("\"{name}\"")
+            );
+        }
+        assert_eq!(
+            serde_json::to_string(&Verdict::Accepted).unwrap(),
+            "\"accepted\""
+        );
+        assert_eq!(
+            serde_json::to_string(&Verdict::Rejected).unwrap(),
+            "\"rejected\""
+        );
+    }
 }

@@ -218,10 +218,18 @@ impl Prepare<'_> {
                     {
                         // Times within the bound of the stamp and a finite motion: every point
                         // moves by a finite fraction of a finite motion, and so does the pose
-                        // referred back to the stamp.
+                        // referred back to the stamp. One time for every point (a Livox
+                        // `offset_time` of 0 throughout) measures no sweep: nothing to deskew,
+                        // and the statistics must not say `deskewed`.
                         if times.deskewable() {
-                            deskewed =
-                                Some(deskew_cloud(&mut cloud.points, &times.seconds, motion, dt));
+                            if times.varies() {
+                                deskewed = Some(deskew_cloud(
+                                    &mut cloud.points,
+                                    &times.seconds,
+                                    motion,
+                                    dt,
+                                ));
+                            }
                         } else {
                             let tally = &mut carry.times;
                             tally.field(&times.field);

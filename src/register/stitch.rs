@@ -27,10 +27,11 @@ use super::frames::Estimate;
 use super::output::{Outputs, StampedPose, Topics, write_pose};
 use super::plan::Plan;
 use super::writer::{loop_metadata, write_loop_outcome};
+use crate::io::atomic_file::{check_target, same_file};
 use crate::io::codec::{Time, cdr, pose_stamped_decoder, ros1};
+use crate::io::format_err;
 use crate::io::input_log::InputLog;
 use crate::io::mcap::log::{OutputLog, for_each_record};
-use crate::io::{atomic_file::same_file, format_err};
 use crate::loops::LoopConfig;
 use crate::odometry::OdometryConfig;
 use crate::{Error, Result};
@@ -218,6 +219,8 @@ pub fn stitch(
             output.display()
         )));
     }
+    // Before any segment is read: a missing folder or an existing output fails at once.
+    check_target(output, force)?;
     let mut segs = segments
         .iter()
         .map(|p| read_segment(p))

@@ -10,7 +10,7 @@ use nalgebra::Isometry3;
 use crate::Result;
 use crate::io::mcap::log::OutputLog;
 use crate::loops::LoopConfig;
-use crate::trajectory::{Trajectory, evaluate};
+use crate::trajectory::{FrameErrors, Trajectory, evaluate};
 
 use super::closure::LoopOutcome;
 use super::frames::Estimate;
@@ -18,7 +18,10 @@ use super::frames::FrameOut;
 use super::output::{Outputs, StampedPose, write_frame, write_loop, write_optimized_pose};
 use super::plan::Plan;
 use super::window::LogWindow;
-use super::{ReferenceErrors, RegisterOptions, RegisterSummary};
+use super::{
+    DOMINANT_MIN_STEPS, DOMINANT_SHARE, DominantStep, FLAGGED_FRAMES_LISTED, Flag, FlaggedFrame,
+    ReferenceErrors, RegisterOptions, RegisterSummary, StepError,
+};
 
 /// Writes the frames as they come and keeps what the summary needs.
 pub(super) struct Writer<'a> {
@@ -31,6 +34,10 @@ pub(super) struct Writer<'a> {
     pub(super) estimates: Vec<Estimate>,
     /// The reference poses read (stamp \[ns\], pose).
     reference: Vec<(i64, Isometry3<f64>)>,
+    /// The first [`FLAGGED_FRAMES_LISTED`] failed or suspect frames.
+    flagged: Vec<FlaggedFrame>,
+    /// Registered frames flagged suspect.
+    suspect_frames: usize,
 }
 
 impl<'a> Writer<'a> {
@@ -61,6 +68,8 @@ impl<'a> Writer<'a> {
             total_frames,
             estimates: Vec::new(),
             reference: Vec::new(),
+            flagged: Vec::new(),
+            suspect_frames: 0,
         }
     }
 
@@ -68,6 +77,23 @@ impl<'a> Writer<'a> {
     pub(super) fn frame(&mut self, log: &mut OutputLog, r: Result<FrameOut>) -> Result<()> {
         let out = r?;
         write_frame(log, &self.outputs, self.world_frame, &out)?;
+        let e = &out.est;
+        let flag = if !e.success {
+            Some((Flag::Failed, e.failure.map_or("failed", |f| f.as_str())))
+        } else {
+            e.suspect.map(|s| (Flag::Suspect, s.as_str()))
+        };
+        if let Some((flag, reason)) = flag {
+            self.suspect_frames += usize::from(flag == Flag::Suspect);
+            if self.flagged.len() < FLAGGED_FRAMES_LISTED {
+                self.flagged.push(FlaggedFrame {
+                    frame: e.index,
+                    stamp_ns: out.cloud.header.stamp.to_ns(),
+                    flag,
+                    reason,
+                });
+            }
+        }
         let deskew_motion = out.cloud.deskew_motion();
         self.estimates.push(Estimate {
             world_from_frame: out.est.world_from_frame,
@@ -192,6 +218,8 @@ impl<'a> Writer<'a> {
             pose_topic: plan.topics.pose,
             frames,
             failed_frames,
+            suspect_frames: self.suspect_frames,
+            flagged: std::mem::take(&mut self.flagged),
             mean_inliers,
             messages_copied: copied,
             voxel_m: plan.voxel_m,
@@ -322,5 +350,82 @@ fn reference_errors(
         ate_rmse_m: e.ate_rmse_m,
         rpe_trans_mean_m: e.rpe_trans_mean_m,
         rpe_rot_mean_deg: e.rpe_rot_mean_deg,
+        dominant_step: dominant_step(&e.rows),
     })
+}
+
+/// The step that carries more than [`DOMINANT_SHARE`] of the summed RPE translation, or else of
+/// the summed rotation, over at least [`DOMINANT_MIN_STEPS`] steps; `None` when none does (or
+/// every step is exact).
+fn dominant_step(rows: &[FrameErrors]) -> Option<DominantStep> {
+    let part = |error: StepError| {
+        let steps: Vec<(&FrameErrors, f64)> = rows
+            .iter()
+            .filter_map(|r| {
+                match error {
+                    StepError::Translation => r.rpe_trans_m,
+                    StepError::Rotation => r.rpe_rot_deg,
+                }
+                .filter(|v| v.is_finite())
+                .map(|v| (r, v))
+            })
+            .collect();
+        let total: f64 = steps.iter().map(|s| s.1).sum();
+        let (row, value) = steps.iter().copied().max_by(|a, b| a.1.total_cmp(&b.1))?;
+        let share = value / total;
+        (steps.len() >= DOMINANT_MIN_STEPS && total > 0.0 && share > DOMINANT_SHARE).then_some(
+            DominantStep {
+                frame: row.frame,
+                stamp_ns: row.stamp_ns,
+                error,
+                value,
+                total,
+                share,
+                steps: steps.len(),
+            },
+        )
+    };
+    part(StepError::Translation).or_else(|| part(StepError::Rotation))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(frame: u64, trans: Option<f64>, rot: Option<f64>) -> FrameErrors {
+        FrameErrors {
+            frame,
+            stamp_ns: Some(frame as i64 * 100),
+            success: None,
+            failure_reason: None,
+            rpe_trans_m: trans,
+            rpe_rot_deg: rot,
+            ate_err_m: 0.0,
+        }
+    }
+
+    #[test]
+    fn a_step_dominates_when_it_carries_most_of_the_error() {
+        let even: Vec<FrameErrors> = (0..5)
+            .map(|k| row(k, (k > 0).then_some(0.01), (k > 0).then_some(0.1)))
+            .collect();
+        assert_eq!(dominant_step(&even), None);
+        let mut broken = even.clone();
+        broken[3].rpe_trans_m = Some(0.5);
+        let d = dominant_step(&broken).unwrap();
+        assert_eq!(
+            (d.frame, d.stamp_ns, d.error, d.steps),
+            (3, Some(300), StepError::Translation, 4)
+        );
+        assert!((d.share - 0.5 / 0.53).abs() < 1e-12 && (d.total - 0.53).abs() < 1e-12);
+        // Rotation alone.
+        let mut turned = even.clone();
+        turned[2].rpe_rot_deg = Some(3.0);
+        let d = dominant_step(&turned).unwrap();
+        assert_eq!((d.frame, d.error), (2, StepError::Rotation));
+        // Two steps are too few to say one dominates; exact steps have no error to carry.
+        assert_eq!(dominant_step(&broken[2..4]), None);
+        let exact: Vec<FrameErrors> = (0..5).map(|k| row(k, Some(0.0), Some(0.0))).collect();
+        assert_eq!(dominant_step(&exact), None);
+    }
 }

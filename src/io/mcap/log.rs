@@ -2,12 +2,12 @@
 //! by one chunk, a catalogue of the input's schemas and channels, an output log that copies input
 //! records and adds ours, and the pass-through that copies the input's chunks byte for byte.
 //!
-//! Guarantees (DESIGN §4): input schema and channel ids are kept (copied chunks refer to them) and
-//! ours get ids above every input id; the output goes to a temporary file beside the target that
-//! is synced and renamed on success and deleted otherwise, so an error never leaves a half-written
-//! log. Copied chunks are written as they were read, never re-encoded, but each one is still
-//! decompressed once, off the copying thread, to check its CRC: a corrupt input is an error naming
-//! the file.
+//! Guarantees (../shared/docs/DESIGN.md §4): input schema and channel ids are kept (copied
+//! chunks refer to them) and ours get ids above every input id; the output goes to a temporary
+//! file beside the target that is synced and renamed on success and deleted otherwise, so an
+//! error never leaves a half-written log. Copied chunks are written as they were read, never
+//! re-encoded, but each one is still decompressed once, off the copying thread, to check its CRC:
+//! a corrupt input is an error naming the file.
 
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
