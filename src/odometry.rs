@@ -2,7 +2,7 @@
 //!
 //! Frame `k` is registered globally (MI-RANSAC + ICP, no motion prior) to the last frame that had
 //! usable data, giving `prev_from_curr`; the trajectory is `world_from_k = world_from_prev ·
-//! prev_from_curr` with world = the first frame's sensor frame (DESIGN §5). A frame that fails is
+//! prev_from_curr` with world = the first frame's sensor frame (../shared/docs/DESIGN.md §5). A frame that fails is
 //! flagged with its reason and the trajectory continues on a constant-velocity prediction, refined by
 //! ICP when that fits; one bad frame never stops the run.
 //!

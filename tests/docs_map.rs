@@ -39,17 +39,6 @@ fn citing_files() -> Vec<String> {
     v
 }
 
-/// Citations that live in files another branch is changing (src/loops/, src/odometry.rs):
-/// (file, citation). Each must still be there, so that this list empties as they are fixed.
-const PENDING: &[(&str, &str)] = &[
-    ("src/loops/mod.rs", "docs/DESIGN.md §6"),
-    ("src/odometry.rs", "(DESIGN §5)"),
-];
-
-fn pending(file: &str, text: &str) -> bool {
-    PENDING.iter().any(|(f, c)| *f == file && text.contains(c))
-}
-
 /// Repository paths cited in `text`: a top-level folder of the repository, then path characters,
 /// ending in a file extension; not part of a longer path (`../shared/docs/…` is not `docs/…`).
 fn cited_paths(text: &str) -> Vec<String> {
@@ -90,7 +79,7 @@ fn cited_repository_paths_exist() {
     for file in citing_files() {
         for (n, line) in read(&file).lines().enumerate() {
             for path in cited_paths(line) {
-                if !root().join(&path).exists() && !pending(&file, line) {
+                if !root().join(&path).exists() {
                     missing.push(format!("{file}:{}: {path}", n + 1));
                 }
             }
@@ -113,7 +102,7 @@ fn the_design_notes_are_cited_by_one_path() {
             for (at, _) in line.match_indices("DESIGN") {
                 let cited =
                     line[at..].starts_with("DESIGN.md") || line[at..].starts_with("DESIGN §");
-                if cited && !line[..at].ends_with("../shared/docs/") && !pending(&file, line) {
+                if cited && !line[..at].ends_with("../shared/docs/") {
                     wrong.push(format!("{file}:{}: {line}", n + 1));
                 }
             }
@@ -124,12 +113,6 @@ fn the_design_notes_are_cited_by_one_path() {
         "cite ../shared/docs/DESIGN.md §N:\n{}",
         wrong.join("\n")
     );
-    for (file, citation) in PENDING {
-        assert!(
-            read(file).contains(citation),
-            "{file} no longer has {citation:?}: take it off PENDING"
-        );
-    }
 }
 
 fn files_of_tools_and_fixtures() -> Vec<String> {

@@ -2,7 +2,7 @@
 //! appearance [`Descriptor`] per keyframe, a keyframe selector and the candidate search over a
 //! whole log. Pure: slices and nalgebra types in, candidates out; no I/O.
 //!
-//! Anchors (docs/DESIGN.md §6): Scan Context (Kim & Kim 2018) searches by appearance with a
+//! Anchors (../shared/docs/DESIGN.md §6): Scan Context (Kim & Kim 2018) searches by appearance with a
 //! yaw-invariant polar descriptor ([`scan_context`], kept as the measured baseline); KISS-SLAM
 //! queries MapClosures with each local map. Here a keyframe is a candidate for an earlier one
 //! when their odometry positions are close allowing for drift ([`Source::Place`]) or when their
