@@ -18,7 +18,7 @@ use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::ops::ControlFlow;
 use std::time::Instant;
 
-use nalgebra::{Isometry3, Matrix6};
+use nalgebra::Isometry3;
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -26,52 +26,20 @@ use crate::Result;
 use crate::evaluate::path_distances;
 use crate::geometry::deskew::deskew;
 use crate::loops::{
-    Candidate, Descriptor, Keyframe, KeyframeSelector, LOOP_INFORMATION_SCALE, LoopConfig,
-    LoopEdge, Source, Step, Verification, edge_prior, find_candidates, map_agreement,
-    optimize_trajectory, select_keyframes, verify,
+    Candidate, Descriptor, Keyframe, KeyframeSelector, LoopConfig, LoopEdge, Source, Step,
+    Verification, edge_prior, find_candidates, map_agreement, optimize_trajectory,
+    select_keyframes, verify,
 };
-use crate::odometry::uncertainty::{PoseUncertainty, registration_information};
 use crate::pipeline::{PairConfig, PreparedFrame, prepare_frame, refine};
+
+mod record;
+
+pub(super) use record::LoopRecord;
+use record::{loop_information, record};
 
 use super::RegisterOptions;
 use super::frames::Estimate;
-use super::output::{FoundBy, Verdict};
 use super::plan::Plan;
-
-/// One candidate tried: what `/mireg/loops` carries ([`loops_json_schema`]).
-#[derive(Debug, Clone, Serialize)]
-pub(super) struct LoopRecord {
-    pub(super) query_frame: usize,
-    pub(super) match_frame: usize,
-    pub(super) query_stamp_ns: i64,
-    pub(super) match_stamp_ns: i64,
-    pub(super) found_by: FoundBy,
-    pub(super) descriptor_distance: f64,
-    pub(super) odometry_distance_m: f64,
-    pub(super) path_between_m: f64,
-    pub(super) verdict: Verdict,
-    pub(super) reason: String,
-    pub(super) match_from_query: Option<serde_json::Value>,
-    pub(super) inliers: usize,
-    pub(super) correspondences: usize,
-    pub(super) fitness: f64,
-    pub(super) inlier_rmse_m: f64,
-    /// The ICP's iterations (0 when it did not run).
-    pub(super) icp_iterations: usize,
-    pub(super) odometry_disagreement_m: f64,
-    pub(super) odometry_disagreement_deg: f64,
-    /// An accepted loop's predicted deviations along its least certain translation \[m\] and
-    /// rotation \[deg\] directions, and its covariance in ROS order (x, y, z, rotation about x, y,
-    /// z; row-major, m² … rad²): the loop edge's information in the graph, inverted.
-    pub(super) sigma_m: Option<f64>,
-    pub(super) sigma_deg: Option<f64>,
-    pub(super) covariance: Option<Vec<f64>>,
-    /// Robust weight of the loop edge at the optimum (0 for a rejected candidate).
-    pub(super) weight: f64,
-    pub(super) verify_s: f64,
-    /// The pair registration's seconds per stage (matching, ranking, RANSAC, ICP, …).
-    pub(super) timings_s: Option<crate::pipeline::PairTimings>,
-}
 
 /// What loop closure did, in the run's summary.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -346,87 +314,6 @@ pub(super) fn close_loops(
         optimized,
         summary,
     })
-}
-
-/// The calibrated information of an accepted loop's registration (right perturbation of
-/// `match_from_query`, [`LOOP_INFORMATION_SCALE`] times the odometry's calibration), as its
-/// graph edge carries it.
-fn loop_information(v: &Verification) -> Option<Matrix6<f64>> {
-    let match_from_query = v.match_from_query?;
-    v.pair
-        .icp_hessian
-        .and_then(|h| registration_information(&h, &match_from_query))
-        .map(|omega| omega * LOOP_INFORMATION_SCALE)
-}
-
-/// The `/mireg/loops` record of candidate `c`.
-fn record(
-    c: &Candidate,
-    estimates: &[Estimate],
-    travelled: &[f64],
-    verified: Option<&(Verification, f64)>,
-    weights: &HashMap<(usize, usize), f64>,
-    held_d2: Option<f64>,
-    prior: &Matrix6<f64>,
-) -> LoopRecord {
-    let uncertainty = verified
-        .filter(|(v, _)| v.accepted)
-        .and_then(|(v, _)| loop_information(v))
-        .map(|omega| PoseUncertainty::new(Some(&omega), prior));
-    let pose_json = |t: &Isometry3<f64>| {
-        let q = t.rotation.coords;
-        serde_json::json!({
-            "translation": [t.translation.x, t.translation.y, t.translation.z],
-            "rotation_xyzw": [q.x, q.y, q.z, q.w],
-        })
-    };
-    let (verdict, reason) = match verified {
-        Some((v, _)) if v.accepted => (
-            Verdict::Accepted,
-            held_d2.map_or_else(String::new, |d2| {
-                format!(
-                    "left out of the graph: the odometry registered the query against the match's \
-                     place and agrees (squared Mahalanobis distance {d2:.2})"
-                )
-            }),
-        ),
-        Some((v, _)) => (Verdict::Rejected, v.reason.clone()),
-        None => (
-            Verdict::Rejected,
-            "a frame could not be read or prepared".to_string(),
-        ),
-    };
-    LoopRecord {
-        query_frame: c.query,
-        match_frame: c.matched,
-        query_stamp_ns: estimates[c.query].stamp_ns(),
-        match_stamp_ns: estimates[c.matched].stamp_ns(),
-        found_by: c.by.into(),
-        descriptor_distance: c.descriptor_distance,
-        odometry_distance_m: c.odometry_distance_m,
-        path_between_m: travelled[c.query] - travelled[c.matched],
-        verdict,
-        reason,
-        match_from_query: verified.and_then(|(v, _)| v.match_from_query.as_ref().map(pose_json)),
-        inliers: verified.map_or(0, |(v, _)| v.pair.num_inliers),
-        correspondences: verified.map_or(0, |(v, _)| v.pair.num_correspondences),
-        fitness: verified.map_or(0.0, |(v, _)| v.pair.fitness),
-        inlier_rmse_m: verified.map_or(0.0, |(v, _)| v.pair.inlier_rmse_m),
-        icp_iterations: verified.map_or(0, |(v, _)| v.pair.icp_iterations),
-        odometry_disagreement_m: verified.map_or(f64::NAN, |(v, _)| v.disagreement_m),
-        odometry_disagreement_deg: verified.map_or(f64::NAN, |(v, _)| v.disagreement_deg),
-        sigma_m: uncertainty.as_ref().map(|u| u.sigma_m),
-        sigma_deg: uncertainty.as_ref().map(|u| u.sigma_deg),
-        covariance: uncertainty.as_ref().map(|u| u.ros_covariance().to_vec()),
-        // A loop left out of the graph has no weight: null.
-        weight: if held_d2.is_some() {
-            f64::NAN
-        } else {
-            weights.get(&(c.query, c.matched)).copied().unwrap_or(0.0)
-        },
-        verify_s: verified.map_or(0.0, |(_, s)| *s),
-        timings_s: verified.map(|(v, _)| v.pair.timings_s),
-    }
 }
 
 /// Computes each frame's descriptor by reading the input again (for a trajectory that did not
