@@ -442,7 +442,7 @@ impl Odometry {
             if let Some(s) = target.as_ref().ok().copied().flatten()
                 && let Some(tracked) = self.track(&frame, s, &predicted, last_map_fitness)?
             {
-                return Ok(self.accept_tracked(est, frame, tracked, &world_from_prev));
+                return Ok(self.accept_map_fit(est, frame, tracked, &world_from_prev));
             }
             let (prev, _) = self.previous.as_ref().expect("checked above");
             (
@@ -517,18 +517,8 @@ impl Odometry {
                 pair.target_from_source = world_from_prev.inverse() * pose;
                 pair.fitness = fit.fitness;
                 pair.inlier_rmse_m = fit.inlier_rmse_m;
-                est.prev_from_curr = pair.target_from_source;
-                self.velocity = pair.target_from_source;
-                est.world_from_frame = pose;
-                est.information = uncertainty::registration_information(&fit.hessian, &pose);
-                est.map = Some(fit);
                 est.pair = Some(pair);
-                suspect::judge(&mut est, last_map_fitness, max_hypotheses);
-                self.last_map_fitness = Some(fit.fitness);
-                est.map_range_m = self.map_range(&frame);
-                self.set_previous(index, frame, pose);
-                self.map_pending = true;
-                return Ok(est);
+                return Ok(self.accept_map_fit(est, frame, (pose, fit), &world_from_prev));
             }
         }
         if pair.failure.is_none() {
@@ -616,8 +606,10 @@ impl Odometry {
         )))
     }
 
-    /// Accepts a tracked frame ([`Self::track`]) as the global path accepts a map fit.
-    fn accept_tracked(
+    /// Accepts `frame` at the pose its map fit found (a global start's or, with
+    /// [`OdometryConfig::track_first`], the prediction's, [`Self::track`]): the step, the
+    /// velocity, the information, the suspect rules, and the frame as the map's next one.
+    fn accept_map_fit(
         &mut self,
         mut est: FrameEstimate,
         frame: PreparedFrame,

@@ -11,6 +11,8 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 #[path = "common/room_scene.rs"]
 mod room_scene;
+#[path = "common/room_track.rs"]
+mod room_track;
 
 #[test]
 fn floor_only_frames_are_flagged_and_uncertain_along_the_floor() {
@@ -85,8 +87,6 @@ fn a_frame_whose_first_ransac_fails_gets_a_second_stream() {
         let mut config = OdometryConfig::default();
         config.pair.seed = seed;
         config.pair.max_hypotheses = HYPOTHESES;
-        let mut odometry = StreamOdometry::new(config, true, false);
-        let mut first = None;
         let track = [
             (0.0, 0.0),
             (0.08, 1.0),
@@ -95,23 +95,7 @@ fn a_frame_whose_first_ransac_fails_gets_a_second_stream() {
             (0.32, 4.0),
             (-0.5, -10.0),
         ];
-        for (k, &(x, yaw_deg)) in track.iter().enumerate() {
-            let world_from_frame = Isometry3::from_parts(
-                Translation3::new(0.5 + x, 0.6, 1.0),
-                UnitQuaternion::from_axis_angle(&Vector3::z_axis(), f64::to_radians(yaw_deg)),
-            );
-            let points: Vec<_> = room_scene::scene(8000, k as u64)
-                .into_iter()
-                .map(|p| world_from_frame.inverse() * p)
-                .collect();
-            let est = odometry
-                .push(points, None, (k as i64) * 100_000_000)
-                .unwrap();
-            let truth = first.get_or_insert(world_from_frame).inverse() * world_from_frame;
-            let error = (truth.inverse() * est.world_from_frame)
-                .translation
-                .vector
-                .norm();
+        for (k, (est, error)) in room_track::run(config, &track).into_iter().enumerate() {
             if est
                 .map
                 .is_some_and(|m| m.guess == mireg::odometry::InitialGuess::SecondGlobal)

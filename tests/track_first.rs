@@ -2,44 +2,23 @@
 //! the map from it and accepted without global registration; a frame it does not follow (a jump
 //! against the prediction) is registered globally as before. Poses against the known truth.
 
-use mireg::odometry::stream::StreamOdometry;
 use mireg::odometry::{InitialGuess, OdometryConfig};
-use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 #[path = "common/room_scene.rs"]
 mod room_scene;
+#[path = "common/room_track.rs"]
+mod room_track;
 
-/// Runs the room scene along `track` ((x \[m\], yaw \[deg\]) per frame); returns each frame's
-/// map guess and its position error against the truth \[m\].
+/// Each frame's map guess, position error \[m\] and success along `track`
+/// ([`room_track::run`]).
 fn run(track: &[(f64, f64)], track_first: bool) -> Vec<(Option<InitialGuess>, f64, bool)> {
     let config = OdometryConfig {
         track_first,
         ..OdometryConfig::default()
     };
-    let mut odometry = StreamOdometry::new(config, true, false);
-    let mut first = None;
-    track
-        .iter()
-        .enumerate()
-        .map(|(k, &(x, yaw_deg))| {
-            let world_from_frame = Isometry3::from_parts(
-                Translation3::new(0.5 + x, 0.6, 1.0),
-                UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw_deg.to_radians()),
-            );
-            let points: Vec<_> = room_scene::scene(8000, k as u64)
-                .into_iter()
-                .map(|p| world_from_frame.inverse() * p)
-                .collect();
-            let est = odometry
-                .push(points, None, (k as i64) * 100_000_000)
-                .unwrap();
-            let truth = first.get_or_insert(world_from_frame).inverse() * world_from_frame;
-            let error = (truth.inverse() * est.world_from_frame)
-                .translation
-                .vector
-                .norm();
-            (est.map.map(|m| m.guess), error, est.success)
-        })
+    room_track::run(config, track)
+        .into_iter()
+        .map(|(est, error)| (est.map.map(|m| m.guess), error, est.success))
         .collect()
 }
 
