@@ -13,19 +13,21 @@
 //! (docs/ODOMETRY.md). The global estimate stays prior-free, so a dropped frame, a jump or a kidnap
 //! still recovers: its start wins where the prediction is wrong.
 
+mod map_fit;
 mod map_input;
 pub mod stream;
 pub mod suspect;
 pub mod uncertainty;
 
-use map_input::{add_to_map, add_to_map_and_target};
+pub use map_fit::keep_map_fine_points;
+use map_fit::{map_icp_distance, map_target};
+use map_input::add_to_map;
 
-use nalgebra::{Isometry3, Matrix6, Point3};
+use nalgebra::{Isometry3, Matrix6};
 use serde::{Deserialize, Serialize};
 
 use crate::Result;
 use crate::geometry::radius_grid::cell_edge;
-use crate::pipeline::refine::{FineInputs, fine_stage};
 use crate::pipeline::{
     FailureReason, PairConfig, PairResult, PreparedFrame, refine_prepared, register_prepared_coarse,
 };
@@ -277,6 +279,28 @@ pub struct FrameEstimate {
     pub map_range_m: Option<f64>,
 }
 
+impl FrameEstimate {
+    /// Frame `index` before registration: a success at the identity until found otherwise.
+    fn new(index: usize, frame: &PreparedFrame) -> Self {
+        Self {
+            index,
+            world_from_frame: Isometry3::identity(),
+            prev_from_curr: Isometry3::identity(),
+            success: true,
+            failure: None,
+            fallback: None,
+            pair: None,
+            fallback_icp_iterations: 0,
+            num_points: frame.num_points,
+            num_points_downsampled: frame.points.len(),
+            map: None,
+            information: None,
+            suspect: None,
+            map_range_m: None,
+        }
+    }
+}
+
 /// The running state of consecutive-frame registration.
 #[derive(Debug)]
 pub struct Odometry {
@@ -376,22 +400,7 @@ impl Odometry {
     pub fn push(&mut self, frame: PreparedFrame) -> Result<FrameEstimate> {
         let index = self.frames;
         self.frames += 1;
-        let mut est = FrameEstimate {
-            index,
-            world_from_frame: Isometry3::identity(),
-            prev_from_curr: Isometry3::identity(),
-            success: true,
-            failure: None,
-            fallback: None,
-            pair: None,
-            fallback_icp_iterations: 0,
-            num_points: frame.num_points,
-            num_points_downsampled: frame.points.len(),
-            map: None,
-            information: None,
-            suspect: None,
-            map_range_m: None,
-        };
+        let mut est = FrameEstimate::new(index, &frame);
         let last_map_fitness = self.last_map_fitness;
         let max_hypotheses = self.config.pair.max_hypotheses;
         let usable = frame.points.len() >= 3 && frame.icp.is_some();
@@ -410,16 +419,7 @@ impl Odometry {
         };
         let world_from_prev = *world_from_prev;
         if !usable {
-            // The previous frame's pose is about to change: add it at the pose it was accepted at.
-            self.flush_map();
-            est.success = false;
-            est.failure = Some(FailureReason::TooFewPoints);
-            est.fallback = Some(Fallback::ConstantVelocity);
-            est.prev_from_curr = self.velocity;
-            est.world_from_frame = world_from_prev * self.velocity;
-            // The previous frame stays the reference; the prediction advances one more step.
-            self.previous = self.previous.take().map(|(f, _)| (f, est.world_from_frame));
-            return Ok(est);
+            return Ok(self.skip_unusable(est, &world_from_prev));
         }
 
         // The constant-velocity prediction, before this frame updates the velocity.
@@ -463,108 +463,31 @@ impl Odometry {
         let (prev, _) = self.previous.as_ref().expect("checked above");
         // With a map, the RANSAC model is refined against it directly; only where that does not
         // fit is it refined frame to frame, as without a map.
-        if let Some(target) = &target {
-            let found = pair.failure.is_none() && pair.num_inliers >= self.config.min_inliers;
-            let mut first = None;
-            if found {
-                let global = world_from_prev * pair.target_from_source;
-                first = self.refine_on_map(&frame, *target, Some(&global), &predicted)?;
-            }
-            // NOTE: the second opinion also answers a global registration that found no model,
-            // or stopped at its hypothesis budget unconverged: one RANSAC stream either
-            // failing (its frame then tracked from the prediction) or not decided whether a
-            // log registered right hinged on the seed (issue: a real Livox log's hard frame
-            // slid 1.4 m for some seeds, registered for others).
-            let capped = pair.hypotheses >= max_hypotheses && !pair.converged;
-            let retry = match &first {
-                None => !found,
-                Some((_, fit)) => {
-                    fit.guess == InitialGuess::Global && (capped || self.doubtful(fit.fitness))
-                }
-            };
-            if retry
-                && let Some((second, pose, fit2)) =
-                    self.second_opinion(&frame, prev, *target, &world_from_prev)?
-                && first
-                    .as_ref()
-                    .is_none_or(|(_, fit)| fit2.fitness > fit.fitness)
-            {
-                pair = second;
-                first = Some((pose, fit2));
-            }
-            // NOTE: where both global estimates fit the map doubtfully, the constant-velocity
-            // prediction is tried too and wins if it fits better: after a frame whose own
-            // features were poor (a floor alone), global registration against it went 3 m
-            // wrong at a map fitness of 0.32 while the prediction fitted at 0.997
-            // (`tests/suspect_steps.rs`).
-            let mut tracked = false;
-            if let Some((_, fit)) = &first
-                && last_map_fitness.is_some()
-                && self.doubtful(fit.fitness)
-                && let Some((pose, refit)) =
-                    self.refine_on_map(&frame, *target, None, &predicted)?
-                && refit.used
-                && refit.fitness > fit.fitness
-            {
-                first = Some((pose, refit));
-                tracked = true;
-            }
-            if let Some((pose, fit)) = first
-                && fit.used
-                && (tracked
-                    || matches!(fit.guess, InitialGuess::Global | InitialGuess::SecondGlobal))
-            {
-                pair.target_from_source = world_from_prev.inverse() * pose;
-                pair.fitness = fit.fitness;
-                pair.inlier_rmse_m = fit.inlier_rmse_m;
-                est.pair = Some(pair);
-                return Ok(self.accept_map_fit(est, frame, (pose, fit), &world_from_prev));
-            }
+        if let Some(target) = &target
+            && let Some(fit) = self.global_on_map(
+                &frame,
+                prev,
+                *target,
+                &mut pair,
+                &world_from_prev,
+                &predicted,
+            )?
+        {
+            est.pair = Some(pair);
+            return Ok(self.accept_map_fit(est, frame, fit, &world_from_prev));
         }
-        if pair.failure.is_none() {
-            refine_prepared(&mut pair, &frame, prev, &self.config.pair)?;
-        }
-        let failure = pair
-            .failure
-            .or(if pair.num_inliers < self.config.min_inliers {
-                Some(FailureReason::TooFewInliers)
-            } else if pair.fitness < self.config.min_fitness {
-                Some(FailureReason::LowFitness)
-            } else {
-                None
-            });
-        if failure.is_none() {
-            est.prev_from_curr = pair.target_from_source;
-            self.velocity = pair.target_from_source;
-            est.information = pair
-                .icp_hessian
-                .and_then(|h| uncertainty::registration_information(&h, &pair.target_from_source));
-        } else {
-            est.success = false;
-            est.failure = failure;
-            let (pose, fallback, iterations) = self.constant_velocity(&frame, prev)?;
-            est.prev_from_curr = pose;
-            est.fallback = Some(fallback);
-            est.fallback_icp_iterations = iterations;
+        self.frame_to_frame(&mut est, &mut pair, &frame, prev)?;
+        if est.success {
+            self.velocity = est.prev_from_curr;
         }
         est.pair = Some(pair);
         est.world_from_frame = world_from_prev * est.prev_from_curr;
-        let global = est.success.then_some(est.world_from_frame);
-        let refined = match &target {
-            Some(target) => self.refine_on_map(&frame, *target, global.as_ref(), &predicted)?,
-            None => None,
-        };
-        if let Some((pose, fit)) = refined {
-            if fit.used {
-                est.world_from_frame = pose;
-                if est.success {
-                    est.information = uncertainty::registration_information(&fit.hessian, &pose);
-                }
-                est.prev_from_curr = world_from_prev.inverse() * pose;
-                self.velocity = est.prev_from_curr;
-                self.last_map_fitness = Some(fit.fitness);
-            }
-            est.map = Some(fit);
+        if let Some(target) = target
+            && let Some(fitness) =
+                self.settle_on_map(&mut est, &frame, target, &world_from_prev, &predicted)?
+        {
+            self.velocity = est.prev_from_curr;
+            self.last_map_fitness = Some(fitness);
         }
         suspect::judge(&mut est, last_map_fitness, max_hypotheses);
         self.map_pending = est.success || est.map.is_some_and(|m| m.used);
@@ -683,126 +606,88 @@ impl Odometry {
         }))
     }
 
-    /// ICP of `frame` against the local map from the initial guesses that make sense: the global
-    /// estimate when global registration succeeded, and the constant-velocity prediction
-    /// `predicted` when there is no global estimate, or when the global start fitted the map
-    /// poorly (fitness below `min_fitness`) and the prediction is not within the correspondence
-    /// distance and 1° of it (both would converge alike). The best fit wins: highest fitness,
-    /// then lowest RMSE, the global start on a tie.
-    ///
-    /// NOTE: the prediction is not tried when the global start already fits the map: on the
-    /// KAIST03 keyframes trying both cost a third of the frame rate for no accuracy
-    /// (docs/ODOMETRY.md); where the global estimate is wrong, its fit to the map is poor.
-    ///
-    /// `target` is the map as an ICP target and the seconds it took to build.
-    fn refine_on_map(
+    /// `frame` registered frame to frame: the RANSAC model in `pair` refined by ICP on `prev`,
+    /// or, where that fails or does not pass the thresholds, the constant-velocity fallback.
+    /// Sets `est`'s step, success, failure, fallback and information.
+    fn frame_to_frame(
         &self,
+        est: &mut FrameEstimate,
+        pair: &mut PairResult,
         frame: &PreparedFrame,
-        (target, target_s): (&IcpTarget, f64),
-        global: Option<&Isometry3<f64>>,
+        prev: &PreparedFrame,
+    ) -> Result<()> {
+        if pair.failure.is_none() {
+            refine_prepared(pair, frame, prev, &self.config.pair)?;
+        }
+        let failure = pair
+            .failure
+            .or(if pair.num_inliers < self.config.min_inliers {
+                Some(FailureReason::TooFewInliers)
+            } else if pair.fitness < self.config.min_fitness {
+                Some(FailureReason::LowFitness)
+            } else {
+                None
+            });
+        if failure.is_none() {
+            est.prev_from_curr = pair.target_from_source;
+            est.information = pair
+                .icp_hessian
+                .and_then(|h| uncertainty::registration_information(&h, &pair.target_from_source));
+        } else {
+            est.success = false;
+            est.failure = failure;
+            let (pose, fallback, iterations) = self.constant_velocity(frame, prev)?;
+            est.prev_from_curr = pose;
+            est.fallback = Some(fallback);
+            est.fallback_icp_iterations = iterations;
+        }
+        Ok(())
+    }
+
+    /// A frame registered frame to frame (or on its fallback), refined on the map from that
+    /// pose (where it succeeded) or the prediction: where that fits, it is the frame's pose, and
+    /// its fitness is returned.
+    fn settle_on_map(
+        &self,
+        est: &mut FrameEstimate,
+        frame: &PreparedFrame,
+        target: (&IcpTarget, f64),
+        world_from_prev: &Isometry3<f64>,
         predicted: &Isometry3<f64>,
-    ) -> Result<Option<(Isometry3<f64>, MapFit)>> {
-        let (Some(map), Some(icp_cloud)) = (&self.map, &frame.icp) else {
+    ) -> Result<Option<f64>> {
+        let global = est.success.then_some(est.world_from_frame);
+        let Some((pose, fit)) = self.refine_on_map(frame, target, global.as_ref(), predicted)?
+        else {
             return Ok(None);
         };
-        let t = std::time::Instant::now();
-        let c = self.config.pair.resolved()?;
-        let distance = map_icp_distance(&c)?;
-        let icp = IcpConfig::new(distance)
-            .max_iterations(c.icp_max_iterations)
-            .relative_fitness(MAP_ICP_RELATIVE_CHANGE)
-            .relative_rmse(MAP_ICP_RELATIVE_CHANGE * distance);
-        let dense_icp = icp.min_update(
-            MAP_ICP_MIN_UPDATE.0 * distance,
-            MAP_ICP_MIN_UPDATE.1.to_radians(),
-        );
-        // Coarse to fine: where global registration ran on a coarser cloud than ICP
-        // (`OdometryConfig::feature_points`), ICP against the map first converges with every
-        // k-th ICP point as source, as many as that cloud has, and the ICP cloud then finishes.
-        // NOTE: not the coarser cloud itself, whose centroids of large voxels are biased samples
-        // of the surface: from their optimum the ICP cloud needed 5 updates on KAIST03, with a
-        // 2-update cap ATE rose 2.46 → 2.91 cm (docs/ODOMETRY.md).
-        let stride = icp_cloud.points().len().div_ceil(frame.points.len().max(1));
-        let coarse: Option<Vec<Point3<f64>>> =
-            (stride > 1).then(|| icp_cloud.points().iter().step_by(stride).copied().collect());
-        let finish_icp = match coarse {
-            Some(_) => dense_icp.max_iterations(
-                c.icp_max_iterations
-                    .min(MAP_ICP_MAX_ITERATIONS_AFTER_COARSE),
-            ),
-            None => dense_icp,
-        };
-        let fine_distance = 0.5 * distance;
-        let fine: Option<Vec<Point3<f64>>> = (self.config.map_fine && !frame.fine.is_empty())
-            .then(|| map_fine_points(frame).copied().collect());
-        let fit = |guess, start: &Isometry3<f64>| -> Result<(Isometry3<f64>, MapFit)> {
-            let (start, coarse_iterations) = match coarse.as_deref() {
-                Some(points) => {
-                    let r = registration_icp_point_to_plane(points, target, start, &dense_icp)?;
-                    (r.target_from_source, r.iterations)
-                }
-                None => (*start, 0),
-            };
-            let mut r =
-                registration_icp_point_to_plane(icp_cloud.points(), target, &start, &finish_icp)?;
-            let mut fine_iterations = 0;
-            if let Some(points) = fine.as_deref() {
-                let inputs = FineInputs {
-                    points,
-                    target,
-                    distance_m: fine_distance,
-                    max_iterations: MAP_FINE_MAX_ITERATIONS,
-                };
-                let f = fine_stage(&inputs, icp_cloud.points(), target, &r, distance)?;
-                if let Some(f) = f {
-                    r.target_from_source = f.target_from_source;
-                    r.fitness = f.fitness;
-                    r.inlier_rmse_m = f.inlier_rmse_m;
-                    fine_iterations = f.iterations;
-                }
-            }
-            let fit = MapFit {
-                guess,
-                fitness: r.fitness,
-                inlier_rmse_m: r.inlier_rmse_m,
-                iterations: r.iterations,
-                fine_iterations,
-                coarse_iterations,
-                map_points: map.len(),
-                used: r.fitness >= self.config.min_fitness,
-                target_s,
-                icp_s: 0.0,
-                hessian: r.hessian,
-            };
-            Ok((r.target_from_source, fit))
-        };
-        let from_global = if let Some(global) = global {
-            let f = fit(InitialGuess::Global, global)?;
-            let apart = global.inverse() * predicted;
-            let close = apart.translation.vector.norm() <= distance
-                && apart.rotation.angle() <= 1f64.to_radians();
-            if f.1.used || close {
-                let (pose, fit) = f;
-                let icp_s = t.elapsed().as_secs_f64();
-                return Ok(Some((pose, MapFit { icp_s, ..fit })));
-            }
-            Some(f)
-        } else {
-            None
-        };
-        let from_prediction = fit(InitialGuess::ConstantVelocity, predicted)?;
-        let icp_s = t.elapsed().as_secs_f64();
-        let (pose, best) = match from_global {
-            Some(g)
-                if g.1.fitness > from_prediction.1.fitness
-                    || (g.1.fitness == from_prediction.1.fitness
-                        && g.1.inlier_rmse_m <= from_prediction.1.inlier_rmse_m) =>
-            {
-                g
-            }
-            _ => from_prediction,
-        };
-        Ok(Some((pose, MapFit { icp_s, ..best })))
+        est.map = Some(fit);
+        if !fit.used {
+            return Ok(None);
+        }
+        est.world_from_frame = pose;
+        if est.success {
+            est.information = uncertainty::registration_information(&fit.hessian, &pose);
+        }
+        est.prev_from_curr = world_from_prev.inverse() * pose;
+        Ok(Some(fit.fitness))
+    }
+
+    /// A frame too poor to register (after the first): flagged, placed on the constant-velocity
+    /// prediction; the previous frame stays the reference, its prediction one step further.
+    fn skip_unusable(
+        &mut self,
+        mut est: FrameEstimate,
+        world_from_prev: &Isometry3<f64>,
+    ) -> FrameEstimate {
+        // The previous frame's pose is about to change: add it at the pose it was accepted at.
+        self.flush_map();
+        est.success = false;
+        est.failure = Some(FailureReason::TooFewPoints);
+        est.fallback = Some(Fallback::ConstantVelocity);
+        est.prev_from_curr = self.velocity;
+        est.world_from_frame = world_from_prev * self.velocity;
+        self.previous = self.previous.take().map(|(f, _)| (f, est.world_from_frame));
+        est
     }
 
     /// Adds the previous frame to the map now if it is pending.
@@ -834,65 +719,4 @@ impl Odometry {
         }
         Ok((self.velocity, Fallback::ConstantVelocity, 0))
     }
-}
-
-/// The correspondence distance of ICP against the map \[m\]: the ICP distance.
-/// The local map (with the previous frame `prev` added at `world_from_prev` if it is still
-/// pending) built as an ICP target at `distance` \[m\] for `frame`: the seconds it took, or
-/// `None` without a map or target.
-fn map_target(
-    map: &mut Option<LocalMap>,
-    map_pending: &mut bool,
-    frame: &PreparedFrame,
-    prev: &PreparedFrame,
-    world_from_prev: &Isometry3<f64>,
-    distance: f64,
-) -> Result<Option<f64>> {
-    let t = std::time::Instant::now();
-    let Some(map) = map.as_mut() else {
-        return Ok(None);
-    };
-    let pending = std::mem::take(map_pending);
-    if frame.icp.is_none() {
-        if pending {
-            add_to_map(map, prev, world_from_prev);
-        }
-        return Ok(None);
-    }
-    let target = if pending {
-        add_to_map_and_target(map, prev, world_from_prev, distance)?
-    } else {
-        map.target(distance)?
-    };
-    let Some(target) = target else {
-        return Ok(None);
-    };
-    target.prepare_for_distance(distance)?;
-    Ok(Some(t.elapsed().as_secs_f64()))
-}
-
-fn map_icp_distance(pair: &PairConfig) -> Result<f64> {
-    let c = pair.resolved()?;
-    Ok(c.icp_max_distance_m.unwrap_or(c.voxel_size_m))
-}
-
-/// The input points of `frame` that the map ICP's fine stage uses
-/// ([`OdometryConfig::map_fine`]): the frame carries [`MAP_FINE_DRAW_PER_ICP_POINT`] per
-/// ICP point (a uniform draw in input order); every k-th of them is a
-/// uniform draw of about [`MAP_FINE_POINTS_PER_ICP_POINT`] per ICP point, at most
-/// [`MAP_FINE_MAX_POINTS`]. Keeping only these ([`keep_map_fine_points`]) leaves the same ones.
-fn map_fine_points(frame: &PreparedFrame) -> impl Iterator<Item = &Point3<f64>> {
-    let icp_points = frame.icp.as_ref().map_or(0, |icp| icp.points().len());
-    let wanted = (MAP_FINE_POINTS_PER_ICP_POINT * icp_points).clamp(1, MAP_FINE_MAX_POINTS);
-    let step = frame.fine.len().div_ceil(wanted).max(1);
-    frame.fine.iter().step_by(step)
-}
-
-/// Drops the input points a prepared frame carries beyond those the map ICP's fine stage uses
-/// ([`map_fine_points`]: the stage then picks the same ones), so that frames waiting between
-/// the preparing and the registering thread hold a few thousand points, not eight per ICP point
-/// (the KITTI replay log: 88k).
-pub fn keep_map_fine_points(frame: &mut PreparedFrame) {
-    let kept: Vec<Point3<f64>> = map_fine_points(frame).copied().collect();
-    frame.keep_fine(kept);
 }
