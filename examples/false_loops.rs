@@ -11,8 +11,9 @@
 
 use std::path::PathBuf;
 
+use mireg::io::poses::read_mcap_pose_topic;
 use mireg::loops::{LoopConfig, LoopEdge, Step, optimize_trajectory};
-use mireg::trajectory::{Trajectory, evaluate, read_mcap_pose_topic};
+use mireg::trajectory::{Trajectory, evaluate};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
 

@@ -294,7 +294,7 @@ fn invariance(prep: &Prepared, points: &[Point3<f64>], neighbour: &Frame) -> Res
 
 fn kaist03(dir: &Path) -> Result<()> {
     println!("KAIST03 ({})", dir.display());
-    let poses = mireg::trajectory::read_kitti(&dir.join("poses_kitti.txt"))?.poses;
+    let poses = mireg::io::poses::read_kitti(&dir.join("poses_kitti.txt"))?.poses;
     let clouds: Vec<Vec<Point3<f64>>> = (0..poses.len())
         .map(|k| read_points(&dir.join(format!("Scans/{k:06}.pcd"))))
         .collect::<mireg::Result<_>>()?;
@@ -339,7 +339,7 @@ fn kaist03(dir: &Path) -> Result<()> {
 
 fn icl(path: &Path) -> Result<()> {
     println!("\nICL-NUIM livingroom1 ({})", path.display());
-    let reference = mireg::trajectory::read_mcap_pose_topic(path, "/ground_truth/pose")?;
+    let reference = mireg::io::poses::read_mcap_pose_topic(path, "/ground_truth/pose")?;
     let by_stamp: HashMap<i64, Isometry3<f64>> = reference
         .stamps_ns
         .iter()

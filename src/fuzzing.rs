@@ -147,8 +147,8 @@ pub fn mcap_records(data: &[u8]) {
     let _ = crate::io::mcap::read::for_each_record_with(&path, salvage, |_| {
         Ok(std::ops::ControlFlow::Continue(()))
     });
-    let _ = crate::trajectory::read_mcap_pose_topic(&path, "/mireg/pose");
-    let _ = crate::trajectory::read_frame_flags(&path, "/mireg/stats");
+    let _ = crate::io::poses::read_mcap_pose_topic(&path, "/mireg/pose");
+    let _ = crate::io::poses::read_frame_flags(&path, "/mireg/stats");
 }
 
 /// The whole `mireg register` path: catalogue, chunk index, pass-through with validation, cloud

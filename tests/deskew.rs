@@ -399,7 +399,7 @@ fn deskewing_a_truly_skewed_log_recovers_its_motion_without_oscillating() {
             ..RegisterOptions::new(&input, &output, config)
         };
         register_log(&opts).unwrap();
-        let poses = mireg::trajectory::read_mcap_pose_topic(&output, "/mireg/pose")
+        let poses = mireg::io::poses::read_mcap_pose_topic(&output, "/mireg/pose")
             .unwrap()
             .poses;
         assert_eq!(poses.len(), FRAMES as usize);
@@ -466,7 +466,7 @@ fn times_that_do_not_vary_deskew_nothing_and_say_so() {
             ..RegisterOptions::new(&input, &output, config)
         };
         register_log(&opts).unwrap();
-        let poses = mireg::trajectory::read_mcap_pose_topic(&output, "/mireg/pose").unwrap();
+        let poses = mireg::io::poses::read_mcap_pose_topic(&output, "/mireg/pose").unwrap();
         let mut stats: Vec<serde_json::Value> = Vec::new();
         let mut channel = None;
         mireg::io::mcap::read::for_each_record(&output, |r| {

@@ -214,7 +214,7 @@ fn export_tum_and_kitti_reproduce_the_estimate() {
         "-o",
         out.to_str().expect("utf8"),
     ]);
-    let k = trajectory::read_kitti(&out).expect("KITTI");
+    let k = mireg::io::poses::read_kitti(&out).expect("KITTI");
     assert!(k.stamps_ns.is_empty());
     assert_poses_equal(&k, &est);
 

@@ -10,7 +10,8 @@ use std::path::{Path, PathBuf};
 use mireg::io::codec::PointCloud;
 use mireg::io::codec::livox::{self, LivoxTags};
 use mireg::io::input_log::InputLog;
-use mireg::trajectory::{Trajectory, read_mcap_pose_topic};
+use mireg::io::poses::read_mcap_pose_topic;
+use mireg::trajectory::Trajectory;
 
 #[path = "common/cli.rs"]
 mod cli;

@@ -4,8 +4,8 @@
 
 use std::path::{Path, PathBuf};
 
+use mireg::io::poses::read_mcap_pose_topic;
 use mireg::pipeline::pose_error;
-use mireg::trajectory::read_mcap_pose_topic;
 
 #[path = "common/cli.rs"]
 mod cli;

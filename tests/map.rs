@@ -197,7 +197,7 @@ fn fixture_map_is_the_voxel_mean_of_the_registered_clouds() {
     assert!(voxel > 0.01 && voxel < 0.2, "{voxel}");
 
     // Brute force from the clouds and poses of the output, read by the library.
-    let traj = mireg::trajectory::read_mcap_pose_topic(&reg, "/mireg/pose_optimized").unwrap();
+    let traj = mireg::io::poses::read_mcap_pose_topic(&reg, "/mireg/pose_optimized").unwrap();
     let pose_of: HashMap<i64, Isometry3<f64>> = traj
         .stamps_ns
         .iter()

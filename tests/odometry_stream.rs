@@ -6,10 +6,10 @@ use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 
 use mireg::io::codec::cdr;
+use mireg::io::poses::read_mcap_pose_topic;
 use mireg::odometry::OdometryConfig;
 use mireg::odometry::stream::StreamOdometry;
 use mireg::register::for_each_cloud;
-use mireg::trajectory::read_mcap_pose_topic;
 
 #[path = "common/cli.rs"]
 mod cli;

@@ -212,7 +212,7 @@ fn exported_trajectory_of_a_ros1_output_reads_back() {
         OdometryConfig::default(),
     ))
     .unwrap();
-    let t = mireg::trajectory::read_mcap_pose_topics(&out, &["/mireg/pose"]).unwrap();
+    let t = mireg::io::poses::read_mcap_pose_topics(&out, &["/mireg/pose"]).unwrap();
     assert_eq!(t[0].poses.len(), 2);
 }
 

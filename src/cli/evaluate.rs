@@ -118,9 +118,9 @@ pub fn evaluate_log(args: &EvaluateArgs) -> Result<(Evaluation, String)> {
     let gt_file = match &args.gt {
         Some(path) => {
             let reference = match args.gt_format {
-                TrajectoryFormat::Tum => trajectory::read_tum(path)?,
-                TrajectoryFormat::Kitti => trajectory::read_kitti(path)?,
-                TrajectoryFormat::Redwood => trajectory::read_redwood(path)?,
+                TrajectoryFormat::Tum => crate::io::poses::read_tum(path)?,
+                TrajectoryFormat::Kitti => crate::io::poses::read_kitti(path)?,
+                TrajectoryFormat::Redwood => crate::io::poses::read_redwood(path)?,
             };
             if reference.is_empty() {
                 bail!("{}: no poses", path.display());
@@ -133,7 +133,7 @@ pub fn evaluate_log(args: &EvaluateArgs) -> Result<(Evaluation, String)> {
     let (est_topic, stats_topic) = run_topics(&channels, args.est_topic.as_deref(), args.odometry);
     let (estimate, reference, name) = match gt_file {
         Some(reference) => {
-            let estimate = trajectory::read_mcap_pose_topic(input, &est_topic)?;
+            let estimate = crate::io::poses::read_mcap_pose_topic(input, &est_topic)?;
             (estimate, reference, reference_name(args, None))
         }
         None => {
@@ -144,7 +144,7 @@ pub fn evaluate_log(args: &EvaluateArgs) -> Result<(Evaluation, String)> {
                         .iter()
                         .any(|c| c.topic == DEFAULT_GROUND_TRUTH_TOPIC)
                     {
-                        let topics = trajectory::pose_stamped_topics(&channels);
+                        let topics = crate::io::poses::pose_stamped_topics(&channels);
                         bail!(
                             "{}: no reference topic {DEFAULT_GROUND_TRUTH_TOPIC}; choose one with --gt-topic (PoseStamped topics: {}) or pass a file with --gt",
                             input.display(),
@@ -158,7 +158,7 @@ pub fn evaluate_log(args: &EvaluateArgs) -> Result<(Evaluation, String)> {
                     DEFAULT_GROUND_TRUTH_TOPIC.to_string()
                 }
             };
-            let mut v = trajectory::read_mcap_pose_topics(input, &[&est_topic, &topic])?;
+            let mut v = crate::io::poses::read_mcap_pose_topics(input, &[&est_topic, &topic])?;
             let reference = v.pop().unwrap_or_default();
             let estimate = v.pop().unwrap_or_default();
             if reference.is_empty() {
@@ -170,7 +170,7 @@ pub fn evaluate_log(args: &EvaluateArgs) -> Result<(Evaluation, String)> {
     if estimate.is_empty() {
         bail!("{}: topic {} has no messages", input.display(), est_topic);
     }
-    let flags = trajectory::read_frame_flags(input, &stats_topic)?;
+    let flags = crate::io::poses::read_frame_flags(input, &stats_topic)?;
     let ev = trajectory::evaluate(&estimate, &reference, flags.as_deref(), max_dt)
         .with_context(|| format!("evaluating {} against {name}", input.display()))?;
     Ok((ev, name))

@@ -59,7 +59,7 @@ pub(super) fn run_export(args: &ExportArgs) -> Result<()> {
     }
     let channels = registered_log(&args.input, "export", args.topic.is_some())?;
     let (topic, _) = run_topics(&channels, args.topic.as_deref(), args.odometry);
-    let t = trajectory::read_mcap_pose_topic(&args.input, &topic)?;
+    let t = crate::io::poses::read_mcap_pose_topic(&args.input, &topic)?;
     if t.is_empty() {
         bail!("{}: topic {topic} has no messages", args.input.display());
     }

@@ -116,7 +116,7 @@ pub(super) fn registered_log(
     if topic_given || newest_mireg_namespace(&channels).is_some() {
         return Ok(channels);
     }
-    let poses = trajectory::pose_stamped_topics(&channels);
+    let poses = crate::io::poses::pose_stamped_topics(&channels);
     let choose = match (command, poses.is_empty()) {
         ("map", _) | (_, true) => String::new(),
         (_, false) => format!(

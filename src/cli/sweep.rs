@@ -187,7 +187,7 @@ pub(super) fn run_sweep(args: &SweepArgs) -> Result<()> {
 
 /// Clouds matched to the reference topic by stamp, and the pairs (i, i + k) of `--gaps`.
 fn log_pairs(args: &SweepArgs) -> Result<CloudsAndPairs> {
-    let reference = crate::trajectory::read_mcap_pose_topic(&args.input, &args.reference_topic)?;
+    let reference = crate::io::poses::read_mcap_pose_topic(&args.input, &args.reference_topic)?;
     let by_stamp: BTreeMap<i64, Isometry3<f64>> = reference
         .stamps_ns
         .iter()

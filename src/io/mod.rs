@@ -15,6 +15,7 @@ pub mod log_order;
 pub mod mcap;
 pub mod point_time;
 pub mod pose_file;
+pub mod poses;
 mod scalar;
 
 use std::path::Path;

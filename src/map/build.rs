@@ -13,8 +13,9 @@ use nalgebra::Isometry3;
 use super::VoxelMap;
 use crate::io::codec::PoseStampedDecoder;
 use crate::io::mcap::log::{ChannelInfo, for_each_record, list_channels};
+use crate::io::poses::check_pose_topic;
 use crate::register::for_each_cloud;
-use crate::trajectory::{self, check_pose_topic};
+use crate::trajectory;
 use crate::{Error, Result};
 
 /// Which trajectory places the clouds.

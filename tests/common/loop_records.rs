@@ -6,8 +6,8 @@
 use std::collections::HashMap;
 use std::path::Path;
 
+use mireg::io::poses::read_mcap_pose_topic;
 use mireg::pipeline::pose_error;
-use mireg::trajectory::read_mcap_pose_topic;
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 
 use super::log_contents::contents;
