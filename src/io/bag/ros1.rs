@@ -31,6 +31,13 @@ use std::path::{Path, PathBuf};
 
 use mcap::records::Channel;
 
+mod record;
+pub(crate) use record::read_up_to;
+use record::{
+    Cut, Inner, Next, RawRecord, bag_err, message_fields, parse_fields, read_bounded, read_u32,
+    split_len_prefixed, u32_field, u64_field,
+};
+
 use crate::io::codec::ros1;
 use crate::io::damage::{Damage, ReadPolicy, read_prefix};
 use crate::io::mcap::log::InputCatalog;
@@ -93,53 +100,6 @@ pub struct Bag {
     pub connections: BTreeMap<u32, Connection>,
     /// Messages per connection (from the chunk infos, or the scan).
     pub message_counts: BTreeMap<u32, u64>,
-}
-
-/// A record's header fields (`name` → raw value) and its data.
-struct RawRecord {
-    offset: u64,
-    fields: Vec<(String, Vec<u8>)>,
-    data: Vec<u8>,
-}
-
-impl RawRecord {
-    fn op(&self) -> Option<u8> {
-        self.field("op")
-            .and_then(|v| (v.len() == 1).then_some(v[0]))
-    }
-
-    fn field(&self, name: &str) -> Option<&[u8]> {
-        self.fields
-            .iter()
-            .find(|(n, _)| n == name)
-            .map(|(_, v)| v.as_slice())
-    }
-}
-
-/// Parses `name=value` fields, each prefixed by its `u32` length.
-fn parse_fields(mut b: &[u8]) -> std::result::Result<Vec<(String, Vec<u8>)>, String> {
-    let mut out = Vec::new();
-    while !b.is_empty() {
-        let Some((len, rest)) = b.split_first_chunk::<4>() else {
-            return Err(format!("{} stray bytes after the last field", b.len()));
-        };
-        let len = u32::from_le_bytes(*len) as usize;
-        if len > rest.len() {
-            return Err(format!(
-                "a field claims {len} bytes, {} remain in the header",
-                rest.len()
-            ));
-        }
-        let (field, rest) = rest.split_at(len);
-        let eq = field
-            .iter()
-            .position(|&c| c == b'=')
-            .ok_or_else(|| "a header field has no '='".to_string())?;
-        let name = String::from_utf8_lossy(&field[..eq]).into_owned();
-        out.push((name, field[eq + 1..].to_vec()));
-        b = rest;
-    }
-    Ok(out)
 }
 
 impl Bag {
@@ -701,23 +661,6 @@ impl Bag {
     }
 }
 
-/// The next record of the file, as [`Bag::next_record`] finds it.
-enum Next {
-    Whole(RawRecord),
-    End,
-    Cut(Cut),
-}
-
-/// A record the file cuts short.
-struct Cut {
-    /// Where the record starts.
-    offset: u64,
-    /// What is missing, e.g. "record data claims 2000 bytes, 1000 remain (truncated bag?)".
-    reason: String,
-    /// The record with the part of its data that is there, when its header is whole.
-    partial: Option<RawRecord>,
-}
-
 /// The records that the first bytes of a chunk cut short decode to: its data itself when
 /// uncompressed, else what bz2 or lz4 decode before the stream stops (both decode block by
 /// block), at most its declared size (and [`MAX_CHUNK_BYTES`]). Nothing for other compressions.
@@ -742,108 +685,3 @@ fn partial_chunk(rec: &RawRecord) -> Vec<u8> {
 
 /// What [`Bag::walk`] calls on each inner record and its data.
 type InnerVisitor<'a> = dyn FnMut(Inner, &[u8]) -> Result<ControlFlow<()>> + 'a;
-
-/// A record inside a chunk (or at the top level of an old-style bag).
-enum Inner {
-    Connection(RawRecord),
-    Message { conn: u32, time_ns: u64 },
-}
-
-impl RawRecord {
-    fn clone_header(&self) -> RawRecord {
-        RawRecord {
-            offset: self.offset,
-            fields: self.fields.clone(),
-            data: Vec::new(),
-        }
-    }
-}
-
-fn bag_err(path: &Path, offset: u64, detail: impl std::fmt::Display) -> Error {
-    Error::Format {
-        path: path.to_path_buf(),
-        detail: format!("ROS 1 bag, record at offset {offset}: {detail}"),
-    }
-}
-
-/// Reads until `buf` is full or the input ends; returns the bytes read.
-pub(crate) fn read_up_to(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
-    let mut got = 0;
-    while got < buf.len() {
-        match r.read(&mut buf[got..])? {
-            0 => break,
-            n => got += n,
-        }
-    }
-    Ok(got)
-}
-
-fn read_u32(r: &mut impl Read, path: &Path, offset: u64) -> Result<u32> {
-    let mut b = [0u8; 4];
-    r.read_exact(&mut b).map_err(|e| {
-        if e.kind() == std::io::ErrorKind::UnexpectedEof {
-            bag_err(
-                path,
-                offset,
-                "the file ends inside the record (truncated bag?)",
-            )
-        } else {
-            io_err(path, e)
-        }
-    })?;
-    Ok(u32::from_le_bytes(b))
-}
-
-/// Splits a `u32`-length-prefixed field off the front of `b`.
-fn split_len_prefixed(b: &[u8]) -> std::result::Result<(&[u8], &[u8]), String> {
-    let Some((len, rest)) = b.split_first_chunk::<4>() else {
-        return Err(format!(
-            "{} stray bytes where a length was expected",
-            b.len()
-        ));
-    };
-    let len = u32::from_le_bytes(*len) as usize;
-    if len > rest.len() {
-        return Err(format!(
-            "claims {len} bytes, {} remain in the chunk",
-            rest.len()
-        ));
-    }
-    Ok(rest.split_at(len))
-}
-
-fn u32_field(rec: &RawRecord, name: &str) -> std::result::Result<u32, String> {
-    match rec.field(name) {
-        Some(v) if v.len() == 4 => Ok(u32::from_le_bytes(v.try_into().expect("4 bytes"))),
-        Some(v) => Err(format!("field {name} has {} bytes, not 4", v.len())),
-        None => Err(format!("no {name} field")),
-    }
-}
-
-fn u64_field(rec: &RawRecord, name: &str) -> std::result::Result<u64, String> {
-    match rec.field(name) {
-        Some(v) if v.len() == 8 => Ok(u64::from_le_bytes(v.try_into().expect("8 bytes"))),
-        Some(v) => Err(format!("field {name} has {} bytes, not 8", v.len())),
-        None => Err(format!("no {name} field")),
-    }
-}
-
-/// A message record's connection and time (`u32` seconds + `u32` nanoseconds) in nanoseconds.
-fn message_fields(rec: &RawRecord) -> std::result::Result<(u32, u64), String> {
-    let conn = u32_field(rec, "conn")?;
-    let t = match rec.field("time") {
-        Some(v) if v.len() == 8 => v,
-        _ => return Err("message record without an 8-byte time field".into()),
-    };
-    let sec = u32::from_le_bytes(t[..4].try_into().expect("4 bytes"));
-    let nsec = u32::from_le_bytes(t[4..].try_into().expect("4 bytes"));
-    Ok((conn, u64::from(sec) * 1_000_000_000 + u64::from(nsec)))
-}
-
-/// Reads `r` to its end into `out`, failing past `limit` bytes (a chunk that decompresses to more
-/// than it declares never gets the memory).
-fn read_bounded(r: impl Read, limit: u64, out: &mut Vec<u8>) -> std::io::Result<()> {
-    out.reserve(limit as usize);
-    r.take(limit + 1).read_to_end(out)?;
-    Ok(())
-}
