@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
-# Create tools/.venv-python with the mireg Python package built from ./python (PyO3 + maturin,
-# fetched by pip as the build backend) and its tests' pinned dependencies.
+# Create tools/.venv-python: the mireg package built from ./python with its viewer extra (PyO3 +
+# maturin, fetched by pip as the build backend; the `mireg` command, `import mireg`, `mireg view`),
+# the pinned test dependencies of python/tests, and the Ray driver (tools/mireg_ray) with its
+# test dependencies, which runs the package's `mireg` command.
 # Usage: bash tools/setup_python_venv.sh   (re-run after changing python/ or src/: it rebuilds)
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
@@ -8,6 +10,8 @@ venv="$here/.venv-python"
 if [ ! -x "$venv/bin/python" ]; then
     python3 -m venv "$venv"
 fi
-"$venv/bin/python" -m pip install --quiet --disable-pip-version-check -r "$here/requirements-python.txt"
-"$venv/bin/python" -m pip install --quiet --disable-pip-version-check --force-reinstall --no-deps "$here/../python"
-"$venv/bin/python" -c 'import mireg; print("mireg", mireg.__version__, "from", mireg.__file__)'
+pip=("$venv/bin/python" -m pip install --quiet --disable-pip-version-check)
+"${pip[@]}" -r "$here/requirements-python.txt" -r "$here/requirements-ray.txt"
+"${pip[@]}" "$here/../python[viewer]"   # a local folder is built and installed again each time
+"${pip[@]}" --no-deps -e "$here/mireg_ray"
+"$venv/bin/python" -c 'import mireg, mireg.viewer, mireg_ray; print("mireg", mireg.__version__, "from", mireg.__file__)'

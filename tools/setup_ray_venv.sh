@@ -9,8 +9,10 @@ if [ ! -x "$venv/bin/python" ]; then
     python3 -m venv "$venv"
 fi
 "$venv/bin/python" -m pip install --quiet --disable-pip-version-check -r "$here/requirements-ray.txt"
+# The mireg package (./python): its `mireg` command is what the driver runs.
+"$venv/bin/python" -m pip install --quiet --disable-pip-version-check "$here/../python"
 "$venv/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps -e "$here/mireg_ray"
 "$venv/bin/python" - <<'PY'
 from importlib.metadata import version
-print(", ".join(f"{p} {version(p)}" for p in ("ray", "mireg-ray")))
+print(", ".join(f"{p} {version(p)}" for p in ("ray", "mireg", "mireg-ray")))
 PY

@@ -7,7 +7,7 @@ import sys
 import numpy as np
 
 from .geometry import nearest_neighbours, transform, voxel_downsample
-from .reading import Loop, Run
+from ..run import Loop, Run
 from .timeline import TIMELINE, colour_map, set_frame_time
 
 ACCEPTED = [0, 255, 0]
