@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 from mcap.reader import make_reader
 from mcap.writer import Writer
+
 from mireg.run import read_run, run_topics
 
 OFFSET = (0.01, 0.0, -0.005)  # metres per frame index

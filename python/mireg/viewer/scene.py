@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..run import Run
 from .geometry import subsample, transform, voxel_downsample
 from .loops import log_loop_pair, log_loops
 from .mapfile import load_map
 from .pair import log_pair
-from ..run import Run
 from .timeline import colour_map, set_frame_time, up_vector, value_range
 
 MAX_FAILURE_LABELS = 8  # more failure boxes than this: labels hidden (hover shows them)
