@@ -21,6 +21,7 @@ Usage:
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import subprocess
@@ -143,6 +144,23 @@ def test_trajectories(saved, run):
         assert saved["world/trajectory/reference"]["rows"] == n_ref
     else:
         assert "world/trajectory/reference" not in saved
+
+
+def test_reference_drawn_where_evaluate_aligns_it(saved, run):
+    """The reference strip is the reference laid onto the drawn trajectory by the alignment of
+    `mireg evaluate` (the same ATE, to the last bits of a float)."""
+    if not run.has_reference:
+        pytest.skip("this output has no reference")
+    proc = subprocess.run([*mireg_command(), "evaluate", str(run.path), "--json"],
+                          capture_output=True, text=True, check=True)
+    want = json.loads(proc.stdout)
+    got = run.evaluate()
+    assert got["ate_rmse_m"] == pytest.approx(want["ate_rmse_m"], rel=1e-12, abs=1e-15)
+    align = run.estimate_from_reference("optimized")
+    refs = [f.reference for f in run.frames if f.reference is not None]
+    strips = values(saved["world/trajectory/reference"], "LineStrips3D:strips")
+    drawn = np.array(strips[-1][1][0])
+    np.testing.assert_allclose(drawn, [(align @ m)[:3, 3] for m in refs], atol=1e-5)
 
 
 def test_no_loop_topics_nothing_drawn(saved, run):
