@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Copy a ``mireg register`` output MCAP and append made-up loop-closure topics (viewer tests).
 
-Until ``mireg register`` writes loop closure itself this makes test inputs for tools/view.py:
+For an output registered with ``--no-loops`` this makes loop-closure input for ``mireg view``:
 every record of IN is copied to OUT (schemas, channels, messages, metadata) and two topics are
 added in the run's namespace (``/mireg/...`` or ``/mireg_N/...``, from the ``mireg`` metadata):
 
@@ -19,7 +19,7 @@ The ``mireg`` metadata record gains ``pose_optimized_topic`` and ``loops_topic``
 already has either topic is refused (exit 3): it has real loop-closure output.
 
 Usage:
-    tools/.venv-viewer/bin/python tools/add_fake_loops.py /tmp/out.mcap /tmp/out_loops.mcap
+    tools/.venv-python/bin/python tools/add_fake_loops.py /tmp/out.mcap /tmp/out_loops.mcap
 """
 
 from __future__ import annotations
@@ -34,8 +34,7 @@ import numpy as np
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from viewer.reading import read_run, run_topics  # noqa: E402
+from mireg.run import read_run, run_topics
 
 OFFSET = (0.01, 0.0, -0.005)  # metres per frame index
 LOOP_SCHEMA = {

@@ -6,7 +6,7 @@ for ROS 1 MCAP logs (rosbags does not read those). Interleaved runs; prints the 
 of each and their ratio, after checking that both give the same points (float64, NaN dropped).
 
 Usage:
-    bash tools/setup_rosbags_venv.sh && tools/.venv-rosbags/bin/pip install ./python
+    bash tools/setup_venv.sh rosbags && tools/.venv-rosbags/bin/pip install ./python
     tools/.venv-rosbags/bin/python tools/bench_read_clouds.py fixtures/ouster_os1_ros1.mcap /tmp/kaist03.mcap
 """
 

@@ -17,7 +17,7 @@ median, ``scale_for_median``, less sensitive to the few broken steps), the media
 the median real step error.
 
 Usage (a registered output, or a log to register with ``--register``):
-    bash tools/setup_mcap_venv.sh
+    bash tools/setup_venv.sh mcap
     tools/.venv-mcap/bin/python tools/calibrate_covariance.py OUT.mcap [OUT2.mcap ...]
     tools/.venv-mcap/bin/python tools/calibrate_covariance.py --register fixtures/icl_livingroom1.mcap \\
         /tmp/loop_micro211_s4.mcap /tmp/loop_kaist03.mcap

@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """Is the 3DMatch reference pose of the redkitchen 0↔6 pair the geometric optimum of its fragments?
 
-Usage (from the repository root, after ``bash tools/setup_venv.sh``):
+Usage (from the repository root, after ``bash tools/setup_venv.sh peers``):
 
-    tools/.venv/bin/python tools/check_3dmatch_gt.py [DATA_DIR]
+    tools/.venv-peers/bin/python tools/check_3dmatch_gt.py [DATA_DIR]
 
 DATA_DIR defaults to ../shared/data/3dmatch_redkitchen_0_6 (src.npy, ref.npy, gt.npy; gt.npy maps
 src → ref). Prints:

@@ -28,7 +28,7 @@ Checks (each failure is printed; exit status 1 if any, 0 if none, 2 on usage err
     three topics must be present with ros1msg schemas.
 
 Usage:
-    bash tools/setup_rosbags_venv.sh
+    bash tools/setup_venv.sh rosbags
     tools/.venv-rosbags/bin/python tools/check_bag_output.py fixtures/bags/icl4_lz4.bag out.mcap \\
         --expect-topic /mireg/pose --ros1
     tools/.venv-rosbags/bin/python tools/check_bag_output.py fixtures/bags/icl4_db3 out.mcap

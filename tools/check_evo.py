@@ -8,9 +8,9 @@ association within --t_max_diff), and compares evo's APE RMSE with `ate_rmse_m` 
 `mireg evaluate --json` (same reference topic, same max dt). Exits 1 if they differ by more than
 --tol metres.
 
-Usage (evo from tools/requirements-evo.txt in a venv):
-    python3 -m venv /tmp/evo-venv && /tmp/evo-venv/bin/pip install -r tools/requirements-evo.txt
-    /tmp/evo-venv/bin/python tools/check_evo.py /tmp/out.mcap --mireg target/release/mireg
+Usage (evo: the `evo` group of tools/pyproject.toml):
+    bash tools/setup_venv.sh evo
+    tools/.venv-evo/bin/python tools/check_evo.py /tmp/out.mcap --mireg target/release/mireg
 """
 
 import argparse

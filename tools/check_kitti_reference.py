@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """How precise is the KITTI pair's reference pose of tools/compare_open3d.py?
 
-Usage (from the repository root, after ``bash tools/setup_venv.sh``):
+Usage (from the repository root, after ``bash tools/setup_venv.sh peers``):
 
-    tools/.venv/bin/python tools/check_kitti_reference.py [DATA_DIR] [--compare-json FILE]
+    tools/.venv-peers/bin/python tools/check_kitti_reference.py [DATA_DIR] [--compare-json FILE]
 
 DATA_DIR defaults to ../shared/data/kitti_pair (000000.bin, 000001.bin). The pair has no ground
 truth; compare_open3d.py uses dense point-to-plane ICP of the full clouds (target normals radius

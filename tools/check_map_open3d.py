@@ -5,7 +5,7 @@ with intensity). Exits non-zero when a file reads as empty or with non-finite po
 maps of one log in several formats disagree on the point count.
 
 Usage:
-    bash tools/setup_map_venv.sh        # unless tools/.venv-loops exists
+    bash tools/setup_venv.sh map        # unless tools/.venv-loops exists
     tools/.venv-map/bin/python tools/check_map_open3d.py map.ply map.pcd map.npy
 """
 

@@ -21,7 +21,7 @@ index are cross-checked against the linear pass. Exit status: 0 if all checks pa
 2 on usage errors.
 
 Usage:
-    bash tools/setup_mcap_venv.sh
+    bash tools/setup_venv.sh mcap
     tools/.venv-mcap/bin/python tools/check_mcap.py fixtures/icl_livingroom1.mcap \\
         --expect-topic /camera/depth/points --expect-topic /ground_truth/pose
     tools/.venv-mcap/bin/python tools/check_mcap.py out.mcap --compare-input in.mcap

@@ -33,7 +33,7 @@ Expmap when GTSAM_POSE3_EXPMAP is on) and otherwise falls back to a CustomFactor
 The optimum does not depend on the retraction.
 
 Usage:
-    bash tools/setup_gtsam_venv.sh
+    bash tools/setup_venv.sh gtsam
     cargo build --release --example pose_graph_g2o
     tools/.venv-gtsam/bin/python tools/check_pose_graph_gtsam.py [--binary PATH] [--workdir DIR]
         [--default-tolerances]

@@ -21,7 +21,7 @@ Prints one row per input: cuts tried, registered, refused, messages kept against
 and exits 1 if any check failed.
 
 Usage:
-    bash tools/setup_rosbags_venv.sh
+    bash tools/setup_venv.sh rosbags
     cargo build --release
     tools/.venv-rosbags/bin/python tools/check_salvage.py --mireg target/release/mireg \\
         fixtures/icl_livingroom1.mcap fixtures/ouster_os1_ros1.mcap \\
@@ -40,8 +40,8 @@ from collections import Counter
 from pathlib import Path
 
 from mcap.reader import make_reader
-from mcap.stream_reader import StreamReader
 from mcap.records import Channel, Message
+from mcap.stream_reader import StreamReader
 from rosbags.rosbag1 import Reader as Ros1Reader
 
 

@@ -6,7 +6,7 @@ deskew makes the scans fit the map better; whether the trajectory gets closer to
 also depends on which instant of the sweep the reference's poses refer to (docs/ODOMETRY.md).
 
 Usage:
-    bash tools/setup_mcap_venv.sh && cargo build --release
+    bash tools/setup_venv.sh mcap && cargo build --release
     tools/.venv-mcap/bin/python tools/make_kaist03_mcap.py --ouster-time --out /tmp/kaist03_t.mcap
     tools/.venv-mcap/bin/python tools/compare_deskew.py /tmp/kaist03_t.mcap [--mireg BIN] [-- MIREG_ARGS]
 """

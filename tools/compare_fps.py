@@ -9,7 +9,7 @@ ratio is taken within a round. No reference poses are needed: this is speed only
 `compare_kiss_icp.py`).
 
 Usage:
-    bash tools/setup_odometry_venv.sh
+    bash tools/setup_venv.sh odometry
     tools/.venv-odometry/bin/python tools/compare_fps.py LOG.mcap [--rounds 3] [--topic T]
         [--mireg target/release/mireg] [-- MIREG_ARGS]
 """
@@ -20,7 +20,6 @@ import subprocess
 import sys
 import tempfile
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from compare_kiss_icp import CLOUD, log_parser, read_log, run_kiss, split_mireg_args  # noqa: E402
 
 

@@ -11,7 +11,7 @@ beforehand); mireg's is its whole run (reading, decoding, registration, writing 
 from its JSON summary. The same ATE/RPE code scores both, from poses associated by stamp.
 
 Usage:
-    bash tools/setup_odometry_venv.sh
+    bash tools/setup_venv.sh odometry
     tools/.venv-odometry/bin/python tools/compare_kiss_icp.py LOG.mcap [--mireg target/release/mireg]
         [--reference-topic /ground_truth/pose] [--topic T] [--frames 0-3,8-10] [-- MIREG_ARGS]
 
@@ -28,15 +28,13 @@ import tempfile
 import time
 
 import numpy as np
+from kiss_icp.config import load_config
+from kiss_icp.kiss_icp import KissICP
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer as Ros2Writer
 
-from kiss_icp.config import load_config
-
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from make_kaist03_mcap import parse_frames  # noqa: E402
-from kiss_icp.kiss_icp import KissICP
 
 CLOUD = "sensor_msgs/msg/PointCloud2"
 POSE = "geometry_msgs/msg/PoseStamped"

@@ -56,7 +56,7 @@ how far apart they lie, and how much of their error against the reference they s
 ``print_agreement``), which tells the reference's own error from the estimators'.
 
 Usage:
-    bash tools/setup_loops_venv.sh
+    bash tools/setup_venv.sh loops
     tools/.venv-loops/bin/python tools/compare_loops.py /tmp/loop_micro211_s4.mcap /tmp/loop_kaist03.mcap \\
         --mireg target/release/mireg [--tools mireg,kiss-slam,open3d] [--voxel V]
         [--kiss-local-map M] [--json-out rows.json] [-- MIREG_REGISTER_ARGS]
@@ -76,8 +76,6 @@ import numpy as np
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-TOOLS_DIR = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, TOOLS_DIR)
 from compare_kiss_icp import pose_matrix, read_log, score, split_mireg_args, xyz  # noqa: E402
 
 LOOP_DEG = 2.0  # a loop is correct below this rotation error ...
@@ -358,7 +356,7 @@ def compare(log, args, extra):
     stamps = [s for s, _m, _r in clouds]
     frames = [(s, xyz(msg)) for s, msg, _r in clouds]
     tools = args.tools.split(",")
-    rows, notes = [], []
+    rows = []
     print(f"\n{log}: {topic}, {len(clouds)} frames, reference {args.reference_topic}, "
           f"reach {reach(reference, stamps):.3f} m")
 

@@ -2,11 +2,11 @@
 """Side-by-side comparison of `mireg pair` with Open3D's feature-matching RANSAC (and, when the
 `kiss_matcher` package is installed, KISS-Matcher's global registration) on real data.
 
-Usage (from the repository root, after `bash tools/setup_venv.sh` and `cargo build --release`):
+Usage (from the repository root, after `bash tools/setup_venv.sh peers` and `cargo build --release`):
 
-    tools/.venv/bin/python tools/compare_open3d.py                      # all pairs, 10 poses each
-    tools/.venv/bin/python tools/compare_open3d.py --pairs 3dmatch icl --poses 3 --skip-mireg
-    tools/.venv/bin/python tools/compare_open3d.py --mireg target/release/mireg \\
+    tools/.venv-peers/bin/python tools/compare_open3d.py                      # all pairs, 10 poses each
+    tools/.venv-peers/bin/python tools/compare_open3d.py --pairs 3dmatch icl --poses 3 --skip-mireg
+    tools/.venv-peers/bin/python tools/compare_open3d.py --mireg target/release/mireg \\
         --mireg-variant levy= --mireg-variant uniform="--sampler uniform" --json-out /tmp/cmp.json
 
 Protocol
@@ -99,7 +99,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import open3d as o3d
 
-try:  # KISS-Matcher (Lim et al., ICRA 2025): optional, compared when installed (tools/requirements.txt).
+try:  # KISS-Matcher (Lim et al., ICRA 2025): optional, compared when installed (the `peers` group of tools/pyproject.toml).
     import kiss_matcher
 except ImportError:
     kiss_matcher = None
@@ -595,7 +595,7 @@ def main() -> int:
             import mireg as mireg_py
         except ImportError as e:
             ap.error(f"--inprocess needs the mireg Python package in this venv ({e}): "
-                     "tools/.venv/bin/pip install ./python")
+                     "tools/.venv-peers/bin/pip install ./python")
 
     variants = [] if args.skip_mireg else parse_variants(args.mireg_variant)
     if variants and not os.path.isfile(args.mireg):

@@ -13,7 +13,7 @@ For each frame, after SE(3) alignment (Umeyama, positions matched by stamp) to
 to it in the reference (the same place on the other leg), e'. The shared part (e + e') / 2,
 re-aligned, is the ATE a loop closure that made the legs agree perfectly would still leave
 (a bound, not a prediction); the differential part (e − e') / 2 is what it can remove. Needs
-numpy (tools/setup_loops_venv.sh makes that venv).
+numpy (tools/setup_venv.sh loops makes that venv).
 """
 
 from __future__ import annotations

@@ -43,14 +43,13 @@ source's). Nothing depends on the wall clock, so two runs give the same bytes (t
 names the rosbags version; the sqlite files depend on the stdlib sqlite3 library version).
 
 Usage (from anywhere; paths default relative to the repository root):
-    bash tools/setup_rosbags_venv.sh
+    bash tools/setup_venv.sh rosbags
     tools/.venv-rosbags/bin/python tools/make_bag_fixtures.py
 It replaces the fixture files/directories it writes (and only those) under ``--out``.
 """
 
 import argparse
 import hashlib
-import os
 import shutil
 import sys
 import tempfile
@@ -62,8 +61,8 @@ from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import StoragePlugin
-from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from rosbags.rosbag2 import Writer as Writer2
+from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from rosbags.typesys import Stores, get_typestore
 from ruamel.yaml import YAML
 

@@ -10,8 +10,8 @@ import os
 import struct
 from pathlib import Path
 
-from rosbags.rosbag1 import Writer
 from rosbags.highlevel import AnyReader
+from rosbags.rosbag1 import Writer
 from rosbags.typesys import Stores, get_typestore
 
 ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])

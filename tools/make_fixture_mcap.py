@@ -20,7 +20,7 @@ The file looks like a small rosbag2 recording (profile "ros2", zstd-compressed c
 Stamps follow the source frame numbers at the sequence's 30 Hz: frame k is stamped
 ``--start-sec`` + k/30 s (rounded to the nanosecond), so with a frame stride of 3 the messages are
 10 Hz apart. log_time = publish_time = stamp. Nothing depends on the wall clock and the writer is
-pinned (tools/requirements-mcap.txt), so every run produces the same bytes.
+pinned (the `mcap` group of tools/pyproject.toml), so every run produces the same bytes.
 
 Messages are encoded by mcap_ros2's schema-driven CDR writer (an implementation independent of
 mireg's hand-written decoder, which is the point of the fixture). After writing, the file is read
@@ -28,7 +28,7 @@ back with the mcap reader + mcap_ros2 decoder and checked: message counts, schem
 equal to the float32 inputs bit for bit, poses equal to the computed ones.
 
 Usage (any working directory; paths default relative to the repository root):
-    bash tools/setup_mcap_venv.sh
+    bash tools/setup_venv.sh mcap
     tools/.venv-mcap/bin/python tools/make_fixture_mcap.py
     tools/.venv-mcap/bin/python tools/make_fixture_mcap.py --frame-stride 3 --pixel-stride 8 \\
         --data ../shared/data/icl_nuim_livingroom1/micro211 --out fixtures/icl_livingroom1.mcap
@@ -47,7 +47,6 @@ from mcap_ros2.writer import Writer as Ros2Writer
 
 TOOLS_DIR = os.path.dirname(os.path.abspath(__file__))
 REPO_ROOT = os.path.dirname(TOOLS_DIR)
-sys.path.insert(0, TOOLS_DIR)
 import make_icl_fixture as icl  # noqa: E402  (stdlib PNG decoder + back-projection, reused)
 
 DEFAULT_DATA = os.path.join(REPO_ROOT, "..", "shared", "data", "icl_nuim_livingroom1", "micro211")
@@ -303,7 +302,7 @@ def fixture_metadata(args, frames):
 def command_line(args):
     """The command that reproduces the file from the repository root (paths left at defaults)."""
     return (
-        "bash tools/setup_mcap_venv.sh && tools/.venv-mcap/bin/python tools/make_fixture_mcap.py "
+        "bash tools/setup_venv.sh mcap && tools/.venv-mcap/bin/python tools/make_fixture_mcap.py "
         f"--frame-stride {args.frame_stride} --pixel-stride {args.pixel_stride} "
         f"--first {args.first} --last {args.last} --start-sec {args.start_sec}"
     )

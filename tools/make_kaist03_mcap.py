@@ -21,7 +21,7 @@ points within 6 degrees of ``a0`` (about 3 %) are left out. For testing deskewin
 motion; compare with and without deskewing on this same log (``--deskew on|off``).
 
 Usage:
-    bash tools/setup_mcap_venv.sh
+    bash tools/setup_venv.sh mcap
     tools/.venv-mcap/bin/python tools/make_kaist03_mcap.py --out /tmp/kaist03.mcap
     tools/.venv-mcap/bin/python tools/make_kaist03_mcap.py --frames 0-3,8-10,16-20 --out /tmp/kaist03_gaps.mcap
 """
@@ -36,7 +36,6 @@ from mcap.writer import CompressionType
 from mcap_ros2.writer import Writer as Ros2Writer
 
 TOOLS_DIR = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, TOOLS_DIR)
 import make_fixture_mcap as fx  # noqa: E402  (schemas, rigid-transform and message helpers)
 
 DEFAULT_DATA = os.path.join(TOOLS_DIR, "..", "..", "shared", "data", "mulran_kaist03_keyframes")

@@ -4,7 +4,7 @@ real world map along a smooth, time-parametrised trajectory, with per-point time
 distortion, range noise and tagged noise points; for testing and benchmarking mireg's Livox input,
 tag filtering and deskewing.
 
-Usage (from the repository root; the pinned packages come from `bash tools/setup_rosbags_venv.sh`):
+Usage (from the repository root; the pinned packages come from `bash tools/setup_venv.sh rosbags`):
 
   tools/.venv-rosbags/bin/python tools/make_livox_log.py --out-dir /tmp/livox
       Avia, KAIST03 world, 80 frames, skewed: /tmp/livox/livox_avia_kaist03/ (rosbag2 dir, one
@@ -34,7 +34,6 @@ import argparse
 import functools
 import hashlib
 import math
-import os
 import shutil
 import sys
 import time

@@ -38,7 +38,7 @@ MulRan is CC BY-NC-SA 4.0 (benchmarks only): write the logs outside the reposito
 ICL-NUIM is CC BY 3.0.
 
 Usage:
-    bash tools/setup_mcap_venv.sh
+    bash tools/setup_venv.sh mcap
     tools/.venv-mcap/bin/python tools/make_loop_logs.py --source micro211 --kind out-and-back \\
         --frame-stride 4 --out /tmp/loop_micro211_s4.mcap
     tools/.venv-mcap/bin/python tools/make_loop_logs.py --source kaist03 --kind out-and-back \\
@@ -67,8 +67,6 @@ from mcap.writer import CompressionType
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer as Ros2Writer
 
-TOOLS_DIR = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, TOOLS_DIR)
 import make_fixture_mcap as fx  # noqa: E402  (schemas, micro211 clouds, pose messages)
 import make_kaist03_mcap as kaist  # noqa: E402  (KAIST03 scans and cloud messages)
 

@@ -7,7 +7,7 @@ one line per strategy, ±1 std as a band.
     cargo run --release -- simulate --csv > docs/simulation.csv
     python3 tools/plot_simulation.py docs/simulation.csv -o docs/simulation.png
 
-Needs matplotlib (tools/requirements.txt).
+Needs matplotlib (the `peers` group of tools/pyproject.toml).
 """
 import argparse
 import csv

@@ -6,7 +6,7 @@ IN's map and the same voxels: for measuring that `mireg map`'s memory does not g
 number of frames. Only the cloud and pose topics are kept (`/tf` and statistics are dropped).
 
 Usage:
-    bash tools/setup_mcap_venv.sh
+    bash tools/setup_venv.sh mcap
     tools/.venv-mcap/bin/python tools/repeat_log.py IN.mcap OUT.mcap --times 10
 """
 

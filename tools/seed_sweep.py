@@ -1,10 +1,10 @@
 #!/usr/bin/env python3
 """Success rate of `mireg pair` over posed sources × RANSAC seeds, on the pairs of compare_open3d.py.
 
-Usage (from the repository root, after ``bash tools/setup_venv.sh`` and ``cargo build --release``):
+Usage (from the repository root, after ``bash tools/setup_venv.sh peers`` and ``cargo build --release``):
 
-    tools/.venv/bin/python tools/seed_sweep.py --pair 3dmatch --poses 30 --seeds 10
-    tools/.venv/bin/python tools/seed_sweep.py --pair 3dmatch --poses 30 --seeds 10 -- --max-hypotheses 100000
+    tools/.venv-peers/bin/python tools/seed_sweep.py --pair 3dmatch --poses 30 --seeds 10
+    tools/.venv-peers/bin/python tools/seed_sweep.py --pair 3dmatch --poses 30 --seeds 10 -- --max-hypotheses 100000
 
 The posed sources are exactly compare_open3d.py's (same pose generator, seeded by --pose-seed and
 the pair); each is registered with ``--seed 1..SEEDS`` plus any arguments after ``--``. A run
@@ -22,7 +22,6 @@ import tempfile
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import compare_open3d as C  # noqa: E402  (the pairs, pose generator and error measures)
 
 MAKERS = {

@@ -20,7 +20,8 @@ ATE: ``mireg evaluate --json`` (position RMSE after SE(3) alignment, frames matc
 RPE of a step: the translation error of the relative pose between consecutive frames, from
 ``mireg export --format tum`` of the estimate and the reference. A seam's step is the one from
 the anchor (the last frame the two segments share) to the next frame, the first whose pose comes
-from the later segment. Any Python 3 runs it (no packages needed).
+from the later segment. Runs in the venv of `bash tools/setup_venv.sh ray` (it imports the
+driver's own split, mireg_ray.segments).
 """
 
 from __future__ import annotations
@@ -35,7 +36,6 @@ import sys
 import tempfile
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent / "mireg_ray"))
 from mireg_ray.segments import bounds  # noqa: E402  (the driver's own split)
 
 
@@ -86,7 +86,7 @@ def step_errors(est, ref):
     stamps = sorted(set(est) & set(ref))
     errs = []
     for a, b in zip(stamps, stamps[1:]):
-        (te, qe), (tr, qr) = relative(est[a], est[b]), relative(ref[a], ref[b])
+        (te, _qe), (tr, qr) = relative(est[a], est[b]), relative(ref[a], ref[b])
         # (ref step)⁻¹ (est step): translation part.
         inv = (-qr[0], -qr[1], -qr[2], qr[3])
         errs.append((a, b, math.dist(rotate(inv, te), rotate(inv, tr))))

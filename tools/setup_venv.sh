@@ -1,12 +1,60 @@
 #!/usr/bin/env bash
-# Create tools/.venv with the pinned peer tools (Open3D, KISS-Matcher, numpy) used by tools/*.py.
-# Usage: bash tools/setup_venv.sh   (idempotent; re-run after editing requirements.txt)
+# Create tools/.venv-GROUP[-GROUP...] with the pinned packages of the optional-dependency groups
+# of tools/pyproject.toml named on the command line (idempotent; re-run after editing it).
+#
+# Usage: bash tools/setup_venv.sh GROUP... [--screenshot]
+#   groups: mcap rosbags python ray peers odometry loops map gtsam evo lint (tools/pyproject.toml)
+#   python, ray   also build and install the mireg package from ./python with its viewer extra (the
+#                 `mireg` command, `import mireg`, `mireg view`; re-run after changing python/ or
+#                 src/), and the Ray driver tools/mireg_ray (editable)
+#   peers, map, loops  Open3D's wheel links libusb-1.0 and libgomp: apt-get installs them if missing
+#   --screenshot  apt-get install mesa-vulkan-drivers (Vulkan on the CPU), which the `rerun` viewer
+#                 needs for `mireg view --screenshot` without a GPU; needs root
+# e.g. `bash tools/setup_venv.sh mcap` makes tools/.venv-mcap; `bash tools/setup_venv.sh python ray`
+# makes tools/.venv-python-ray (what .ci/run uses).
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
-# Open3D's wheel links libusb-1.0 and libgomp (Debian: libusb-1.0-0, libgomp1).
-if ! ldconfig -p | grep -q "libusb-1.0.so.0"; then
+groups=()
+screenshot=0
+for arg in "$@"; do
+    case "$arg" in
+        --screenshot) screenshot=1 ;;
+        -h|--help) sed -n '2,14p' "$0"; exit 0 ;;
+        -*) echo "unknown option: $arg" >&2; exit 2 ;;
+        *)
+            if ! grep -q "^$arg = \[" "$here/pyproject.toml"; then
+                echo "unknown group: $arg (the optional-dependency groups of tools/pyproject.toml)" >&2
+                exit 2
+            fi
+            groups+=("$arg") ;;
+    esac
+done
+if [ ${#groups[@]} -eq 0 ]; then
+    sed -n '2,14p' "$0" >&2
+    exit 2
+fi
+venv="$here/.venv-$(IFS=-; echo "${groups[*]}")"
+if [ ! -x "$venv/bin/python" ]; then
+    python3 -m venv "$venv"
+fi
+pip=("$venv/bin/python" -m pip install --quiet --disable-pip-version-check)
+"${pip[@]}" "$here[$(IFS=,; echo "${groups[*]}")]"
+mireg=0 open3d=0
+for group in "${groups[@]}"; do
+    case "$group" in
+        python|ray) mireg=1 ;;
+        peers|map|loops) open3d=1 ;;
+    esac
+done
+if [ "$mireg" = 1 ]; then
+    "${pip[@]}" "$here/../python[viewer]"   # a local folder is built and installed each time
+    "${pip[@]}" --no-deps -e "$here/mireg_ray"
+fi
+if [ "$open3d" = 1 ] && ! ldconfig -p | grep -q "libusb-1.0.so.0"; then
     apt-get install -y -qq libusb-1.0-0 libgomp1 || echo "install libusb-1.0-0 and libgomp1 for open3d" >&2
 fi
-python3 -m venv "$here/.venv"
-"$here/.venv/bin/python" -m pip install --quiet -r "$here/requirements.txt"
-"$here/.venv/bin/python" -c 'import open3d, numpy, matplotlib, kiss_matcher; print("open3d", open3d.__version__, "numpy", numpy.__version__, "matplotlib", matplotlib.__version__, "kiss_matcher imported")'
+if [ "$screenshot" = 1 ] && ! dpkg -s mesa-vulkan-drivers >/dev/null 2>&1; then
+    apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq mesa-vulkan-drivers
+fi
+echo "$venv: $("$venv/bin/python" -m pip list --format=freeze --disable-pip-version-check | grep -c ==) packages"

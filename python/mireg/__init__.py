@@ -1,5 +1,7 @@
-"""mireg on numpy arrays: MI-RANSAC pair registration, whole-log registration, and a fast cloud
-reader for MCAP files, ROS 1 bags and ROS 2 bag directories.
+"""mireg on numpy arrays: MI-RANSAC pair registration, whole-log registration, a fast cloud
+reader for MCAP files, ROS 1 bags and ROS 2 bag directories, and the reader of a registered run
+(``read_run``, ``read_trajectory``). The package also installs the ``mireg`` command (the Rust
+command line, ``python -m mireg``) and, with the ``viewer`` extra, ``mireg view``.
 
 Every function runs the same Rust code as the ``mireg`` command, with the GIL released, and gives
 its results bit for bit for the same configuration and seed. Units are metres and seconds.
@@ -15,9 +17,10 @@ from typing import Any, Callable, Iterator, Optional, Union
 import numpy as np
 
 from . import _mireg
+from .run import Run, read_run, read_trajectory
 
 __all__ = ["Registration", "register_pair", "read_clouds", "register_log", "default_config",
-           "Odometry"]
+           "Odometry", "Run", "read_run", "read_trajectory"]
 __version__ = _mireg.__version__
 
 PathLike = Union[str, "os.PathLike[str]"]

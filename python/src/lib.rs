@@ -8,6 +8,9 @@
 //! `register_log` parses its flags with the CLI's own parser and runs `mireg register`'s
 //! options.
 
+mod command;
+mod run;
+
 use std::sync::Mutex;
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 use std::thread::JoinHandle;
@@ -27,7 +30,7 @@ use mireg::register::{OnFrame, for_each_cloud, register_log as run_log};
 
 /// A mireg error as the Python exception a user expects: `OSError` for files, `ValueError` for
 /// bad input, `RuntimeError` otherwise; the message is the CLI's.
-fn py_err(e: &mireg::Error) -> PyErr {
+pub(crate) fn py_err(e: &mireg::Error) -> PyErr {
     let text = e.to_string();
     match e {
         mireg::Error::Io { .. } => PyOSError::new_err(text),
@@ -120,8 +123,16 @@ fn register_log(
     serde_json::to_string(&summary).map_err(|e| PyRuntimeError::new_err(e.to_string()))
 }
 
-/// One decoded cloud: header stamp [ns], points, intensity, per-point times [s after the stamp].
-type CloudMsg = (i64, Vec<Point3<f64>>, Option<Vec<f32>>, Option<Vec<f64>>);
+/// One decoded cloud: header stamp [ns], points, intensity, per-point times [s after the stamp],
+/// log time [ns], frame id.
+type CloudMsg = (
+    i64,
+    Vec<Point3<f64>>,
+    Option<Vec<f32>>,
+    Option<Vec<f64>>,
+    u64,
+    String,
+);
 
 /// What the Python iterator yields: `(stamp_ns, points, fields)`.
 type PyCloud<'py> = (i64, Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>);
@@ -133,6 +144,8 @@ struct CloudReader {
     rx: Option<Mutex<Receiver<mireg::Result<CloudMsg>>>>,
     thread: Option<JoinHandle<()>>,
     topic: String,
+    /// Log time [ns] and frame id of the cloud yielded last.
+    last: (u64, String),
 }
 
 #[pymethods]
@@ -152,12 +165,14 @@ impl CloudReader {
         let topic_arg = chosen.clone();
         let thread = py.detach(|| {
             std::thread::spawn(move || {
-                let sent = for_each_cloud(&path, Some(&topic_arg), |_, c| {
+                let sent = for_each_cloud(&path, Some(&topic_arg), |log_time, c| {
                     let msg = (
                         c.header.stamp.to_ns(),
                         c.points,
                         c.intensity,
                         c.times.map(|t| t.seconds),
+                        log_time,
+                        c.header.frame_id,
                     );
                     match tx.send(Ok(msg)) {
                         Ok(()) => Ok(std::ops::ControlFlow::Continue(())),
@@ -174,6 +189,7 @@ impl CloudReader {
             rx: Some(Mutex::new(rx)),
             thread: Some(thread),
             topic: chosen,
+            last: (0, String::new()),
         })
     }
 
@@ -181,6 +197,18 @@ impl CloudReader {
     #[getter]
     fn topic(&self) -> &str {
         &self.topic
+    }
+
+    /// The log time \[ns\] of the cloud yielded last (0 before the first).
+    #[getter]
+    fn log_time(&self) -> u64 {
+        self.last.0
+    }
+
+    /// The header `frame_id` of the cloud yielded last (empty before the first).
+    #[getter]
+    fn frame_id(&self) -> &str {
+        &self.last.1
     }
 
     fn __iter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
@@ -200,7 +228,8 @@ impl CloudReader {
             self.close();
             return Ok(None);
         };
-        let (stamp, pts, intensity, times) = msg.map_err(|e| py_err(&e))?;
+        let (stamp, pts, intensity, times, log_time, frame_id) = msg.map_err(|e| py_err(&e))?;
+        self.last = (log_time, frame_id);
         let n = pts.len();
         let flat: Vec<f64> = pts.iter().flat_map(|p| [p.x, p.y, p.z]).collect();
         let array = PyArray1::from_vec(py, flat).reshape([n, 3])?;
@@ -315,6 +344,11 @@ impl Odometry {
 /// The compiled module.
 #[pymodule]
 fn _mireg(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(command::cli_main, m)?)?;
+    m.add_function(wrap_pyfunction!(run::channels, m)?)?;
+    m.add_function(wrap_pyfunction!(run::read_pose_topics, m)?)?;
+    m.add_function(wrap_pyfunction!(run::read_json_topics, m)?)?;
+    m.add_function(wrap_pyfunction!(run::evaluate_topics, m)?)?;
     m.add_function(wrap_pyfunction!(register_pair, m)?)?;
     m.add_function(wrap_pyfunction!(default_pair_config, m)?)?;
     m.add_function(wrap_pyfunction!(register_log, m)?)?;

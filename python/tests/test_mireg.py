@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -63,6 +64,29 @@ def test_pair_is_the_cli_bit_for_bit(tmp_path, icl_pair):
                     "inlier_rmse_m", "best_found_at"):
             assert got.raw[key] == want[key], key
         assert np.array_equal(got.transformation, np.array(want["target_from_source"]))
+
+
+def test_the_package_command_is_the_cli(tmp_path):
+    """`mireg` of the package (`python -m mireg`, the console script's code) runs the CLI: the
+    same --version, the same pair result, the same exit status and message for a bad flag or a
+    missing file (2)."""
+    package = [sys.executable, "-m", "mireg"]
+
+    def both(*args):
+        return [subprocess.run([*cmd, *map(str, args)], capture_output=True, text=True)
+                for cmd in (package, [str(cli())])]
+
+    got, want = both("--version")
+    assert got.returncode == want.returncode == 0 and got.stdout == want.stdout
+    src, tgt = FIXTURES / "icl_nuim/rgbd5_00004.ply", FIXTURES / "icl_nuim/rgbd5_00000.ply"
+    got, want = both("pair", src, tgt, "--voxel", "0.05", "--json")
+    assert got.returncode == want.returncode == 0, got.stderr
+    a, b = json.loads(got.stdout), json.loads(want.stdout)
+    assert a["target_from_source"] == b["target_from_source"]
+    for args in (("pair", src, tgt, "--no-such-flag"), ("evaluate", tmp_path / "missing.mcap")):
+        got, want = both(*args)
+        assert got.returncode == want.returncode == 2, got.stderr
+        assert got.stderr.splitlines()[0] == want.stderr.splitlines()[0]  # usage names argv[0]
 
 
 def rot(axis, deg):

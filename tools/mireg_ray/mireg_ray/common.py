@@ -1,4 +1,4 @@
-"""What both commands share: finding the mireg binary, running it, connecting to Ray."""
+"""What both commands share: finding the mireg command, running it, connecting to Ray."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import shutil
 import signal
 import subprocess
 import sys
+import sysconfig
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[3]
 # Test hook: "SUBSTRING:MARKER_DIR" makes the first attempt of every task whose input path
 # contains SUBSTRING kill its own Ray worker, once per input (a marker file remembers it), so that
 # the retry on worker loss can be tested.
@@ -23,13 +23,24 @@ class ProcessKilled(RuntimeError):
 
 
 def mireg_bin() -> str:
-    """``$MIREG_BIN``, else ``mireg`` on PATH, else the repository's target/release/mireg."""
+    """``$MIREG_BIN`` (e.g. a cargo build), else the ``mireg`` command of the mireg Python package
+    this driver depends on (installed beside this Python), else ``mireg`` on PATH."""
     if os.environ.get("MIREG_BIN"):
         return os.environ["MIREG_BIN"]
+    try:
+        import mireg  # noqa: F401  (the package whose console script is the command)
+    except ImportError:
+        pass
+    else:
+        for scripts in (sysconfig.get_path("scripts"), str(Path(sys.executable).parent)):
+            candidate = Path(scripts) / "mireg"
+            if candidate.is_file() and os.access(candidate, os.X_OK):
+                return str(candidate)
     found = shutil.which("mireg")
     if found:
         return found
-    return str(REPO / "target" / "release" / "mireg")
+    raise SystemExit("no mireg command: pip install the mireg package (./python) into this "
+                     "environment, or set MIREG_BIN to a mireg binary")
 
 
 def mireg_version(binary: str) -> str:

@@ -13,8 +13,6 @@ import shutil
 import subprocess
 from pathlib import Path
 
-import pytest
-
 from mireg_ray import __main__ as cli
 from mireg_ray import common
 

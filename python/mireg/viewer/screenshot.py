@@ -90,7 +90,7 @@ def screenshot(
         tail = log.read()[-3000:]
         raise SystemExit(
             f"screenshot failed: {why}\n{' '.join(cmd)}\n{tail}\nHeadless rendering needs a "
-            "Vulkan driver (mesa lavapipe): bash tools/setup_viewer_venv.sh --screenshot"
+            "Vulkan driver (mesa lavapipe; Debian: apt-get install mesa-vulkan-drivers)"
         )
 
     try:

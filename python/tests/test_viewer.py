@@ -1,50 +1,52 @@
-"""Smoke tests of tools/view.py and tools/report.py (pytest, ~10 s).
+"""Smoke tests of the viewer (``mireg view``, ``mireg.viewer``) and the report
+(``mireg.viewer.report``); pytest, ~10 s, with the viewer extra (rerun-sdk, matplotlib).
 
 The end-to-end tests need a real mireg output MCAP, named by the environment variable
 ``MIREG_OUTPUT_MCAP`` (CI makes it with
 ``mireg register fixtures/icl_livingroom1.mcap -o "$MIREG_OUTPUT_MCAP" --force``); they are skipped
-with a message when it is unset. They run ``view.py --save`` and read the .rrd back with
-``rerun.chunk.RrdReader`` (rerun-sdk 0.41; there is no ``rerun.dataframe`` module in 0.41), then
-check the entities against what the MCAP holds: one cloud entity per ``--every``-th frame, one
-trajectory/camera row and one value per stats series per frame, failures where the stats say so,
-everything on the ``message_log_time`` timeline at the MCAP's log times.
-The ``--frame`` test also needs the mireg binary (``MIREG_BIN`` or ``target/release/mireg``).
-The loop-closure tests use the output as is when it already has ``/mireg/pose_optimized`` and
-``/mireg/loops``; otherwise they append made-up ones with tools/add_fake_loops.py (odometry
-poses + k·offset, one accepted and one rejected loop) and also check the perturbation.
-A missing ``mcap_ros1`` is simulated (``sys.modules``) to check that a ROS 2 log still works and
-a ROS 1 log gets a message naming the package, not a traceback.
-The unit tests (PointCloud2 decoding with padded layouts, RPE, TOML writer) need nothing.
+with a message when it is unset. They run ``python -m mireg.viewer --save`` and read the .rrd
+back with ``rerun.chunk.RrdReader`` (rerun-sdk 0.41; there is no ``rerun.dataframe`` module in
+0.41), then check the entities against what the MCAP holds: one cloud entity per ``--every``-th
+frame, one trajectory/camera row and one value per stats series per frame, failures where the
+stats say so, everything on the ``message_log_time`` timeline at the MCAP's log times. The
+reference is drawn where ``mireg evaluate`` aligns it. The loop-closure tests need an output with
+``/mireg/pose_optimized`` and ``/mireg/loops`` (``register``'s default); ``MIREG_ROS1_OUTPUT_MCAP``
+(the output of ``fixtures/bags/icl4_lz4.bag``) adds the ROS 1 tests, and ``MIREG_BIN`` (a mireg
+binary, default the package's own command) the Livox and ``mireg map`` ones.
 
 Usage:
-    bash tools/setup_viewer_venv.sh
-    MIREG_OUTPUT_MCAP=/tmp/out.mcap tools/.venv-viewer/bin/python -m pytest -q tools/test_viewer.py
+    pip install "./python[viewer,test]"
+    MIREG_OUTPUT_MCAP=/tmp/out.mcap python -m pytest -q python/tests/test_viewer.py
 """
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import subprocess
 import sys
-import tomllib
 from collections import defaultdict
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-TOOLS = Path(__file__).resolve().parent
-REPO = TOOLS.parent
-sys.path.insert(0, str(TOOLS))
+pytest.importorskip("rerun", reason="the viewer extra is not installed (pip install 'mireg[viewer]')")
 
-import add_fake_loops  # noqa: E402
-import report  # noqa: E402
-import view  # noqa: E402
+import mireg  # noqa: E402
+from mireg.viewer import mapfile, report  # noqa: E402
+from mireg.viewer.scene import STAGES  # noqa: E402
 
+REPO = Path(__file__).resolve().parents[2]
 EVERY = 5
-STAGES = view.STAGES
+
+
+def mireg_command() -> list[str]:
+    """``MIREG_BIN``, else the package's ``mireg`` command (``python -m mireg``)."""
+    if os.environ.get("MIREG_BIN"):
+        return [os.environ["MIREG_BIN"]]
+    return [sys.executable, "-m", "mireg"]
 
 
 def output_mcap() -> Path:
@@ -79,13 +81,13 @@ def read_rrd(path: Path) -> dict:
 
 @pytest.fixture(scope="module")
 def run():
-    return view.read_run(output_mcap(), load_clouds=False)
+    return mireg.read_run(output_mcap(), load_clouds=False)
 
 
 @pytest.fixture(scope="module")
 def saved(tmp_path_factory, run):
     rrd = tmp_path_factory.mktemp("view") / "out.rrd"
-    cmd = [sys.executable, str(TOOLS / "view.py"), str(run.path), "--save", str(rrd),
+    cmd = [sys.executable, "-m", "mireg.viewer", str(run.path), "--save", str(rrd),
            "--every", str(EVERY)]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
@@ -106,8 +108,8 @@ def values(entity: dict, name: str) -> list:
     return sorted(pairs, key=lambda p: p[0])
 
 
-def run_view(*args, timeout=120, prefix=()):
-    cmd = [sys.executable, *prefix, str(TOOLS / "view.py"), *map(str, args)]
+def run_view(*args, timeout=120):
+    cmd = [sys.executable, "-m", "mireg", "view", *map(str, args)]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, cwd=REPO)
 
 
@@ -142,6 +144,23 @@ def test_trajectories(saved, run):
         assert saved["world/trajectory/reference"]["rows"] == n_ref
     else:
         assert "world/trajectory/reference" not in saved
+
+
+def test_reference_drawn_where_evaluate_aligns_it(saved, run):
+    """The reference strip is the reference laid onto the drawn trajectory by the alignment of
+    `mireg evaluate` (the same ATE, to the last bits of a float)."""
+    if not run.has_reference:
+        pytest.skip("this output has no reference")
+    proc = subprocess.run([*mireg_command(), "evaluate", str(run.path), "--json"],
+                          capture_output=True, text=True, check=True)
+    want = json.loads(proc.stdout)
+    got = run.evaluate()
+    assert got["ate_rmse_m"] == pytest.approx(want["ate_rmse_m"], rel=1e-12, abs=1e-15)
+    align = run.estimate_from_reference("optimized")
+    refs = [f.reference for f in run.frames if f.reference is not None]
+    strips = values(saved["world/trajectory/reference"], "LineStrips3D:strips")
+    drawn = np.array(strips[-1][1][0])
+    np.testing.assert_allclose(drawn, [(align @ m)[:3, 3] for m in refs], atol=1e-5)
 
 
 def test_no_loop_topics_nothing_drawn(saved, run):
@@ -180,14 +199,9 @@ def test_failures_marked(saved, run):
 
 
 def test_frame_pair_recomputation(tmp_path, run):
-    mireg = Path(os.environ.get("MIREG_BIN", REPO / "target/release/mireg"))
-    if not mireg.is_file():
-        pytest.skip(f"no mireg binary at {mireg} (set MIREG_BIN)")
     rrd = tmp_path / "pair.rrd"
     k = min(12, len(run.frames) - 1)
-    cmd = [sys.executable, str(TOOLS / "view.py"), str(run.path), "--save", str(rrd),
-           "--every", "1000", "--frame", str(k), "--mireg", str(mireg)]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    proc = run_view(run.path, "--save", rrd, "--every", "1000", "--frame", str(k))
     assert proc.returncode == 0, proc.stderr
     saved = read_rrd(rrd)
     for path in ("world/pair/source", "world/pair/target", "world/pair/correspondences",
@@ -202,7 +216,7 @@ def test_frame_pair_recomputation(tmp_path, run):
 def test_report_writes_png(tmp_path, run):
     png = tmp_path / "report.png"
     proc = subprocess.run(
-        [sys.executable, str(TOOLS / "report.py"), str(run.path), "-o", str(png)],
+        [sys.executable, "-m", "mireg.viewer.report", str(run.path), "-o", str(png)],
         capture_output=True, text=True, timeout=120,
     )
     assert proc.returncode == 0, proc.stderr
@@ -215,39 +229,6 @@ def test_report_writes_png(tmp_path, run):
 # ------------------------------------------------------------------------------------------------
 # unit tests (no MCAP needed)
 # ------------------------------------------------------------------------------------------------
-
-
-def _cloud_msg(points, intensity, point_step, big_endian=False, width=None, height=1, row_pad=0):
-    """A PointCloud2-like object: x, y, z FLOAT32 at 0/4/8, intensity FLOAT32 at 16, padding."""
-    endian = ">" if big_endian else "<"
-    dtype = np.dtype({"names": ["x", "y", "z", "intensity"],
-                      "formats": [endian + "f4"] * 4, "offsets": [0, 4, 8, 16],
-                      "itemsize": point_step})
-    arr = np.zeros(len(points), dtype=dtype)
-    arr["x"], arr["y"], arr["z"] = points.T
-    arr["intensity"] = intensity
-    width = width or len(points)
-    rows = [arr[r * width:(r + 1) * width].tobytes() + b"\xee" * row_pad for r in range(height)]
-    fields = [SimpleNamespace(name=n, offset=o, datatype=7, count=1)
-              for n, o in (("x", 0), ("y", 4), ("z", 8), ("intensity", 16))]
-    return SimpleNamespace(fields=fields, is_bigendian=big_endian, point_step=point_step,
-                           row_step=width * point_step + row_pad, width=width, height=height,
-                           data=b"".join(rows))
-
-
-@pytest.mark.parametrize("point_step,big_endian,height,row_pad",
-                         [(20, False, 1, 0), (32, False, 1, 0), (24, True, 1, 0), (32, False, 2, 8)])
-def test_decode_pointcloud2_layouts(point_step, big_endian, height, row_pad):
-    rng = np.random.default_rng(1)
-    pts = rng.normal(size=(6, 3)).astype(np.float32)
-    pts[2] = np.nan  # non-finite points are dropped
-    inten = np.arange(6, dtype=np.float32)
-    msg = _cloud_msg(pts, inten, point_step, big_endian, width=6 // height, height=height,
-                     row_pad=row_pad)
-    xyz, i = view.decode_pointcloud2(msg)
-    keep = [0, 1, 3, 4, 5]
-    np.testing.assert_array_equal(xyz, pts[keep].astype(np.float64))
-    np.testing.assert_array_equal(i, inten[keep])
 
 
 def _pose(yaw_deg, t):
@@ -267,14 +248,6 @@ def test_rpe():
     assert np.isclose(trans[2], 0.05) and np.isclose(rot[2], 3.0)
 
 
-def test_to_toml_round_trip():
-    cfg = {"voxel_size_m": 0.05, "normal_radius_m": None, "icp": True, "seed": 0,
-           "sampler": {"kind": "levy", "mu": -50.0}, "ranking": {"kind": "ratio"},
-           "sensor_origin": [0.0, 1.5, -2.0]}
-    parsed = tomllib.loads(view.to_toml(cfg))
-    assert parsed == {k: v for k, v in cfg.items() if v is not None}
-
-
 def ros1_output_mcap() -> Path:
     value = os.environ.get("MIREG_ROS1_OUTPUT_MCAP")
     if not value:
@@ -288,7 +261,7 @@ def ros1_output_mcap() -> Path:
 def test_ros1_output_reads_with_its_reference_and_a_chosen_reference_topic():
     """A ROS 1 bag's output: clouds, estimates and reference poses decode (mcap_ros1), and
     --reference-topic picks another PoseStamped topic (here the estimate itself)."""
-    run = view.read_run(ros1_output_mcap(), load_clouds=True)
+    run = mireg.read_run(ros1_output_mcap(), load_clouds=True)
     assert run.has_reference
     assert len(run.frames) == 4
     for f in run.frames:
@@ -297,10 +270,10 @@ def test_ros1_output_reads_with_its_reference_and_a_chosen_reference_topic():
     # The first estimate is the identity; the reference starts at the identity too.
     np.testing.assert_allclose(run.frames[0].estimate, np.eye(4), atol=1e-12)
     assert max(np.linalg.norm(f.estimate[:3, 3] - f.reference[:3, 3]) for f in run.frames) < 0.02
-    same = view.read_run(ros1_output_mcap(), load_clouds=False, reference_topic="/mireg/pose")
+    same = mireg.read_run(ros1_output_mcap(), load_clouds=False, reference_topic="/mireg/pose")
     for f in same.frames:
         np.testing.assert_array_equal(f.reference, f.estimate)
-    none = view.read_run(ros1_output_mcap(), load_clouds=False, reference_topic="/no/such/topic")
+    none = mireg.read_run(ros1_output_mcap(), load_clouds=False, reference_topic="/no/such/topic")
     assert not none.has_reference
 
 
@@ -310,11 +283,12 @@ def test_ros1_output_reads_with_its_reference_and_a_chosen_reference_topic():
 
 
 def with_loops(src: Path, dst: Path) -> tuple[Path, dict | None]:
-    """``src`` itself when it has real loop-closure topics, else a copy with made-up ones."""
-    run = view.read_run(src, load_clouds=False)
-    if run.has_optimized:
-        return src, None
-    return dst, add_fake_loops.add_loop_topics(src, dst)
+    """``src``, which has loop-closure topics (``register`` writes them unless ``--no-loops``;
+    tools/add_fake_loops.py adds made-up ones to an output without)."""
+    run = mireg.read_run(src, load_clouds=False)
+    if not run.has_optimized:
+        pytest.skip(f"{src} has no loop-closure topics (registered with --no-loops?)")
+    return src, None
 
 
 @pytest.fixture(scope="module")
@@ -324,7 +298,7 @@ def loop_mcap(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def loop_run(loop_mcap):
-    return view.read_run(loop_mcap[0], load_clouds=False)
+    return mireg.read_run(loop_mcap[0], load_clouds=False)
 
 
 @pytest.fixture(scope="module")
@@ -333,18 +307,6 @@ def loop_saved(tmp_path_factory, loop_mcap):
     proc = run_view(loop_mcap[0], "--save", rrd, "--every", EVERY)
     assert proc.returncode == 0, proc.stderr
     return read_rrd(rrd)
-
-
-def test_made_up_optimized_poses_are_the_known_perturbation(loop_mcap, loop_run):
-    info = loop_mcap[1]
-    if info is None:
-        pytest.skip("real loop-closure output: no made-up perturbation to check")
-    offset = np.array(info["offset"])
-    for f in loop_run.frames:
-        np.testing.assert_allclose(f.optimized[:3, 3], f.estimate[:3, 3] + f.index * offset,
-                                   atol=1e-9)
-        np.testing.assert_allclose(f.optimized[:3, :3], f.estimate[:3, :3], atol=1e-12)
-    assert sorted(loop.data["verdict"] for loop in loop_run.loops) == ["accepted", "rejected"]
 
 
 def test_both_trajectories(loop_saved, loop_run):
@@ -450,16 +412,12 @@ def test_map_file(tmp_path, loop_mcap, ext):
     rng = np.random.default_rng(3)
     pts = rng.uniform(-2, 2, size=(500, 3)).astype(np.float32)
     inten = rng.uniform(0, 100, size=500).astype(np.float32)
-    if ext == "mireg":  # the real `mireg map`, when the binary has it
-        mireg = Path(os.environ.get("MIREG_BIN", REPO / "target/release/mireg"))
-        if not mireg.is_file() or subprocess.run([mireg, "map", "--help"],
-                                                 capture_output=True).returncode != 0:
-            pytest.skip(f"no `mireg map` in {mireg}")
+    if ext == "mireg":  # the real `mireg map`
         path = tmp_path / "map.ply"
-        proc = subprocess.run([mireg, "map", loop_mcap[0], "-o", path], capture_output=True,
-                              text=True, timeout=300)
+        proc = subprocess.run([*mireg_command(), "map", str(loop_mcap[0]), "-o", str(path)],
+                              capture_output=True, text=True, timeout=300)
         assert proc.returncode == 0, proc.stderr
-        pts, _ = view.load_map(path)
+        pts, _ = mapfile.load_map(path)
     else:
         path = tmp_path / f"map.{ext}"
         if ext == "ply":
@@ -469,7 +427,7 @@ def test_map_file(tmp_path, loop_mcap, ext):
         else:
             path.write_bytes(b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
                              b"WIDTH 500\nHEIGHT 1\nPOINTS 500\nDATA binary\n" + pts.tobytes())
-        got, got_i = view.load_map(path)
+        got, got_i = mapfile.load_map(path)
         np.testing.assert_array_equal(got, pts.astype(np.float64))
         if ext != "pcd":
             np.testing.assert_array_equal(got_i, inten.astype(np.float64))
@@ -502,10 +460,10 @@ def test_bad_map_file_is_a_message(tmp_path, loop_mcap):
 
 
 def test_run_topics_follow_the_pose_namespace():
-    topics = view.run_topics({"pose_topic": "/mireg_2/pose", "stats_topic": "/mireg_2/stats"})
+    topics = mireg.run.run_topics({"pose_topic": "/mireg_2/pose", "stats_topic": "/mireg_2/stats"})
     assert topics["optimized"] == "/mireg_2/pose_optimized"
     assert topics["loops"] == "/mireg_2/loops"
-    named = view.run_topics({"pose_topic": "/mireg_2/pose", "loops_topic": "/x/loops"})
+    named = mireg.run.run_topics({"pose_topic": "/mireg_2/pose", "loops_topic": "/x/loops"})
     assert named["loops"] == "/x/loops"
 
 
@@ -516,7 +474,7 @@ def test_ros1_output_with_loops():
 
     with tempfile.TemporaryDirectory() as tmp:
         path, _ = with_loops(src, Path(tmp, "ros1_loops.mcap"))
-        run = view.read_run(path, load_clouds=False)
+        run = mireg.read_run(path, load_clouds=False)
         assert run.has_optimized
         assert all(f.optimized is not None for f in run.frames)
         assert all(loop.query is not None and loop.match is not None for loop in run.loops)
@@ -526,20 +484,22 @@ def test_ros1_output_with_loops():
         assert proc.returncode == 0, proc.stderr
 
 
-BLOCK_ROS1 = ("-c", "import runpy, sys; sys.modules['mcap_ros1'] = None; "
-              "sys.modules['mcap_ros1.decoder'] = None; sys.argv = sys.argv[1:]; "
-              "runpy.run_path(sys.argv[0], run_name='__main__')")
-
-
-def test_missing_ros1_package_only_matters_for_ros1_logs(tmp_path):
-    """Without mcap_ros1 a ROS 2 log views as before; a ROS 1 log gets a message, no traceback."""
-    proc = run_view(output_mcap(), "--save", tmp_path / "a.rrd", "--every", 1000,
-                    prefix=BLOCK_ROS1)
-    assert proc.returncode == 0, proc.stderr
-    proc = run_view(ros1_output_mcap(), "--save", tmp_path / "b.rrd", prefix=BLOCK_ROS1)
-    assert proc.returncode == 1, proc.stderr
-    assert "Traceback" not in proc.stderr
-    assert "mcap-ros1-support" in proc.stderr
+def test_wrong_inputs_are_a_message_saying_what_to_run(tmp_path):
+    """A raw log, a folder, a text file: the viewer and the report name the input and say to run
+    `mireg register` first, without a traceback."""
+    text = tmp_path / "notes.bag"
+    text.write_text("not a log")
+    for bad in (REPO / "fixtures/bags/icl4_lz4.bag", REPO / "fixtures/icl_livingroom1.mcap",
+                REPO / "fixtures/bags/icl4_mcap", text):
+        for cmd in ([sys.executable, "-m", "mireg", "view", str(bad), "--save",
+                     str(tmp_path / "x.rrd")],
+                    [sys.executable, "-m", "mireg.viewer.report", str(bad), "-o",
+                     str(tmp_path / "x.png")]):
+            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+            assert proc.returncode == 1, (cmd, proc.stderr)
+            assert "Traceback" not in proc.stderr, proc.stderr
+            assert str(bad) in proc.stderr and "mireg register" in proc.stderr, proc.stderr
+    assert not (tmp_path / "x.rrd").exists()
 
 
 def livox_expected() -> list[np.ndarray]:
@@ -565,18 +525,18 @@ def livox_expected() -> list[np.ndarray]:
 
 
 @pytest.mark.parametrize("log", ["icl_livox_ros2", "icl_livox.bag"])
-def test_livox_outputs_show_every_point_the_sensor_sent(tmp_path, log):
-    """A registered Livox CustomMsg log (ROS 2 and ROS 1): the viewer finds the cloud topic and
-    decodes each frame to the points rosbags decoded, every tag kept."""
-    mireg = Path(os.environ.get("MIREG_BIN", REPO / "target/release/mireg"))
-    if not mireg.is_file():
-        pytest.skip(f"no mireg binary at {mireg} (set MIREG_BIN)")
+def test_livox_outputs_show_the_points_register_read(tmp_path, log):
+    """A registered Livox CustomMsg log (ROS 2 and ROS 1): the run finds the cloud topic and
+    each frame holds the points `register` read (mireg.read_clouds of the input), which are
+    those rosbags decoded, minus the tags register drops."""
     out = tmp_path / "livox.mcap"
-    subprocess.run([str(mireg), "register", str(REPO / "fixtures/livox" / log), "-o", str(out),
-                    "--quiet"], check=True)
-    run = view.read_run(out, load_clouds=True)
+    subprocess.run([*mireg_command(), "register", str(REPO / "fixtures/livox" / log), "-o",
+                    str(out), "--quiet"], check=True)
+    run = mireg.read_run(out, load_clouds=True)
     assert run.cloud_topic == "/livox/lidar"
     assert len(run.frames) == 10
-    for frame, want in zip(run.frames, livox_expected()):
+    clouds = list(mireg.read_clouds(REPO / "fixtures/livox" / log))
+    for frame, (_, want, _), sent in zip(run.frames, clouds, livox_expected()):
         np.testing.assert_array_equal(frame.points, want)
+        assert 0 < len(frame.points) <= len(sent)
         assert frame.estimate is not None

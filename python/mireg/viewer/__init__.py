@@ -1,5 +1,5 @@
-#!/usr/bin/env python3
-"""Show a mireg output MCAP in the Rerun viewer (rerun-sdk 0.41), save it as .rrd, or screenshot it.
+"""Show a mireg output MCAP in the Rerun viewer (rerun-sdk 0.41), save it as .rrd, or screenshot it:
+``mireg view OUT.mcap`` or ``python -m mireg.viewer OUT.mcap`` (``pip install "./python[viewer]"``).
 
 Input: the MCAP written by ``mireg register IN.mcap -o OUT.mcap``. It holds the input channels
 unchanged (the PointCloud2 topic, e.g. ``/camera/depth/points``, and ``/ground_truth/pose`` =
@@ -11,6 +11,9 @@ type and stamps as ``/mireg/pose``) and ``/mireg/loops`` (JSON, one per loop can
 the query cloud's log_time). Odometry poses and stats are matched to clouds by log_time, optimised
 poses by header stamp, loops by their frames' stamps (else ``query_frame`` / ``match_frame``).
 A log registered N times has its runs' topics under ``/mireg_N/``; the metadata names them.
+The run is read by ``mireg.read_run`` (the crate's own readers, ROS 1 or ROS 2), not by a Python
+MCAP decoder; an input that is not a ``register`` output (a raw bag or MCAP, a folder) is a
+message saying to run ``mireg register`` first.
 
 Everything is logged on the ``message_log_time`` timeline (a timestamp in ns, the same name and
 unit Rerun's own MCAP importer uses, so ``rerun OUT.mcap`` data lines up with ours) and on a
@@ -29,7 +32,9 @@ Entity paths
 ``world/trajectory/estimate``     LineStrips3D (white) of the ``/mireg/pose`` (odometry) positions up
                                   to the current frame
 ``world/trajectory/optimized``    LineStrips3D (orange) of ``/mireg/pose_optimized`` (if the topic exists)
-``world/trajectory/reference``    LineStrips3D (green) of ``/ground_truth/pose`` (if the topic exists)
+``world/trajectory/reference``    LineStrips3D (green) of ``/ground_truth/pose`` (if the topic exists),
+                                  laid onto the ``--trajectory`` poses as ``mireg evaluate`` aligns
+                                  them (SE(3) Umeyama over the stamp-paired poses)
 ``world/loops/loop_NNNN``         per ``/mireg/loops`` message N: a segment between the match and the
                                   query frame on the optimised trajectory, green accepted, red
                                   rejected, at the query's log time; label (hover) and AnyValues
@@ -54,9 +59,8 @@ nearest-match distance), ``…/inlier_pairs`` (yellow), ``log/loop_pair``
                                   the odometry when that is null); in a 3-D view of their own
 
 ``--frame K`` (correspondences of frame K → K−1): the MCAP does **not** store correspondences, so
-this is a *recomputation*: clouds K (source) and K−1 (target) are written as float64 N×3 ``.npy``
-files in a temp dir and registered again with ``mireg pair SOURCE TARGET --json`` (binary from
-``--mireg``, default ``target/release/mireg``) using the voxel size, inlier threshold and seed of the
+this is a *recomputation*: clouds K (source) and K−1 (target) are registered again with
+``mireg.register_pair`` (what ``mireg pair`` runs) with the pair configuration and seed of the
 ``mireg`` metadata record. Both clouds are voxel-downsampled, placed in the world by
 world_from_(K−1) on ``--trajectory`` (source also by the pair's target_from_source), and every
 source point whose nearest target point lies within the inlier threshold (1.5·voxel by default)
@@ -65,47 +69,24 @@ Those are geometric inlier pairs under the recomputed estimate, not the feature 
 RANSAC voted with, and the recomputed estimate can differ from the one in the MCAP if the run used
 settings the flags here do not reproduce.
 
-The code is in tools/viewer/ (reading, geometry, mapfile, timeline, scene, loops, pair,
-screenshot, cli); this file is the entry point and keeps the names tools/report.py imports.
+The modules: ``geometry`` (transforms, voxels, nearest neighbours), ``mapfile`` (``mireg map``
+files), ``timeline`` (time, up vector, colours), ``scene`` (clouds, map, trajectories, stats,
+failures, blueprint), ``loops`` (loop edges, ``--loop N``), ``pair`` (``--frame K``),
+``screenshot`` (headless viewer), ``cli`` (main), ``report`` (the one-page PNG report:
+``python -m mireg.viewer.report OUT.mcap -o report.png``). The reading is ``mireg.run``.
 
 Output modes
 ------------
 ``--save out.rrd``        write a recording (no viewer, no display needed)
 ``--screenshot out.png``  write a temporary .rrd, then run the ``rerun`` binary shipped in the
                           rerun-sdk wheel with ``--headless --screenshot-to out.png`` (needs the
-                          software Vulkan driver: ``bash tools/setup_viewer_venv.sh --screenshot``)
+                          software Vulkan driver, e.g. Debian's ``mesa-vulkan-drivers``)
 (default)                 open the viewer (bound to 127.0.0.1) when a display exists
 
 Usage:
-    bash tools/setup_viewer_venv.sh
-    tools/.venv-viewer/bin/python tools/view.py /tmp/out.mcap --save /tmp/out.rrd
-    tools/.venv-viewer/bin/python tools/view.py /tmp/out.mcap --frame 12
-    tools/.venv-viewer/bin/python tools/view.py /tmp/out.mcap --loop 0 --map /tmp/map.ply
-    tools/.venv-viewer/bin/python tools/view.py /tmp/out.mcap --screenshot docs/viewer.png
+    pip install "./python[viewer]"
+    mireg view /tmp/out.mcap --save /tmp/out.rrd
+    mireg view /tmp/out.mcap --frame 12
+    mireg view /tmp/out.mcap --loop 0 --map /tmp/map.ply
+    python -m mireg.viewer /tmp/out.mcap --screenshot docs/viewer.png
 """
-
-from __future__ import annotations
-
-import sys
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-# The names other tools use (tools/report.py, tools/test_viewer.py) stay importable from here.
-from viewer.cli import main as _main, parse_args  # noqa: E402,F401
-from viewer.geometry import nearest_neighbours, transform, voxel_downsample  # noqa: E402,F401
-from viewer.mapfile import load_map  # noqa: E402,F401
-from viewer.pair import to_toml  # noqa: E402,F401
-from viewer.reading import (  # noqa: E402,F401
-    Frame, Loop, MissingDecoder, Run, decode_pointcloud2, pose_to_matrix, read_run, run_topics,
-)
-from viewer.scene import STAGES, STAT_SERIES  # noqa: E402,F401
-from viewer.timeline import TIMELINE, colour_map, up_vector  # noqa: E402,F401
-
-
-def main(argv=None) -> int:
-    return _main(argv, description=__doc__.split("\n\n")[0])
-
-
-if __name__ == "__main__":
-    sys.exit(main())

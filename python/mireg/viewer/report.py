@@ -1,9 +1,8 @@
-#!/usr/bin/env python3
 """One-page PNG report of a mireg output MCAP (matplotlib, no display needed).
 
 Panels:
   1. trajectory top view: estimate (``/mireg/pose``) vs reference (``/ground_truth/pose``, if the
-     log has it), projected on the plane orthogonal to "up" (−y for ``*optical_frame`` clouds, whose
+     log has it, aligned to the estimate as ``mireg evaluate --odometry`` aligns it), projected on the plane orthogonal to "up" (−y for ``*optical_frame`` clouds, whose
      world is the first sensor frame: x right / z forward; +z otherwise); failed frames as red x;
   2. per-frame RANSAC inliers and correspondences (``/mireg/stats``), failed frames shaded red;
   3. per-frame relative pose error (RPE) translation [cm] and
@@ -14,9 +13,8 @@ Panels:
 The title carries the file, the mireg version and seed from the ``mireg`` metadata record and the
 summary numbers (failures, mean / median / max RPE), which are also printed.
 
-Usage:
-    bash tools/setup_viewer_venv.sh
-    tools/.venv-viewer/bin/python tools/report.py /tmp/out.mcap -o docs/report.png
+Usage (``pip install "./python[viewer]"``):
+    python -m mireg.viewer.report /tmp/out.mcap -o docs/report.png
 """
 
 from __future__ import annotations
@@ -27,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from view import read_run, up_vector  # noqa: E402  (same directory; shares the MCAP reading)
+from ..run import read_run
+from .timeline import up_vector
 
 
 def rpe(est: list[np.ndarray], ref: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -62,7 +60,7 @@ def make_report(mcap: Path, out: Path, dpi: int = 110) -> dict:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    run = read_run(mcap, load_clouds={0})  # cloud 0 only, for its frame_id
+    run = read_run(mcap, load_clouds=False)  # poses, stats, and the first cloud's frame_id
     frames = run.frames
     idx = np.array([f.index for f in frames])
     est = [f.estimate for f in frames]
@@ -79,7 +77,9 @@ def make_report(mcap: Path, out: Path, dpi: int = 110) -> dict:
     ax_traj.plot(est_pos[:, ax_a], est_pos[:, ax_b], "-", color="tab:blue", lw=1.5,
                  label="estimate (/mireg/pose)")
     if any(m is not None for m in ref):
-        ref_pos = np.array([m[:3, 3] if m is not None else [np.nan] * 3 for m in ref])
+        # laid onto the estimate as `mireg evaluate --odometry` aligns them
+        align = run.estimate_from_reference("estimate")
+        ref_pos = np.array([(align @ m)[:3, 3] if m is not None else [np.nan] * 3 for m in ref])
         ax_traj.plot(ref_pos[:, ax_a], ref_pos[:, ax_b], "--", color="tab:green", lw=1.5,
                      label="reference (/ground_truth/pose)")
     if len(est_pos):
@@ -159,7 +159,10 @@ def main(argv=None) -> int:
     p.add_argument("-o", "--output", type=Path, required=True, help="PNG to write")
     p.add_argument("--dpi", type=int, default=110)
     args = p.parse_args(argv)
-    summary = make_report(args.mcap, args.output, args.dpi)
+    try:
+        summary = make_report(args.mcap, args.output, args.dpi)
+    except (OSError, ValueError) as e:
+        raise SystemExit(f"report: {e}") from None
     for key, value in summary.items():
         print(f"{key}: {value if not isinstance(value, float) else round(value, 3)}")
     print(f"wrote {args.output}")

@@ -6,8 +6,8 @@ import sys
 
 import numpy as np
 
+from ..run import Loop, Run
 from .geometry import nearest_neighbours, transform, voxel_downsample
-from .reading import Loop, Run
 from .timeline import TIMELINE, colour_map, set_frame_time
 
 ACCEPTED = [0, 255, 0]

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..run import Run
 from .geometry import subsample, transform, voxel_downsample
 from .loops import log_loop_pair, log_loops
 from .mapfile import load_map
 from .pair import log_pair
-from .reading import Run
 from .timeline import colour_map, set_frame_time, up_vector, value_range
 
 MAX_FAILURE_LABELS = 8  # more failure boxes than this: labels hidden (hover shows them)
@@ -190,6 +190,10 @@ def log_run(rr, run: Run, args) -> dict:
         lo, hi = value_range(all_pts @ up)
     map_pts = log_map(rr, run, args, up, rng)
 
+    # The reference laid onto the trajectory placing the clouds as `mireg evaluate` aligns them
+    # (SE(3) Umeyama over the stamp-paired poses): a reference in a frame of its own (a rotated
+    # start, another origin) is drawn where it belongs, not as a failure.
+    aligned = {"reference": run.estimate_from_reference(placing)} if run.has_reference else {}
     positions = {name: [] for name, *_ in TRAJECTORIES}
     failures = []
     for f in frames:
@@ -205,6 +209,8 @@ def log_run(rr, run: Run, args) -> dict:
             pose = getattr(f, attr)
             if pose is None:
                 continue
+            if name in aligned:
+                pose = aligned[name] @ pose
             positions[name].append(pose[:3, 3].copy())
             rr.log(
                 f"world/trajectory/{name}",

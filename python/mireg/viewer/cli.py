@@ -1,4 +1,5 @@
-"""Command line of tools/view.py: arguments, reading, logging, saving / screenshot / viewer."""
+"""Command line of the viewer (``mireg view``, ``python -m mireg.viewer``): arguments, reading,
+logging, saving / screenshot / viewer."""
 
 from __future__ import annotations
 
@@ -9,17 +10,18 @@ import sys
 import tempfile
 from pathlib import Path
 
-from .reading import REFERENCE_TOPIC, read_run
+from ..run import REFERENCE_TOPIC, read_run
 from .scene import log_run, make_blueprint
 from .screenshot import rerun_binary, screenshot
 
 
-def parse_args(argv=None, description: str = ""):
+def parse_args(argv=None, description: str = "", prog: str | None = None):
     p = argparse.ArgumentParser(
+        prog=prog,
         description=description,
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="Entity paths, the --frame recomputation and --loop are described in "
-        "tools/view.py's docstring and docs/VIEWER.md.",
+        "the mireg.viewer package's docstring and docs/VIEWER.md.",
     )
     p.add_argument("mcap", type=Path, help="output MCAP of `mireg register`")
     out = p.add_mutually_exclusive_group()
@@ -28,7 +30,7 @@ def parse_args(argv=None, description: str = ""):
     p.add_argument("--every", type=int, default=1, metavar="N", help="show every N-th cloud")
     p.add_argument("--max-points", type=int, default=10000, help="points per cloud at most")
     p.add_argument("--frame", type=int, metavar="K", help="recompute and draw the correspondences "
-                   "of frame K -> K-1 (calls mireg pair)")
+                   "of frame K -> K-1 (registers the pair again with mireg.register_pair)")
     p.add_argument("--loop", type=int, metavar="N", help="draw the clouds of the N-th (0-based) "
                    "/mireg/loops message: the match cloud and the query cloud moved by its "
                    "match_from_query, coloured by nearest-neighbour distance")
@@ -46,8 +48,6 @@ def parse_args(argv=None, description: str = ""):
                    "0 = no map (default)")
     p.add_argument("--map-max-points", type=int, default=500000,
                    help="points of world/map at most (random subset; default %(default)s)")
-    p.add_argument("--mireg", type=Path, default=Path("target/release/mireg"),
-                   help="mireg binary for --frame (default: %(default)s)")
     p.add_argument("--cloud-topic", help="PointCloud2 topic (default: from the mireg metadata)")
     p.add_argument("--reference-topic", default=REFERENCE_TOPIC, metavar="TOPIC",
                    help="PoseStamped topic drawn as the reference trajectory, when present "
@@ -72,10 +72,17 @@ def parse_args(argv=None, description: str = ""):
     return args
 
 
-def main(argv=None, description: str = "") -> int:
-    args = parse_args(argv, description)
-    run = read_run(args.mcap, args.cloud_topic, load_clouds=True,
-                   reference_topic=args.reference_topic)
+def main(argv=None, description: str = "", prog: str | None = None) -> int:
+    if not description:
+        from . import __doc__ as doc
+
+        description = doc.split("\n\n")[0]
+    args = parse_args(argv, description, prog)
+    try:
+        run = read_run(args.mcap, args.cloud_topic, load_clouds=True,
+                       reference_topic=args.reference_topic)
+    except (OSError, ValueError) as e:
+        raise SystemExit(f"mireg view: {e}") from None
     if args.frame is not None and args.frame >= len(run.frames):
         raise SystemExit(f"--frame {args.frame}: the log has {len(run.frames)} clouds")
     if args.loop is not None and args.loop >= len(run.loops):
@@ -88,8 +95,11 @@ def main(argv=None, description: str = "") -> int:
     if args.save is None and args.screenshot is None and not has_display:
         raise SystemExit("no display: use --save out.rrd or --screenshot out.png")
 
-    import rerun as rr
-    import rerun.blueprint as rrb
+    try:
+        import rerun as rr
+        import rerun.blueprint as rrb
+    except ImportError as e:
+        raise SystemExit(f"the viewer needs rerun-sdk ({e}): pip install \"mireg[viewer]\"") from None
 
     rr.init("mireg_view", spawn=False)
     rr.set_log_time_enabled(False)  # no wall-clock "log_time" timeline next to message_log_time
