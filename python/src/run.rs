@@ -11,6 +11,7 @@ use pyo3::prelude::*;
 
 use mireg::io::mcap::log::list_channels;
 use mireg::io::mcap::read::for_each_record;
+use mireg::io::poses;
 use mireg::trajectory::{self, Trajectory};
 
 use crate::py_err;
@@ -46,7 +47,7 @@ fn flat(t: &Trajectory) -> Flat {
 pub fn read_pose_topics(py: Python<'_>, path: PathBuf, topics: Vec<String>) -> PyResult<Vec<Flat>> {
     let names: Vec<&str> = topics.iter().map(String::as_str).collect();
     let read = py
-        .detach(|| trajectory::read_mcap_pose_topics(&path, &names))
+        .detach(|| poses::read_mcap_pose_topics(&path, &names))
         .map_err(|e| py_err(&e))?;
     Ok(read.iter().map(flat).collect())
 }
@@ -113,10 +114,10 @@ pub fn evaluate_topics(
     }
     let max_dt_ns = (max_dt_s * 1e9).round() as i64;
     let evaluation = py.detach(|| {
-        let mut v = trajectory::read_mcap_pose_topics(&path, &[&estimate, &reference])?;
+        let mut v = poses::read_mcap_pose_topics(&path, &[&estimate, &reference])?;
         let (reference, estimate) = (v.pop().unwrap_or_default(), v.pop().unwrap_or_default());
         let flags = match &stats {
-            Some(topic) => trajectory::read_frame_flags(&path, topic)?,
+            Some(topic) => poses::read_frame_flags(&path, topic)?,
             None => None,
         };
         trajectory::evaluate(&estimate, &reference, flags.as_deref(), max_dt_ns)
