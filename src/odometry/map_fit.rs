@@ -106,10 +106,50 @@ impl Odometry {
         global: Option<&Isometry3<f64>>,
         predicted: &Isometry3<f64>,
     ) -> Result<Option<(Isometry3<f64>, MapFit)>> {
+        let t = std::time::Instant::now();
+        let Some(plan) = self.map_icp_plan(frame, target, target_s)? else {
+            return Ok(None);
+        };
+        let from_global = if let Some(global) = global {
+            let f = plan.fit(InitialGuess::Global, global)?;
+            let apart = global.inverse() * predicted;
+            let close = apart.translation.vector.norm() <= plan.distance
+                && apart.rotation.angle() <= 1f64.to_radians();
+            if f.1.used || close {
+                let (pose, fit) = f;
+                let icp_s = t.elapsed().as_secs_f64();
+                return Ok(Some((pose, MapFit { icp_s, ..fit })));
+            }
+            Some(f)
+        } else {
+            None
+        };
+        let from_prediction = plan.fit(InitialGuess::ConstantVelocity, predicted)?;
+        let icp_s = t.elapsed().as_secs_f64();
+        let (pose, best) = match from_global {
+            Some(g)
+                if g.1.fitness > from_prediction.1.fitness
+                    || (g.1.fitness == from_prediction.1.fitness
+                        && g.1.inlier_rmse_m <= from_prediction.1.inlier_rmse_m) =>
+            {
+                g
+            }
+            _ => from_prediction,
+        };
+        Ok(Some((pose, MapFit { icp_s, ..best })))
+    }
+
+    /// How `frame` is refined on the map `target` (built in `target_s` seconds): its sources
+    /// and ICP settings; `None` without a map or an ICP cloud.
+    fn map_icp_plan<'a>(
+        &self,
+        frame: &'a PreparedFrame,
+        target: &'a IcpTarget,
+        target_s: f64,
+    ) -> Result<Option<MapIcpPlan<'a>>> {
         let (Some(map), Some(icp_cloud)) = (&self.map, &frame.icp) else {
             return Ok(None);
         };
-        let t = std::time::Instant::now();
         let c = self.config.pair.resolved()?;
         let distance = map_icp_distance(&c)?;
         let icp = IcpConfig::new(distance)
@@ -136,81 +176,87 @@ impl Odometry {
             ),
             None => dense_icp,
         };
-        let fine_distance = 0.5 * distance;
         let fine: Option<Vec<Point3<f64>>> = (self.config.map_fine && !frame.fine.is_empty())
             .then(|| map_fine_points(frame).copied().collect());
-        let fit = |guess, start: &Isometry3<f64>| -> Result<(Isometry3<f64>, MapFit)> {
-            let (start, coarse_iterations) = match coarse.as_deref() {
-                Some(points) => {
-                    let r = registration_icp_point_to_plane(points, target, start, &dense_icp)?;
-                    (r.target_from_source, r.iterations)
-                }
-                None => (*start, 0),
-            };
-            let mut r =
-                registration_icp_point_to_plane(icp_cloud.points(), target, &start, &finish_icp)?;
-            let mut fine_iterations = 0;
-            if let Some(points) = fine.as_deref() {
-                let inputs = FineInputs {
-                    points,
-                    target,
-                    distance_m: fine_distance,
-                    max_iterations: MAP_FINE_MAX_ITERATIONS,
-                };
-                let f = fine_stage(&inputs, icp_cloud.points(), target, &r, distance)?;
-                if let Some(f) = f {
-                    r.target_from_source = f.target_from_source;
-                    r.fitness = f.fitness;
-                    r.inlier_rmse_m = f.inlier_rmse_m;
-                    fine_iterations = f.iterations;
-                }
-            }
-            let fit = MapFit {
-                guess,
-                fitness: r.fitness,
-                inlier_rmse_m: r.inlier_rmse_m,
-                iterations: r.iterations,
-                fine_iterations,
-                coarse_iterations,
-                map_points: map.len(),
-                used: r.fitness >= self.config.min_fitness,
-                target_s,
-                icp_s: 0.0,
-                hessian: r.hessian,
-            };
-            Ok((r.target_from_source, fit))
-        };
-        let from_global = if let Some(global) = global {
-            let f = fit(InitialGuess::Global, global)?;
-            let apart = global.inverse() * predicted;
-            let close = apart.translation.vector.norm() <= distance
-                && apart.rotation.angle() <= 1f64.to_radians();
-            if f.1.used || close {
-                let (pose, fit) = f;
-                let icp_s = t.elapsed().as_secs_f64();
-                return Ok(Some((pose, MapFit { icp_s, ..fit })));
-            }
-            Some(f)
-        } else {
-            None
-        };
-        let from_prediction = fit(InitialGuess::ConstantVelocity, predicted)?;
-        let icp_s = t.elapsed().as_secs_f64();
-        let (pose, best) = match from_global {
-            Some(g)
-                if g.1.fitness > from_prediction.1.fitness
-                    || (g.1.fitness == from_prediction.1.fitness
-                        && g.1.inlier_rmse_m <= from_prediction.1.inlier_rmse_m) =>
-            {
-                g
-            }
-            _ => from_prediction,
-        };
-        Ok(Some((pose, MapFit { icp_s, ..best })))
+        Ok(Some(MapIcpPlan {
+            target,
+            target_s,
+            map_points: map.len(),
+            min_fitness: self.config.min_fitness,
+            icp_points: icp_cloud.points(),
+            coarse,
+            fine,
+            distance,
+            dense_icp,
+            finish_icp,
+        }))
     }
 }
 
-/// The correspondence distance of ICP against the map \[m\]: the ICP distance.
+/// A frame's refinement on the map ([`Odometry::map_icp_plan`]): ICP from a start on the coarse
+/// source (every k-th ICP point, when global registration ran on a coarser cloud), then the ICP
+/// cloud, then the fine stage on the input points drawn for it.
+struct MapIcpPlan<'a> {
+    target: &'a IcpTarget,
+    /// Seconds the target took to build, and its points.
+    target_s: f64,
+    map_points: usize,
+    /// [`super::OdometryConfig::min_fitness`].
+    min_fitness: f64,
+    icp_points: &'a [Point3<f64>],
+    coarse: Option<Vec<Point3<f64>>>,
+    fine: Option<Vec<Point3<f64>>>,
+    /// The correspondence distance \[m\]; the fine stage uses half.
+    distance: f64,
+    dense_icp: IcpConfig,
+    finish_icp: IcpConfig,
+}
+
+impl MapIcpPlan<'_> {
+    /// The refinement from `start`, its result labelled `guess`.
+    fn fit(&self, guess: InitialGuess, start: &Isometry3<f64>) -> Result<(Isometry3<f64>, MapFit)> {
+        let target = self.target;
+        let (start, coarse_iterations) = match self.coarse.as_deref() {
+            Some(points) => {
+                let r = registration_icp_point_to_plane(points, target, start, &self.dense_icp)?;
+                (r.target_from_source, r.iterations)
+            }
+            None => (*start, 0),
+        };
+        let mut r =
+            registration_icp_point_to_plane(self.icp_points, target, &start, &self.finish_icp)?;
+        let mut fine_iterations = 0;
+        if let Some(points) = self.fine.as_deref() {
+            let inputs = FineInputs {
+                points,
+                target,
+                distance_m: 0.5 * self.distance,
+                max_iterations: MAP_FINE_MAX_ITERATIONS,
+            };
+            if let Some(f) = fine_stage(&inputs, self.icp_points, target, &r, self.distance)? {
+                r.target_from_source = f.target_from_source;
+                r.fitness = f.fitness;
+                r.inlier_rmse_m = f.inlier_rmse_m;
+                fine_iterations = f.iterations;
+            }
+        }
+        let fit = MapFit {
+            guess,
+            fitness: r.fitness,
+            inlier_rmse_m: r.inlier_rmse_m,
+            iterations: r.iterations,
+            fine_iterations,
+            coarse_iterations,
+            map_points: self.map_points,
+            used: r.fitness >= self.min_fitness,
+            target_s: self.target_s,
+            icp_s: 0.0,
+            hessian: r.hessian,
+        };
+        Ok((r.target_from_source, fit))
+    }
+}
+
 /// The local map (with the previous frame `prev` added at `world_from_prev` if it is still
 /// pending) built as an ICP target at `distance` \[m\] for `frame`: the seconds it took, or
 /// `None` without a map or target.
@@ -245,6 +291,7 @@ pub(super) fn map_target(
     Ok(Some(t.elapsed().as_secs_f64()))
 }
 
+/// The correspondence distance of ICP against the map \[m\]: the ICP distance.
 pub(super) fn map_icp_distance(pair: &PairConfig) -> Result<f64> {
     let c = pair.resolved()?;
     Ok(c.icp_max_distance_m.unwrap_or(c.voxel_size_m))
