@@ -151,6 +151,38 @@ pub fn required_hypotheses(confidence: f64, w: f64, s: usize) -> f64 {
     }
 }
 
+impl<M> Consensus<M> {
+    /// No model, no hypothesis yet.
+    fn none() -> Self {
+        Self {
+            model: None,
+            inliers: Vec::new(),
+            num_inliers: 0,
+            hypotheses: 0,
+            prerejected: 0,
+            degenerate: 0,
+            verified: 0,
+            best_found_at: None,
+            converged: false,
+        }
+    }
+
+    /// Counts one hypothesis's outcome; its score and model if it was scored.
+    fn count(&mut self, outcome: Outcome<M>) -> Option<(Score, M)> {
+        self.hypotheses += 1;
+        match outcome {
+            Outcome::Prerejected => self.prerejected += 1,
+            Outcome::Degenerate => self.degenerate += 1,
+            Outcome::Worse => self.verified += 1,
+            Outcome::Scored(score, model) => {
+                self.verified += 1;
+                return Some((score, model));
+            }
+        }
+        None
+    }
+}
+
 /// Runs the consensus loop with `sampler` over `estimator`'s data.
 ///
 /// Panics if the sampler and estimator disagree on the number of items or if the estimator's
@@ -181,39 +213,13 @@ pub fn run_consensus<S: Sampler, E: Estimator>(
         _ => None,
     };
 
-    let mut out = Consensus {
-        model: None,
-        inliers: Vec::new(),
-        num_inliers: 0,
-        hypotheses: 0,
-        prerejected: 0,
-        degenerate: 0,
-        verified: 0,
-        best_found_at: None,
-        converged: false,
-    };
+    let mut out = Consensus::none();
     if n < s {
         return out;
     }
 
-    let evaluate = |h: u64, bound: Option<&Score>| -> Outcome<E::Model> {
-        let mut rng = hypothesis_rng(config.seed, h);
-        let mut buf = [0usize; MAX_SAMPLE_SIZE];
-        let sample = &mut buf[..s];
-        sampler.draw(h, &mut rng, sample);
-        if !estimator.accept_sample(sample) {
-            return Outcome::Prerejected;
-        }
-        let Some(model) = estimator.estimate(sample) else {
-            return Outcome::Degenerate;
-        };
-        if !estimator.accept_model(&model, sample) {
-            return Outcome::Prerejected;
-        }
-        match estimator.score_unless_worse(&model, threshold_sq, bound, config.scoring) {
-            Some(score) => Outcome::Scored(score, model),
-            None => Outcome::Worse,
-        }
+    let evaluate = |h: u64, bound: Option<&Score>| {
+        evaluate_hypothesis(sampler, estimator, config, threshold_sq, h, bound)
     };
 
     let mut best: Option<(Score, E::Model)> = None;
@@ -241,23 +247,9 @@ pub fn run_consensus<S: Sampler, E: Estimator>(
             if h as f64 >= limit {
                 break 'outer;
             }
-            out.hypotheses += 1;
-            let (score, model) = match outcome {
-                Outcome::Prerejected => {
-                    out.prerejected += 1;
-                    continue;
-                }
-                Outcome::Degenerate => {
-                    out.degenerate += 1;
-                    continue;
-                }
-                Outcome::Worse => {
-                    out.verified += 1;
-                    continue;
-                }
-                Outcome::Scored(score, model) => (score, model),
+            let Some((score, model)) = out.count(outcome) else {
+                continue;
             };
-            out.verified += 1;
             if best
                 .as_ref()
                 .is_some_and(|(b, _)| !better(&score, b, config.scoring))
@@ -273,26 +265,14 @@ pub fn run_consensus<S: Sampler, E: Estimator>(
                 &mut inlier_buf,
             );
             out.best_found_at = Some(h);
-            // NOTE: the paper does not say how MI-RANSAC stops; uniform RANSAC's rule would ignore the
-            // ranking. `qˢ` treats the s draws as independent, a close approximation for s ≪ n.
             collect_inliers(estimator, &model, threshold_sq, &mut inlier_buf);
-            let q = match sampler.draw_probability(0) {
-                Some(_) => inlier_buf
-                    .iter()
-                    .map(|&i| sampler.draw_probability(i).unwrap_or(0.0))
-                    .sum::<f64>(),
-                None => score.inliers as f64 / n as f64,
-            };
-            limit = limit.min(required_hypotheses(config.confidence, q.min(1.0), s));
-            if let Some(p) = &prosac {
-                let mut flags = vec![false; n];
-                for &i in &inlier_buf {
-                    flags[i] = true;
-                }
-                if let Some(k) = p.required_hypotheses(&flags) {
-                    limit = limit.min(k.ceil().max(1.0));
-                }
-            }
+            limit = limit.min(stopping_limit(
+                sampler,
+                config,
+                prosac.as_ref(),
+                (&inlier_buf, score.inliers),
+                s,
+            ));
             std::mem::swap(&mut best_inliers, &mut inlier_buf);
             best = Some((score, model));
         }
@@ -305,6 +285,69 @@ pub fn run_consensus<S: Sampler, E: Estimator>(
         out.model = Some(model);
     }
     out
+}
+
+/// Hypothesis `h`: its sample drawn (seeded by `h` alone), checked, its model estimated and
+/// checked, and scored unless worse than `bound`.
+fn evaluate_hypothesis<S: Sampler, E: Estimator>(
+    sampler: &S,
+    estimator: &E,
+    config: &ConsensusConfig,
+    threshold_sq: f64,
+    h: u64,
+    bound: Option<&Score>,
+) -> Outcome<E::Model> {
+    let mut rng = hypothesis_rng(config.seed, h);
+    let mut buf = [0usize; MAX_SAMPLE_SIZE];
+    let sample = &mut buf[..estimator.min_samples()];
+    sampler.draw(h, &mut rng, sample);
+    if !estimator.accept_sample(sample) {
+        return Outcome::Prerejected;
+    }
+    let Some(model) = estimator.estimate(sample) else {
+        return Outcome::Degenerate;
+    };
+    if !estimator.accept_model(&model, sample) {
+        return Outcome::Prerejected;
+    }
+    match estimator.score_unless_worse(&model, threshold_sq, bound, config.scoring) {
+        Some(score) => Outcome::Scored(score, model),
+        None => Outcome::Worse,
+    }
+}
+
+/// How many hypotheses suffice once the best model has `inliers` (its score counting
+/// `num_inliers`; samples of `s`): the confidence rule on the probability that one draw is all
+/// inliers, and PROSAC's where it runs.
+///
+/// NOTE: the paper does not say how MI-RANSAC stops; uniform RANSAC's rule would ignore the
+/// ranking. `qˢ` treats the s draws as independent, a close approximation for s ≪ n.
+fn stopping_limit<S: Sampler>(
+    sampler: &S,
+    config: &ConsensusConfig,
+    prosac: Option<&ProsacTermination>,
+    (inliers, num_inliers): (&[usize], u32),
+    s: usize,
+) -> f64 {
+    let n = sampler.num_items();
+    let q = match sampler.draw_probability(0) {
+        Some(_) => inliers
+            .iter()
+            .map(|&i| sampler.draw_probability(i).unwrap_or(0.0))
+            .sum::<f64>(),
+        None => f64::from(num_inliers) / n as f64,
+    };
+    let mut limit = required_hypotheses(config.confidence, q.min(1.0), s);
+    if let Some(p) = prosac {
+        let mut flags = vec![false; n];
+        for &i in inliers {
+            flags[i] = true;
+        }
+        if let Some(k) = p.required_hypotheses(&flags) {
+            limit = limit.min(k.ceil().max(1.0));
+        }
+    }
+    limit
 }
 
 /// Indices whose squared residual under `model` is below `threshold_sq`, ascending, into `out`.
