@@ -26,15 +26,17 @@ use crate::Result;
 use crate::evaluate::path_distances;
 use crate::geometry::deskew::deskew;
 use crate::loops::{
-    Candidate, Descriptor, Keyframe, KeyframeSelector, LoopConfig, LoopDecision, LoopEdge, Source,
-    Step, Verification, close_in_rounds, edge_prior, find_candidates, select_keyframes, verify,
+    Candidate, Descriptor, KeyframeSelector, LoopConfig, LoopDecision, LoopEdge, Rounds, Source,
+    Step, Verification, close_in_rounds, edge_prior, verify,
 };
 use crate::pipeline::{PairConfig, PreparedFrame, prepare_frame, refine};
 
 mod record;
+mod search;
 
 pub(super) use record::LoopRecord;
-use record::{loop_information, record};
+use record::record;
+use search::{accepted_loops, first_candidates, keyframes_of};
 
 use super::RegisterOptions;
 use super::frames::Estimate;
@@ -249,6 +251,43 @@ pub(super) fn close_loops(
     let rounds = close_in_rounds(
         &poses, &steps, &ranges, &keyframes, first, &mut keys, config, research,
     )?;
+    let tally = Tally {
+        keyframes: keyframes.len(),
+        kept_frames,
+        kept_bytes,
+        redundant: skipped.len(),
+        accepted_first,
+        passes,
+    };
+    Ok(outcome(
+        estimates, &travelled, &tried, &verified, rounds, &tally, config, start,
+    ))
+}
+
+/// The counts of the loop stage that [`outcome`] puts in its summary as they are.
+struct Tally {
+    keyframes: usize,
+    kept_frames: usize,
+    kept_bytes: usize,
+    redundant: usize,
+    /// Loops accepted by the first search.
+    accepted_first: usize,
+    passes: usize,
+}
+
+/// The stage's records (one per candidate `tried`, with the search round that found it) and
+/// summary, from the final judgement of its loops.
+#[allow(clippy::too_many_arguments)]
+fn outcome(
+    estimates: &[Estimate],
+    travelled: &[f64],
+    tried: &[(Candidate, usize)],
+    verified: &Verified,
+    rounds: Rounds,
+    tally: &Tally,
+    config: &LoopConfig,
+    start: Instant,
+) -> LoopOutcome {
     let decisions: HashMap<(usize, usize), LoopDecision> = rounds
         .loops
         .iter()
@@ -262,7 +301,7 @@ pub(super) fn close_loops(
                 c,
                 *round,
                 estimates,
-                &travelled,
+                travelled,
                 verified.get(&(c.query, c.matched)),
                 decisions.get(&(c.query, c.matched)),
                 &edge_prior(config),
@@ -271,103 +310,26 @@ pub(super) fn close_loops(
         .collect();
     let count = |f: fn(&LoopDecision) -> bool| decisions.values().filter(|d| f(d)).count();
     let summary = LoopSummary {
-        keyframes: keyframes.len(),
-        kept_frames,
-        kept_bytes,
+        keyframes: tally.keyframes,
+        kept_frames: tally.kept_frames,
+        kept_bytes: tally.kept_bytes,
         candidates: tried.len(),
-        redundant: skipped.len(),
+        redundant: tally.redundant,
         accepted: count(|d| !matches!(d, LoopDecision::Inconsistent { .. })),
         held_by_map: count(|d| matches!(d, LoopDecision::HeldByMap(_))),
         down_weighted: count(|d| matches!(d, LoopDecision::InGraph(w) if *w < 0.5)),
         inconsistent: count(|d| matches!(d, LoopDecision::Inconsistent { .. })),
         search_rounds: rounds.rounds,
-        found_after_solve: rounds.loops.len() - accepted_first,
-        passes,
+        found_after_solve: rounds.loops.len() - tally.accepted_first,
+        passes: tally.passes,
         graph_iterations: rounds.judged.graph_iterations,
         elapsed_s: start.elapsed().as_secs_f64(),
     };
-    Ok(LoopOutcome {
+    LoopOutcome {
         records,
         optimized: rounds.judged.optimized,
         summary,
-    })
-}
-
-/// The keyframes of the odometry's trajectory (those with a descriptor).
-fn keyframes_of(
-    estimates: &[Estimate],
-    poses: &[Isometry3<f64>],
-    travelled: &[f64],
-    config: &LoopConfig,
-) -> Result<Vec<Keyframe>> {
-    Ok(select_keyframes(poses, travelled, &config.keyframes)?
-        .into_iter()
-        .filter_map(|k| {
-            let e = &estimates[k];
-            Some(Keyframe {
-                frame: k,
-                stamp_ns: u64::try_from(e.stamp_ns()).unwrap_or(0),
-                pose: e.world_from_frame,
-                travelled_m: travelled[k],
-                descriptor: e.descriptor?,
-            })
-        })
-        .collect())
-}
-
-/// The first search's candidates, in frames (the search's indices are keyframes'), the seams'
-/// first.
-fn first_candidates(
-    estimates: &[Estimate],
-    poses: &[Isometry3<f64>],
-    keyframes: &[Keyframe],
-    seams: &[(usize, usize)],
-    config: &LoopConfig,
-) -> Result<Vec<Candidate>> {
-    let mut candidates: Vec<Candidate> = seams
-        .iter()
-        .filter(|&&(q, m)| m < q && q < estimates.len())
-        .map(|&(q, m)| Candidate {
-            query: q,
-            matched: m,
-            by: Source::Seam,
-            odometry_distance_m: (poses[q].translation.vector - poses[m].translation.vector).norm(),
-            descriptor_distance: match (&estimates[q].descriptor, &estimates[m].descriptor) {
-                (Some(a), Some(b)) => a.distance(b),
-                // A frame without features has no descriptor: null on `/mireg/loops`.
-                _ => f64::NAN,
-            },
-        })
-        .collect();
-    let searched = find_candidates(keyframes, &config.candidates)?
-        .into_iter()
-        .map(|c| Candidate {
-            query: keyframes[c.query].frame,
-            matched: keyframes[c.matched].frame,
-            ..c
-        })
-        .filter(|c| !seams.contains(&(c.query, c.matched)))
-        .collect::<Vec<_>>();
-    candidates.extend(searched);
-    Ok(candidates)
-}
-
-/// The accepted loops among `candidates`, in their order.
-fn accepted_loops<'c>(
-    candidates: impl Iterator<Item = &'c Candidate>,
-    verified: &Verified,
-) -> Vec<LoopEdge> {
-    candidates
-        .filter_map(|c| {
-            let (v, _) = verified.get(&(c.query, c.matched))?;
-            v.accepted.then(|| LoopEdge {
-                query: c.query,
-                matched: c.matched,
-                match_from_query: v.match_from_query.expect("accepted loops have a pose"),
-                information: loop_information(v),
-            })
-        })
-        .collect()
+    }
 }
 
 /// Computes each frame's descriptor by reading the input again (for a trajectory that did not
