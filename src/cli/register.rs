@@ -302,6 +302,15 @@ fn print_summary(s: &RegisterSummary) {
             l.elapsed_s,
             s.pose_optimized_topic.as_deref().unwrap_or("-")
         );
+        if l.inconsistent > 0 || l.found_after_solve > 0 {
+            println!(
+                "loops: {} dropped as inconsistent with the other loops through the odometry (PCM); {} found by {} search{} from the optimised poses",
+                l.inconsistent,
+                l.found_after_solve,
+                l.search_rounds,
+                if l.search_rounds == 1 { "" } else { "es" }
+            );
+        }
         if l.passes > 0 {
             println!(
                 "loops: {} keyframes kept from the odometry ({:.0} MB); the other candidates' frames read again in {} pass{} over the log (--loop-memory MIB sets the budget)",

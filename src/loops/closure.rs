@@ -130,6 +130,15 @@ pub struct LoopConfig {
     /// the way out's points, and a loop between them repeats that measurement. Counted as new
     /// evidence it pulled trajectories without drift away from their odometry (docs/LOOPS.md).
     pub map_agreement_chi2: f64,
+    /// Two accepted loops are consistent when the cycle they close through the odometry has a
+    /// squared Mahalanobis error at most this (PCM, [`super::consistency`]); loops outside the
+    /// largest mutually consistent set are dropped ([`super::judge_loops`]). 0 keeps every loop.
+    /// Default [`super::consistency::DEFAULT_CONSISTENCY_CHI2`].
+    pub consistency_chi2: f64,
+    /// After the first solve, search for candidates again from the optimised poses and verify
+    /// them, at most this many times, while new loops are accepted ([`super::close_in_rounds`]).
+    /// 0 searches once, on the odometry. Default [`super::joint::DEFAULT_SEARCH_ROUNDS`].
+    pub search_rounds: usize,
 }
 
 /// Default [`LoopConfig::icp_source_points`]: 4 000. Measured on the out-and-back logs
@@ -190,6 +199,8 @@ impl LoopConfig {
             keep_odometry_frames: true,
             redundant_path_m: 10.0 * v,
             map_agreement_chi2: DEFAULT_MAP_AGREEMENT_CHI2,
+            consistency_chi2: super::consistency::DEFAULT_CONSISTENCY_CHI2,
+            search_rounds: super::joint::DEFAULT_SEARCH_ROUNDS,
         }
     }
 

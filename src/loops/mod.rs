@@ -30,7 +30,9 @@
 
 pub mod candidates;
 pub mod closure;
+pub mod consistency;
 pub mod descriptor;
+pub mod joint;
 pub mod keyframes;
 pub mod scan_context;
 pub mod verify;
@@ -40,7 +42,9 @@ pub use closure::{
     LOOP_INFORMATION_SCALE, LoopConfig, LoopEdge, Step, edge_prior, held_by_map, map_agreement,
     optimize_trajectory, pose_graph,
 };
+pub use consistency::{PairwiseConsistency, maximum_clique};
 pub use descriptor::Descriptor;
+pub use joint::{Judged, LoopDecision, Rounds, close_in_rounds, judge_loops, search_again};
 pub use keyframes::{KeyframeConfig, KeyframeSelector, select_keyframes};
 pub use scan_context::ScanContext;
 pub use verify::{Verification, VerifyConfig, verify};

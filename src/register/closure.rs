@@ -26,16 +26,17 @@ use crate::Result;
 use crate::evaluate::path_distances;
 use crate::geometry::deskew::deskew;
 use crate::loops::{
-    Candidate, Descriptor, Keyframe, KeyframeSelector, LoopConfig, LoopEdge, Source, Step,
-    Verification, edge_prior, find_candidates, map_agreement, optimize_trajectory,
-    select_keyframes, verify,
+    Candidate, Descriptor, KeyframeSelector, LoopConfig, LoopDecision, LoopEdge, Rounds, Source,
+    Step, Verification, close_in_rounds, edge_prior, verify,
 };
 use crate::pipeline::{PairConfig, PreparedFrame, prepare_frame, refine};
 
 mod record;
+mod search;
 
 pub(super) use record::LoopRecord;
-use record::{loop_information, record};
+use record::record;
+use search::{accepted_loops, first_candidates, keyframes_of};
 
 use super::RegisterOptions;
 use super::frames::Estimate;
@@ -59,6 +60,15 @@ pub struct LoopSummary {
     /// Accepted loops whose robust weight at the optimum is below ½ (the graph down-weighted
     /// them as inconsistent with the rest).
     pub down_weighted: usize,
+    /// Verified loops dropped as inconsistent with the other loops through the odometry: outside
+    /// the largest mutually consistent set ([`crate::loops::judge_loops`], PCM). Not counted in
+    /// [`LoopSummary::accepted`].
+    pub inconsistent: usize,
+    /// Searches for candidates from the optimised poses that found some
+    /// ([`LoopConfig::search_rounds`]).
+    pub search_rounds: usize,
+    /// Loops accepted by those searches (counted in [`LoopSummary::accepted`] unless dropped).
+    pub found_after_solve: usize,
     /// Keyframes' frames kept from the odometry for verification ([`KeyframeCache`]), and
     /// the heap they are charged against the budget \[bytes\] ([`PreparedFrame::idle_bytes`]).
     pub kept_frames: usize,
@@ -180,46 +190,8 @@ pub(super) fn close_loops(
         })
         .collect();
     let travelled = path_distances(&poses);
-    let keyframes: Vec<Keyframe> = select_keyframes(&poses, &travelled, &config.keyframes)?
-        .into_iter()
-        .filter_map(|k| {
-            let e = &estimates[k];
-            Some(Keyframe {
-                frame: k,
-                stamp_ns: u64::try_from(e.stamp_ns()).unwrap_or(0),
-                pose: e.world_from_frame,
-                travelled_m: travelled[k],
-                descriptor: e.descriptor?,
-            })
-        })
-        .collect();
-    // Candidates in frames (the search's indices are keyframes'), the seams' first.
-    let mut candidates: Vec<Candidate> = seams
-        .iter()
-        .filter(|&&(q, m)| m < q && q < estimates.len())
-        .map(|&(q, m)| Candidate {
-            query: q,
-            matched: m,
-            by: Source::Seam,
-            odometry_distance_m: (poses[q].translation.vector - poses[m].translation.vector).norm(),
-            descriptor_distance: match (&estimates[q].descriptor, &estimates[m].descriptor) {
-                (Some(a), Some(b)) => a.distance(b),
-                // A frame without features has no descriptor: null on `/mireg/loops`.
-                _ => f64::NAN,
-            },
-        })
-        .collect();
-    let searched = find_candidates(&keyframes, &config.candidates)?
-        .into_iter()
-        .map(|c| Candidate {
-            query: keyframes[c.query].frame,
-            matched: keyframes[c.matched].frame,
-            ..c
-        })
-        .filter(|c| !seams.contains(&(c.query, c.matched)))
-        .collect::<Vec<_>>();
-    candidates.extend(searched);
-
+    let keyframes = keyframes_of(estimates, &poses, &travelled, config)?;
+    let candidates = first_candidates(estimates, &poses, &keyframes, seams, config)?;
     let pair = loop_pair_config(&plan.config.pair, config);
     let verifier = Verifier {
         poses: &poses,
@@ -231,89 +203,133 @@ pub(super) fn close_loops(
         cached.len(),
         cached.values().map(PreparedFrame::idle_bytes).sum(),
     );
-    let (verified, skipped, passes) =
-        verify_all(plan, opts, estimates, &candidates, &verifier, cached)?;
+    let (mut verified, mut skipped, mut passes) =
+        verify_all(plan, opts, estimates, &candidates, &verifier, cached, &[])?;
     // Candidates skipped as redundant were not tried: no record, a count.
-    let candidates: Vec<Candidate> = candidates
-        .into_iter()
+    let mut tried: Vec<(Candidate, usize)> = candidates
+        .iter()
         .filter(|c| !skipped.contains(&(c.query, c.matched)))
+        .map(|c| (*c, 0))
         .collect();
-
-    let loops: Vec<LoopEdge> = candidates
-        .iter()
-        .filter_map(|c| {
-            let (v, _) = verified.get(&(c.query, c.matched))?;
-            v.accepted.then(|| {
-                let match_from_query = v.match_from_query.expect("accepted loops have a pose");
-                LoopEdge {
-                    query: c.query,
-                    matched: c.matched,
-                    match_from_query,
-                    information: loop_information(v),
-                }
-            })
-        })
-        .collect();
-    // Loops that repeat what the odometry measured against its map stay out of the graph.
+    let first = accepted_loops(tried.iter().map(|(c, _)| c), &verified);
+    let accepted_first = first.len();
+    let mut round = 0;
+    let mut keys: BTreeSet<(usize, usize)> =
+        candidates.iter().map(|c| (c.query, c.matched)).collect();
+    let mut accepted: Vec<(usize, usize)> = first.iter().map(|l| (l.query, l.matched)).collect();
     let ranges: Vec<Option<f64>> = estimates.iter().map(|e| e.map_range_m).collect();
-    let mut held: HashMap<(usize, usize), f64> = HashMap::new();
-    let loops: Vec<LoopEdge> = loops
-        .into_iter()
-        .filter(
-            |l| match map_agreement(&poses, &steps, &ranges, l, config) {
-                Some(d2) if d2 <= config.map_agreement_chi2 => {
-                    held.insert((l.query, l.matched), d2);
-                    false
-                }
-                _ => true,
-            },
-        )
-        .collect();
-    let (optimized, solution) = optimize_trajectory(&poses, &steps, &loops, config)?;
-    // The loop edges come after the odometry's in the graph, in the order of `loops`.
-    let weights: HashMap<(usize, usize), f64> = solution
-        .as_ref()
-        .map(|s| {
-            let first = s.edge_weights.len() - loops.len();
-            loops
-                .iter()
-                .zip(&s.edge_weights[first..])
-                .map(|(l, w)| ((l.query, l.matched), *w))
-                .collect()
-        })
-        .unwrap_or_default();
-    let records: Vec<LoopRecord> = candidates
+    // Search again from the optimised poses: each round's candidates verified against the
+    // optimised relative pose (the drift the first solve removed no longer counts against them).
+    let research = |found: &[Candidate], optimized: &[Isometry3<f64>]| -> Result<Vec<LoopEdge>> {
+        let verifier = Verifier {
+            poses: optimized,
+            ..verifier
+        };
+        let (v, s, p) = verify_all(
+            plan,
+            opts,
+            estimates,
+            found,
+            &verifier,
+            BTreeMap::new(),
+            &accepted,
+        )?;
+        passes += p;
+        round += 1;
+        let new: Vec<Candidate> = found
+            .iter()
+            .filter(|c| !s.contains(&(c.query, c.matched)))
+            .copied()
+            .collect();
+        skipped.extend(s);
+        tried.extend(new.iter().map(|c| (*c, round)));
+        let loops = accepted_loops(new.iter(), &v);
+        verified.extend(v);
+        accepted.extend(loops.iter().map(|l| (l.query, l.matched)));
+        Ok(loops)
+    };
+    let rounds = close_in_rounds(
+        &poses, &steps, &ranges, &keyframes, first, &mut keys, config, research,
+    )?;
+    let tally = Tally {
+        keyframes: keyframes.len(),
+        kept_frames,
+        kept_bytes,
+        redundant: skipped.len(),
+        accepted_first,
+        passes,
+    };
+    Ok(outcome(
+        estimates, &travelled, &tried, &verified, rounds, &tally, config, start,
+    ))
+}
+
+/// The counts of the loop stage that [`outcome`] puts in its summary as they are.
+struct Tally {
+    keyframes: usize,
+    kept_frames: usize,
+    kept_bytes: usize,
+    redundant: usize,
+    /// Loops accepted by the first search.
+    accepted_first: usize,
+    passes: usize,
+}
+
+/// The stage's records (one per candidate `tried`, with the search round that found it) and
+/// summary, from the final judgement of its loops.
+#[allow(clippy::too_many_arguments)]
+fn outcome(
+    estimates: &[Estimate],
+    travelled: &[f64],
+    tried: &[(Candidate, usize)],
+    verified: &Verified,
+    rounds: Rounds,
+    tally: &Tally,
+    config: &LoopConfig,
+    start: Instant,
+) -> LoopOutcome {
+    let decisions: HashMap<(usize, usize), LoopDecision> = rounds
+        .loops
         .iter()
-        .map(|c| {
+        .zip(&rounds.judged.decisions)
+        .map(|(l, d)| ((l.query, l.matched), *d))
+        .collect();
+    let records: Vec<LoopRecord> = tried
+        .iter()
+        .map(|(c, round)| {
             record(
                 c,
+                *round,
                 estimates,
-                &travelled,
+                travelled,
                 verified.get(&(c.query, c.matched)),
-                &weights,
-                held.get(&(c.query, c.matched)).copied(),
+                decisions.get(&(c.query, c.matched)),
                 &edge_prior(config),
             )
         })
         .collect();
+    let count = |f: fn(&LoopDecision) -> bool| decisions.values().filter(|d| f(d)).count();
     let summary = LoopSummary {
-        keyframes: keyframes.len(),
-        kept_frames,
-        kept_bytes,
-        candidates: candidates.len(),
-        redundant: skipped.len(),
-        accepted: loops.len() + held.len(),
-        held_by_map: held.len(),
-        down_weighted: weights.values().filter(|w| **w < 0.5).count(),
-        passes,
-        graph_iterations: solution.as_ref().map_or(0, |s| s.iterations),
+        keyframes: tally.keyframes,
+        kept_frames: tally.kept_frames,
+        kept_bytes: tally.kept_bytes,
+        candidates: tried.len(),
+        redundant: tally.redundant,
+        accepted: count(|d| !matches!(d, LoopDecision::Inconsistent { .. })),
+        held_by_map: count(|d| matches!(d, LoopDecision::HeldByMap(_))),
+        down_weighted: count(|d| matches!(d, LoopDecision::InGraph(w) if *w < 0.5)),
+        inconsistent: count(|d| matches!(d, LoopDecision::Inconsistent { .. })),
+        search_rounds: rounds.rounds,
+        found_after_solve: rounds.loops.len() - tally.accepted_first,
+        passes: tally.passes,
+        graph_iterations: rounds.judged.graph_iterations,
         elapsed_s: start.elapsed().as_secs_f64(),
     };
-    Ok(LoopOutcome {
+    LoopOutcome {
         records,
-        optimized,
+        optimized: rounds.judged.optimized,
         summary,
-    })
+    }
 }
 
 /// Computes each frame's descriptor by reading the input again (for a trajectory that did not
@@ -448,7 +464,8 @@ impl Verifier<'_> {
 /// Candidates whose two frames were never held together wait for the next pass. Each pass
 /// verifies at least the candidates of the first frame it holds, so the passes end; a log that
 /// revisits a few places often needs few. A pass whose frames are all in `cached` visits them in
-/// index order without reading the input, and is not counted.
+/// index order without reading the input, and is not counted. Loops in `accepted_before` (an
+/// earlier round's) make candidates redundant as the ones accepted here do.
 fn verify_all(
     plan: &Plan,
     opts: &RegisterOptions,
@@ -456,11 +473,12 @@ fn verify_all(
     candidates: &[Candidate],
     verifier: &Verifier,
     mut cached: BTreeMap<usize, PreparedFrame>,
+    accepted_before: &[(usize, usize)],
 ) -> Result<VerifyOutcome> {
     // Sized by the first frame prepared (frames of one log are of a size).
     let mut capacity: Option<usize> = None;
     let mut verified = Verified::new();
-    let mut accepted: Vec<(usize, usize)> = Vec::new();
+    let mut accepted: Vec<(usize, usize)> = accepted_before.to_vec();
     let mut skipped: BTreeSet<(usize, usize)> = BTreeSet::new();
     // Candidates that could not be read (a frame that no longer decodes) are left out.
     let mut remaining: Vec<Candidate> = candidates.to_vec();

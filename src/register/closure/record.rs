@@ -1,14 +1,12 @@
 //! The `/mireg/loops` record of each loop candidate tried, and an accepted loop's information
 //! as its graph edge carries it.
 
-use std::collections::HashMap;
-
 use nalgebra::{Isometry3, Matrix6};
 use serde::Serialize;
 
 use super::super::frames::Estimate;
 use super::super::output::{FoundBy, Verdict};
-use crate::loops::{Candidate, LOOP_INFORMATION_SCALE, Verification};
+use crate::loops::{Candidate, LOOP_INFORMATION_SCALE, LoopDecision, Verification};
 use crate::odometry::uncertainty::{PoseUncertainty, registration_information};
 
 /// One candidate tried: what `/mireg/loops` carries ([`loops_json_schema`]).
@@ -57,16 +55,59 @@ pub(super) fn loop_information(v: &Verification) -> Option<Matrix6<f64>> {
         .map(|omega| omega * LOOP_INFORMATION_SCALE)
 }
 
-/// The `/mireg/loops` record of candidate `c`.
+/// The reason text of an accepted loop's decision (empty for a loop in the graph found by the
+/// first search), and whether it stays accepted.
+fn decided(decision: Option<&LoopDecision>, round: usize) -> (Verdict, String) {
+    let found = if round > 0 {
+        format!("found by the search from the optimised poses after a first solve (round {round})")
+    } else {
+        String::new()
+    };
+    let join = |s: String| {
+        if found.is_empty() {
+            s
+        } else if s.is_empty() {
+            found.clone()
+        } else {
+            format!("{found}; {s}")
+        }
+    };
+    match decision {
+        Some(LoopDecision::HeldByMap(d2)) => (
+            Verdict::Accepted,
+            join(format!(
+                "left out of the graph: the odometry registered the query against the match's \
+                 place and agrees (squared Mahalanobis distance {d2:.2})"
+            )),
+        ),
+        Some(LoopDecision::Inconsistent {
+            consistent_with,
+            others,
+            clique,
+        }) => (
+            Verdict::Rejected,
+            join(format!(
+                "inconsistent with the other loops through the odometry (PCM): consistent with \
+                 {consistent_with} of the {others} other verified loops, outside the largest \
+                 consistent set ({clique} loops)"
+            )),
+        ),
+        Some(LoopDecision::InGraph(_)) | None => (Verdict::Accepted, join(String::new())),
+    }
+}
+
+/// The `/mireg/loops` record of candidate `c`, tried in search `round` (0: the first, on the
+/// odometry), with the decision on it if it was verified as a loop.
 pub(super) fn record(
     c: &Candidate,
+    round: usize,
     estimates: &[Estimate],
     travelled: &[f64],
     verified: Option<&(Verification, f64)>,
-    weights: &HashMap<(usize, usize), f64>,
-    held_d2: Option<f64>,
+    decision: Option<&LoopDecision>,
     prior: &Matrix6<f64>,
 ) -> LoopRecord {
+    let held = matches!(decision, Some(LoopDecision::HeldByMap(_)));
     let uncertainty = verified
         .filter(|(v, _)| v.accepted)
         .and_then(|(v, _)| loop_information(v))
@@ -79,15 +120,7 @@ pub(super) fn record(
         })
     };
     let (verdict, reason) = match verified {
-        Some((v, _)) if v.accepted => (
-            Verdict::Accepted,
-            held_d2.map_or_else(String::new, |d2| {
-                format!(
-                    "left out of the graph: the odometry registered the query against the match's \
-                     place and agrees (squared Mahalanobis distance {d2:.2})"
-                )
-            }),
-        ),
+        Some((v, _)) if v.accepted => decided(decision, round),
         Some((v, _)) => (Verdict::Rejected, v.reason.clone()),
         None => (
             Verdict::Rejected,
@@ -117,10 +150,10 @@ pub(super) fn record(
         sigma_deg: uncertainty.as_ref().map(|u| u.sigma_deg),
         covariance: uncertainty.as_ref().map(|u| u.ros_covariance().to_vec()),
         // A loop left out of the graph has no weight: null.
-        weight: if held_d2.is_some() {
-            f64::NAN
-        } else {
-            weights.get(&(c.query, c.matched)).copied().unwrap_or(0.0)
+        weight: match decision {
+            _ if held => f64::NAN,
+            Some(LoopDecision::InGraph(w)) => *w,
+            _ => 0.0,
         },
         verify_s: verified.map_or(0.0, |(_, s)| *s),
         timings_s: verified.map(|(v, _)| v.pair.timings_s),
