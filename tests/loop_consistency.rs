@@ -11,83 +11,15 @@ use mireg::loops::{
 use mireg::odometry::uncertainty::diagonal_information;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
-use rand_distr::{Distribution, StandardNormal};
 use rand_pcg::Pcg64Mcg;
 
 #[path = "common/position_rms.rs"]
 mod position_rms;
 use position_rms::position_rms;
 
-/// Places along the route (0.5 m apart); out on the even ones, back on the odd ones.
-const PLACES: usize = 120;
-/// Noise of a good odometry step (each axis): translation \[m\], rotation \[deg\].
-const STEP_SIGMA: (f64, f64) = (0.01, 0.1);
-/// Noise of a loop's relative pose (each axis).
-const LOOP_SIGMA: (f64, f64) = (0.02, 0.2);
-
-/// The true poses of the out-and-back (a gentle S-bend) and each frame's place.
-fn route() -> (Vec<usize>, Vec<Isometry3<f64>>) {
-    let place = |i: usize| {
-        let s = i as f64 * 0.5;
-        Isometry3::from_parts(
-            Translation3::new(s, 8.0 * (1.0 - (s / 15.0).cos()), 0.0),
-            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.6 * (s / 15.0).sin()),
-        )
-    };
-    let mut order: Vec<usize> = (0..PLACES).step_by(2).collect();
-    order.extend((1..PLACES).step_by(2).rev());
-    let truth = order.iter().map(|&i| place(i)).collect();
-    (order, truth)
-}
-
-fn noise(rng: &mut Pcg64Mcg, (sigma_m, sigma_deg): (f64, f64)) -> Isometry3<f64> {
-    let mut g = || -> f64 { StandardNormal.sample(rng) };
-    let t = Vector3::new(g(), g(), g()) * sigma_m;
-    let r = Vector3::new(g(), g(), g()) * sigma_deg.to_radians();
-    Isometry3::from_parts(Translation3::from(t), UnitQuaternion::from_scaled_axis(r))
-}
-
-/// The odometry: true steps with noise, `broken` steps (frame, m, deg) made wrong on top.
-fn odometry(
-    truth: &[Isometry3<f64>],
-    broken: &[(usize, f64, f64)],
-    seed: u64,
-) -> Vec<Isometry3<f64>> {
-    let mut rng = Pcg64Mcg::seed_from_u64(seed);
-    let mut poses = vec![truth[0]];
-    for k in 1..truth.len() {
-        let mut step = truth[k - 1].inverse() * truth[k] * noise(&mut rng, STEP_SIGMA);
-        if let Some(&(_, m, deg)) = broken.iter().find(|b| b.0 == k) {
-            step *= Isometry3::from_parts(
-                Translation3::new(0.6 * m, 0.8 * m, 0.0),
-                UnitQuaternion::from_axis_angle(&Vector3::z_axis(), deg.to_radians()),
-            );
-        }
-        poses.push(poses[k - 1] * step);
-    }
-    poses
-}
-
-/// True loops: each frame of the way back against the way out's frames at its neighbouring
-/// places, loop-sized noise, the information of that noise.
-fn true_loops(order: &[usize], truth: &[Isometry3<f64>], seed: u64) -> Vec<LoopEdge> {
-    let mut rng = Pcg64Mcg::seed_from_u64(seed);
-    let frame_of = |place: usize| order.iter().position(|&p| p == place);
-    let mut loops = Vec::new();
-    for (q, &place) in order.iter().enumerate().filter(|(_, p)| *p % 2 == 1) {
-        for neighbour in [place - 1, place + 1] {
-            if let Some(m) = frame_of(neighbour).filter(|&m| m + 5 <= q) {
-                loops.push(LoopEdge {
-                    query: q,
-                    matched: m,
-                    match_from_query: truth[m].inverse() * truth[q] * noise(&mut rng, LOOP_SIGMA),
-                    information: Some(diagonal_information(LOOP_SIGMA.0, LOOP_SIGMA.1)),
-                });
-            }
-        }
-    }
-    loops
-}
+#[path = "common/out_and_back_graph.rs"]
+mod out_and_back_graph;
+use out_and_back_graph::{LOOP_SIGMA, STEP_SIGMA, odometry, route, true_loops};
 
 /// A look-alike: frame `q` registered onto frame `m` as if they stood `offset` apart (what a
 /// revisit would look like), where the truth has them `truth[m]⁻¹ truth[q]` apart.
