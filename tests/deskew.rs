@@ -8,6 +8,10 @@ use mireg::io::point_time::TimeConvention;
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
 
+#[path = "common/walls_room.rs"]
+mod walls_room;
+use walls_room::walls_room;
+
 const SCAN_S: f64 = 0.1;
 
 /// Sensor poses (in the sensor frame at t = 0) every `SCAN_S / steps` seconds, for body velocity
@@ -231,18 +235,7 @@ fn time_fields_of_each_driver_decode_as_seconds_after_the_stamp() {
 fn register_deskews_from_the_fourth_frame_and_says_so() {
     use mireg::register::{DeskewMode, RegisterOptions, register_log};
     let dir = tempfile::tempdir().unwrap();
-    let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(2);
-    let room: Vec<Point3<f64>> = (0..6000)
-        .map(|_| {
-            let (u, v): (f64, f64) = (rng.random_range(-6.0..6.0), rng.random_range(-1.0..2.0));
-            match rng.random_range(0..4u32) {
-                0 => Point3::new(u, 6.0, v),
-                1 => Point3::new(u, -6.0, v),
-                2 => Point3::new(6.0, u, v),
-                _ => Point3::new(u, rng.random_range(-6.0..6.0), -1.0),
-            }
-        })
-        .collect();
+    let room = walls_room(6000, 2);
     let frames = (0..8u64).map(|k| {
         let sensor = Isometry3::translation(0.1 * k as f64, 0.0, 0.0);
         let pts: Vec<Point3<f64>> = room.iter().map(|p| sensor.inverse() * p).collect();
@@ -431,18 +424,7 @@ fn deskewing_a_truly_skewed_log_recovers_its_motion_without_oscillating() {
 fn times_that_do_not_vary_deskew_nothing_and_say_so() {
     use mireg::register::{DeskewMode, RegisterOptions, register_log};
     let dir = tempfile::tempdir().unwrap();
-    let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(5);
-    let room: Vec<Point3<f64>> = (0..4000)
-        .map(|_| {
-            let (u, v): (f64, f64) = (rng.random_range(-6.0..6.0), rng.random_range(-1.0..2.0));
-            match rng.random_range(0..4u32) {
-                0 => Point3::new(u, 6.0, v),
-                1 => Point3::new(u, -6.0, v),
-                2 => Point3::new(6.0, u, v),
-                _ => Point3::new(u, rng.random_range(-6.0..6.0), -1.0),
-            }
-        })
-        .collect();
+    let room = walls_room(4000, 5);
     let frames = (0..6u64).map(|k| {
         let sensor = Isometry3::translation(0.1 * k as f64, 0.0, 0.0);
         let pts: Vec<Point3<f64>> = room.iter().map(|p| sensor.inverse() * p).collect();

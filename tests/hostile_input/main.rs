@@ -558,6 +558,10 @@ fn interrupted_register_leaves_nothing_behind() {
     }
 }
 
+#[path = "../common/walls_room.rs"]
+mod walls_room;
+use walls_room::walls_room;
+
 mod decompression_bombs;
 mod far_points;
 mod later_findings;

@@ -48,22 +48,6 @@ fn cloud(stamp_ns: u64, points: &[(Point3<f64>, f64)]) -> Vec<u8> {
     w.finish()
 }
 
-/// A room of walls and a floor, 6 000 points.
-fn room() -> Vec<Point3<f64>> {
-    let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(3);
-    (0..6000)
-        .map(|_| {
-            let (u, v): (f64, f64) = (rng.random_range(-6.0..6.0), rng.random_range(-1.0..2.0));
-            match rng.random_range(0..4u32) {
-                0 => Point3::new(u, 6.0, v),
-                1 => Point3::new(u, -6.0, v),
-                2 => Point3::new(6.0, u, v),
-                _ => Point3::new(u, rng.random_range(-6.0..6.0), -1.0),
-            }
-        })
-        .collect()
-}
-
 /// Frame `k`'s time field: the clouds of frames 5 and 6 hold 1e300 and NaN for every point (a
 /// field on another clock, a field without a time); the others a 100 ms sweep by azimuth with
 /// the first [`GLITCHES`].len() points' times replaced by the glitches.
@@ -85,7 +69,7 @@ const FRAMES: usize = 9;
 /// A ROS 2 MCAP log of [`FRAMES`] clouds of the room on `/points`, the sensor moving 0.1 m per
 /// 100 ms frame.
 fn log() -> Vec<u8> {
-    let room = room();
+    let room = walls_room(6000, 3);
     let mut out = std::io::Cursor::new(Vec::new());
     let mut w = mcap::WriteOptions::new()
         .profile("ros2")
