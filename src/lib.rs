@@ -20,6 +20,7 @@ pub mod heap;
 pub mod io;
 pub mod loops;
 pub mod map;
+pub mod merge;
 pub mod ransac;
 pub mod refine;
 pub mod simulate;

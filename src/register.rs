@@ -24,14 +24,17 @@ mod writer;
 
 use closure::KeyframeCache;
 pub use closure::LoopSummary;
-use clouds::CloudKind;
+pub(crate) use closure::loop_pair_config;
+pub(crate) use clouds::CloudKind;
 pub use clouds::{for_each_cloud, point_cloud_topic};
 pub use motions::{DeskewMode, OutputMessages};
 use output::Outputs;
+pub(crate) use output::{StampedPose, encode_pose, pose_channels};
 pub use output::{loops_json_schema, stats_json_schema};
 use plan::Plan;
 use prepare::Prepare;
 pub use stitch::{Seam, StitchSummary, stitch};
+pub(crate) use stitch::{Segment, read_segment};
 pub use window::{LogWindow, WindowBound};
 use writer::Writer;
 

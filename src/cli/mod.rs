@@ -10,6 +10,7 @@ mod flags;
 mod info;
 mod inputs;
 mod map;
+mod merge;
 mod pair;
 mod process;
 mod register;
@@ -24,6 +25,7 @@ pub use export::{ExportArgs, ExportFormat};
 pub use flags::{RankingArg, RegistrationFlags, SamplerArg, VerificationArg};
 pub use info::InfoArgs;
 pub use map::MapArgs;
+pub use merge::MergeArgs;
 pub use pair::{GtFormat, PairArgs, RegistrationFailed, pair_json};
 pub use process::error_text;
 pub use register::{DEFAULT_FIXTURE, RegisterArgs, register_options};
@@ -63,6 +65,9 @@ pub enum Command {
     Sweep(SweepArgs),
     /// The voxel-downsampled world map of a `register` output, as .ply, .pcd or .npy.
     Map(MapArgs),
+    /// Put several `register` outputs of one site (sessions, each in its own frame) into one
+    /// frame: links between sessions found and verified prior-free, one robust pose graph.
+    Merge(MergeArgs),
 }
 
 /// Runs the parsed command line.
@@ -79,6 +84,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Some(Command::Stitch(args)) => stitch::run_stitch(&args),
         Some(Command::Sweep(args)) => sweep::run_sweep(&args),
         Some(Command::Map(args)) => map::run_map(&args),
+        Some(Command::Merge(args)) => merge::run_merge(&args),
         None => register::run_default(),
     }
 }

@@ -423,26 +423,37 @@ pub fn optimize_trajectory(
     if loops.is_empty() || poses.len() < 2 {
         return Ok((poses.to_vec(), None));
     }
-    let mut graph = pose_graph(poses, steps, loops, config)?;
+    let graph = pose_graph(poses, steps, loops, config)?;
+    let solution = solve_annealed(graph, config.kernel_scale)?;
+    Ok((solution.poses.clone(), Some(solution)))
+}
+
+/// `graph` solved by [`optimize`] with the Cauchy kernel, its scale annealed from
+/// [`ANNEALING_START`]`/`[`ANNEALING_FACTOR`] times `kernel_scale` down to it (one solve per
+/// scale, each from the last); the solution's `iterations` are summed over the solves.
+///
+/// # Errors
+/// As [`optimize`].
+pub fn solve_annealed(mut graph: PoseGraph, kernel_scale: f64) -> Result<GraphSolution> {
     // NOTE: graduated, as in graduated non-convexity (Yang et al. 2020) but on the Cauchy
     // kernel's scale: from a drifted start, a loop whose misclosure is many σ of the odometry
     // chain sits where the kernel is flat, and the drifted trajectory is a local minimum. Each
     // solve starts from the last, with the scale falling by ANNEALING_FACTOR to the configured
     // one: a nearly quadratic first solve pulls the trajectory towards the loops, the last
     // judges them.
-    let mut scale = config.kernel_scale * ANNEALING_START;
+    let mut scale = kernel_scale * ANNEALING_START;
     let mut iterations = 0;
     loop {
-        scale = (scale / ANNEALING_FACTOR).max(config.kernel_scale);
+        scale = (scale / ANNEALING_FACTOR).max(kernel_scale);
         let options = GraphOptions {
             kernel_scale: scale,
             ..GraphOptions::default()
         };
         let mut solution = optimize(&graph, &options)?;
         iterations += solution.iterations;
-        if scale <= config.kernel_scale {
+        if scale <= kernel_scale {
             solution.iterations = iterations;
-            return Ok((solution.poses.clone(), Some(solution)));
+            return Ok(solution);
         }
         graph.poses.clone_from(&solution.poses);
     }

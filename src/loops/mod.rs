@@ -40,7 +40,7 @@ pub mod verify;
 pub use candidates::{Candidate, CandidateConfig, Keyframe, Source, find_candidates};
 pub use closure::{
     LOOP_INFORMATION_SCALE, LoopConfig, LoopEdge, Step, edge_prior, held_by_map, map_agreement,
-    optimize_trajectory, pose_graph,
+    optimize_trajectory, pose_graph, solve_annealed,
 };
 pub use consistency::{PairwiseConsistency, maximum_clique};
 pub use descriptor::Descriptor;

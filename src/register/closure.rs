@@ -92,7 +92,7 @@ pub(super) struct LoopOutcome {
 
 /// The pair settings of loop verification: the run's, with the pairwise fine stage as `mireg
 /// pair` runs it (the odometry's frames draw their fine points for the map instead).
-pub(super) fn loop_pair_config(pair: &PairConfig, config: &LoopConfig) -> PairConfig {
+pub(crate) fn loop_pair_config(pair: &PairConfig, config: &LoopConfig) -> PairConfig {
     PairConfig {
         icp_fine: config.fine_icp,
         icp_max_source_points: config.icp_source_points,

@@ -10,7 +10,7 @@ use crate::{Error, Result};
 
 /// The point cloud message types `register` reads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(super) enum CloudKind {
+pub(crate) enum CloudKind {
     /// ROS 2 `sensor_msgs/msg/PointCloud2`, cdr.
     Ros2,
     /// ROS 1 `sensor_msgs/PointCloud2`, ros1.

@@ -259,7 +259,7 @@ fn pose_cov_channel(log: &mut OutputLog, kind: CloudKind, topic: &str) -> Result
 }
 
 /// A `/tf` and a pose channel in `kind`'s message family, on `tf_topic` and `pose_topic`.
-fn pose_channels(
+pub(crate) fn pose_channels(
     log: &mut OutputLog,
     kind: CloudKind,
     tf_topic: &str,
@@ -357,13 +357,13 @@ pub(super) fn write_frame(
 }
 
 /// One frame's pose as our channels carry it.
-pub(super) struct StampedPose<'a> {
-    pub(super) stamp: codec::Time,
+pub(crate) struct StampedPose<'a> {
+    pub(crate) stamp: codec::Time,
     /// The cloud's frame: the child of `/tf`'s transform.
-    pub(super) child_frame: &'a str,
-    pub(super) world_from_frame: nalgebra::Isometry3<f64>,
-    pub(super) log_time: u64,
-    pub(super) publish_time: u64,
+    pub(crate) child_frame: &'a str,
+    pub(crate) world_from_frame: nalgebra::Isometry3<f64>,
+    pub(crate) log_time: u64,
+    pub(crate) publish_time: u64,
 }
 
 /// Writes a frame's `/tf`, pose and statistics messages in the channels' family.
@@ -406,7 +406,11 @@ pub(super) fn write_loop(
 }
 
 /// A pose's message and its `/tf` message in `kind`'s family.
-fn encode_pose(kind: CloudKind, world_frame: &str, p: &StampedPose<'_>) -> (Vec<u8>, Vec<u8>) {
+pub(crate) fn encode_pose(
+    kind: CloudKind,
+    world_frame: &str,
+    p: &StampedPose<'_>,
+) -> (Vec<u8>, Vec<u8>) {
     let world_from_frame = p.world_from_frame;
     let header = codec::Header {
         stamp: p.stamp,

@@ -36,25 +36,25 @@ use crate::loops::LoopConfig;
 use crate::odometry::OdometryConfig;
 use crate::{Error, Result};
 
-/// A frame of one segment output.
+/// A frame of one segment output (or of any `register` output, read back).
 #[derive(Debug, Clone)]
-struct SegFrame {
-    stamp_ns: i64,
-    log_time: u64,
-    publish_time: u64,
-    pose: Isometry3<f64>,
-    child_frame: String,
-    stats: serde_json::Value,
+pub(crate) struct SegFrame {
+    pub(crate) stamp_ns: i64,
+    pub(crate) log_time: u64,
+    pub(crate) publish_time: u64,
+    pub(crate) pose: Isometry3<f64>,
+    pub(crate) child_frame: String,
+    pub(crate) stats: serde_json::Value,
 }
 
-/// One segment output, read back.
-struct Segment {
-    path: PathBuf,
+/// One segment output (or any `register` output), read back.
+pub(crate) struct Segment {
+    pub(crate) path: PathBuf,
     /// Its `mireg` metadata (settings, voxel, topics).
-    meta: BTreeMap<String, String>,
-    kind: CloudKind,
-    world_frame: String,
-    frames: Vec<SegFrame>,
+    pub(crate) meta: BTreeMap<String, String>,
+    pub(crate) kind: CloudKind,
+    pub(crate) world_frame: String,
+    pub(crate) frames: Vec<SegFrame>,
 }
 
 /// How two consecutive segments agree on their shared frames after alignment.
@@ -89,7 +89,9 @@ pub struct StitchSummary {
     pub loops: Option<super::LoopSummary>,
 }
 
-fn read_segment(path: &Path) -> Result<Segment> {
+/// Reads a `register` output back: its metadata, message family, odometry poses (sorted by
+/// stamp), their frames, log times and statistics.
+pub(crate) fn read_segment(path: &Path) -> Result<Segment> {
     let mut meta = BTreeMap::new();
     let mut topics = BTreeMap::new();
     let mut schemas = BTreeMap::new();

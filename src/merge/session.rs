@@ -1,0 +1,147 @@
+//! One session of a merge, read back from its `register` output: the best trajectory, the
+//! keyframes and their prepared clouds.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use nalgebra::Isometry3;
+
+use crate::evaluate::path_distances;
+use crate::io::format_err;
+use crate::io::mcap::log::list_channels;
+use crate::io::poses::read_mcap_pose_topic;
+use crate::loops::{Descriptor, LoopConfig, select_keyframes};
+use crate::odometry::OdometryConfig;
+use crate::pipeline::{PairConfig, PreparedFrame, prepare_frame, with_feature_voxel};
+use crate::register::{Segment, for_each_cloud, loop_pair_config, read_segment};
+use crate::{Error, Result};
+
+/// A session: its output read back, the trajectory placing its frames, and its keyframes.
+pub(super) struct Session {
+    pub(super) output: Segment,
+    /// The name in reports and links: the file's stem.
+    pub(super) name: String,
+    /// The topic whose poses are used (`…/pose_optimized` where loops were closed, else
+    /// `…/pose`).
+    pub(super) pose_topic: String,
+    /// The pose namespace of the run (`/mireg`, or `/mireg_N` for a log registered N times).
+    pub(super) namespace: String,
+    /// `world_from_sensor` per frame, by stamp.
+    pub(super) poses: Vec<Isometry3<f64>>,
+    /// Path length to each frame \[m\].
+    pub(super) travelled_m: Vec<f64>,
+    /// The run's ICP voxel and feature voxel \[m\].
+    pub(super) voxel_m: f64,
+    pub(super) feature_voxel_m: f64,
+    /// Keyframes (frame indices), with their prepared clouds and descriptors (keyframes whose
+    /// cloud did not prepare are left out).
+    pub(super) keyframes: Vec<usize>,
+    pub(super) frames: Vec<PreparedFrame>,
+    pub(super) descriptors: Vec<Descriptor>,
+}
+
+impl Session {
+    /// Reads `path`'s trajectory and metadata (not its clouds).
+    pub(super) fn read(path: &Path) -> Result<Self> {
+        let output = read_segment(path).map_err(|e| match e {
+            Error::InvalidInput(m) => Error::InvalidInput(format!(
+                "{m} (mireg merge takes the outputs of `mireg register`)"
+            )),
+            e => e,
+        })?;
+        let number = |key: &str| -> Result<f64> {
+            output
+                .meta
+                .get(key)
+                .and_then(|v| v.parse::<f64>().ok())
+                .filter(|v| v.is_finite() && *v > 0.0)
+                .ok_or_else(|| {
+                    format_err(
+                        path,
+                        format!("its mireg metadata has no positive {key}: not a `mireg register` output?"),
+                    )
+                })
+        };
+        let voxel_m = number("voxel_m")?;
+        let feature_voxel_m = number("feature_voxel_m").unwrap_or(voxel_m);
+        let odometry_topic = output.meta.get("pose_topic").cloned().unwrap_or_default();
+        let namespace = odometry_topic
+            .strip_suffix("/pose")
+            .unwrap_or("/mireg")
+            .to_string();
+        let optimized = format!("{namespace}/pose_optimized");
+        let channels = list_channels(path)?;
+        let mut poses: Vec<Isometry3<f64>> = output.frames.iter().map(|f| f.pose).collect();
+        let mut pose_topic = odometry_topic;
+        if crate::trajectory::has_optimized_poses(&channels, &optimized) {
+            let best = read_mcap_pose_topic(path, &optimized)?;
+            let by_stamp: BTreeMap<i64, Isometry3<f64>> =
+                best.stamps_ns.iter().copied().zip(best.poses).collect();
+            for (p, f) in poses.iter_mut().zip(&output.frames) {
+                if let Some(q) = by_stamp.get(&f.stamp_ns) {
+                    *p = *q;
+                }
+            }
+            pose_topic = optimized;
+        }
+        let name = path.file_stem().map_or_else(
+            || "session".to_string(),
+            |s| s.to_string_lossy().into_owned(),
+        );
+        Ok(Self {
+            travelled_m: path_distances(&poses),
+            output,
+            name,
+            pose_topic,
+            namespace,
+            poses,
+            voxel_m,
+            feature_voxel_m,
+            keyframes: Vec::new(),
+            frames: Vec::new(),
+            descriptors: Vec::new(),
+        })
+    }
+
+    /// Selects the keyframes by `config`'s rule and prepares their clouds with `pair`, streaming
+    /// the output's clouds once.
+    pub(super) fn prepare_keyframes(
+        &mut self,
+        config: &LoopConfig,
+        pair: &PairConfig,
+    ) -> Result<()> {
+        let keys = select_keyframes(&self.poses, &self.travelled_m, &config.keyframes)?;
+        let by_stamp: BTreeMap<i64, usize> = keys
+            .iter()
+            .map(|&k| (self.output.frames[k].stamp_ns, k))
+            .collect();
+        let mut prepared: BTreeMap<usize, PreparedFrame> = BTreeMap::new();
+        let topic = self.output.meta.get("topic").cloned();
+        for_each_cloud(&self.output.path, topic.as_deref(), |_, cloud| {
+            if let Some(&k) = by_stamp.get(&cloud.header.stamp.to_ns())
+                && !prepared.contains_key(&k)
+                && let Ok(frame) = prepare_frame(&cloud.points, pair)
+                && !frame.features.is_empty()
+            {
+                prepared.insert(k, frame);
+            }
+            Ok(std::ops::ControlFlow::Continue(()))
+        })?;
+        for (k, frame) in prepared {
+            self.descriptors.push(Descriptor::from_prepared(&frame));
+            self.keyframes.push(k);
+            self.frames.push(frame);
+        }
+        Ok(())
+    }
+}
+
+/// The registration settings of a merge: a loop verification's at `session`'s voxels, with
+/// `seed`.
+pub(super) fn merge_pair_config(session: &Session, loops: &LoopConfig, seed: u64) -> PairConfig {
+    let mut pair = OdometryConfig::default().pair;
+    pair.voxel_size_m = session.voxel_m;
+    pair.seed = seed;
+    let pair = with_feature_voxel(&pair, session.feature_voxel_m);
+    loop_pair_config(&pair, loops)
+}
