@@ -95,7 +95,7 @@ fn true_links_agree_and_a_look_alike_does_not() {
     }
     // A look-alike: the registration of frames 15/15 as if b stood 3 m further along.
     let mut wrong = link(&a, &b, 15, 15, &truth);
-    wrong.a_from_b = wrong.a_from_b * Isometry3::translation(3.0, 0.0, 0.0);
+    wrong.a_from_b *= Isometry3::translation(3.0, 0.0, 0.0);
     wrong.inliers = 500;
     links.push(wrong);
     assert!(links_agree(&links[0], &links[1], &tracks, &config));

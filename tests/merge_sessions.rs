@@ -13,6 +13,7 @@ use mcap::records::Record;
 use mireg::evaluate::ate_rmse;
 use mireg::io::mcap::log::for_each_record;
 use mireg::io::poses::read_mcap_pose_topic;
+use mireg::map::{MapOptions, build_map, build_map_of_runs};
 use mireg::trajectory::Trajectory;
 use nalgebra::Isometry3;
 
@@ -318,4 +319,47 @@ fn wrong_inputs_are_named_and_nothing_is_written() {
     let o = mireg(&["merge", &session("a"), &session("a"), "-o", d]);
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("rename"));
+}
+
+#[test]
+fn one_map_of_the_merged_sessions() {
+    let out = tempfile::tempdir().unwrap();
+    let dir = out.path().join("merged");
+    ok(&[
+        "merge",
+        &session("a"),
+        &session("b"),
+        "-o",
+        dir.to_str().unwrap(),
+    ]);
+    let runs = [dir.join("a.mcap"), dir.join("b.mcap")];
+    let opts = MapOptions::default();
+    let (merged, summary) = build_map_of_runs(&runs, &opts).unwrap();
+    assert_eq!(summary.pose_topic, "/mireg/pose_merged");
+    assert_eq!(summary.clouds_used, 71);
+    // The same room from one frame: as many occupied voxels as the whole log's map (measured
+    // 6,138 against 6,137); b misplaced by its own origin would add most of its voxels again.
+    let (whole, _) = build_map(&sessions().whole, &opts).unwrap();
+    let ratio = merged.len() as f64 / whole.len() as f64;
+    assert!(
+        (0.97..1.03).contains(&ratio),
+        "{} against {} voxels",
+        merged.len(),
+        whole.len()
+    );
+    let unmerged = [PathBuf::from(session("a")), PathBuf::from(session("b"))];
+    let e = build_map_of_runs(&unmerged, &opts).unwrap_err().to_string();
+    assert!(e.contains("pose_merged"), "{e}");
+    // Runs of two different merges are not one frame.
+    let other = out.path().join("other");
+    ok(&[
+        "merge",
+        &session("a"),
+        &session("t2"),
+        "-o",
+        other.to_str().unwrap(),
+    ]);
+    let mixed = [dir.join("a.mcap"), other.join("t2.mcap")];
+    let e = build_map_of_runs(&mixed, &opts).unwrap_err().to_string();
+    assert!(e.contains("one merge group"), "{e}");
 }

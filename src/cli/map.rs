@@ -10,7 +10,7 @@ use clap::{Args, ValueEnum};
 use super::inputs::registered_log;
 use crate::io::atomic_file::{PendingFile, check_target, same_file};
 use crate::io::cloud_file::CloudFileFormat;
-use crate::map::{MapOptions, TrajectoryChoice, build_map};
+use crate::map::{MapOptions, TrajectoryChoice, build_map_of_runs};
 
 /// `--trajectory` of `mireg map`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -19,15 +19,19 @@ pub enum TrajectoryArg {
     Odometry,
     /// `/mireg/pose_optimized`: the loop-closed trajectory (an error if the log lacks it).
     Optimized,
-    /// `/mireg/pose_optimized` when present, else `/mireg/pose`.
+    /// `/mireg/pose_merged`: the trajectory `mireg merge` put in its group's frame.
+    Merged,
+    /// `/mireg/pose_merged`, else `/mireg/pose_optimized`, else `/mireg/pose`: the first present.
     Auto,
 }
 
 /// Arguments of `mireg map`.
 #[derive(Debug, Args)]
 pub struct MapArgs {
-    /// MCAP written by `mireg register` (it holds the clouds and their poses).
-    pub input: PathBuf,
+    /// MCAP written by `mireg register` (it holds the clouds and their poses), or several
+    /// outputs of one `mireg merge` (placed by their merged trajectories, in one frame).
+    #[arg(required = true)]
+    pub inputs: Vec<PathBuf>,
     /// Output map: `.ply` (binary), `.pcd` (binary) or `.npy` (float32, N×3, or N×4 with
     /// intensity), chosen by extension.
     #[arg(short, long, value_name = "FILE")]
@@ -55,7 +59,7 @@ pub struct MapArgs {
 pub(super) fn run_map(args: &MapArgs) -> Result<()> {
     let out = &args.output;
     let format = CloudFileFormat::from_path(out)?;
-    if same_file(&args.input, out) {
+    if args.inputs.iter().any(|i| same_file(i, out)) {
         bail!(
             "output {} is the input; mireg never writes over its input",
             out.display()
@@ -63,22 +67,31 @@ pub(super) fn run_map(args: &MapArgs) -> Result<()> {
     }
     // Fail before reading the whole log, not after.
     check_target(out, args.force)?;
-    registered_log(&args.input, "map", false)?;
+    for input in &args.inputs {
+        registered_log(input, "map", false)?;
+    }
     let opts = MapOptions {
         voxel_m: args.voxel,
         trajectory: match args.trajectory {
             TrajectoryArg::Odometry => TrajectoryChoice::Odometry,
             TrajectoryArg::Optimized => TrajectoryChoice::Optimized,
+            TrajectoryArg::Merged => TrajectoryChoice::Merged,
             TrajectoryArg::Auto => TrajectoryChoice::Auto,
         },
         topic: args.topic.clone(),
     };
-    let (map, summary) = build_map(&args.input, &opts)?;
+    let (map, summary) = build_map_of_runs(&args.inputs, &opts)?;
+    let input = args
+        .inputs
+        .iter()
+        .map(|p| p.display().to_string())
+        .collect::<Vec<_>>()
+        .join(", ");
     if map.is_empty() && summary.clouds_used > 0 && summary.points_out_of_range > 0 {
         bail!(
             "{}: every point of the {} clouds with a pose ({} points) is out of the map's voxel \
              grid at voxel {} m: choose a larger --voxel",
-            args.input.display(),
+            input,
             summary.clouds_used,
             summary.points_out_of_range,
             summary.voxel_m
@@ -87,7 +100,7 @@ pub(super) fn run_map(args: &MapArgs) -> Result<()> {
     if map.is_empty() {
         bail!(
             "{}: no cloud on {} has a pose on {} ({} clouds without one): the map would be empty",
-            args.input.display(),
+            input,
             summary.cloud_topic,
             summary.pose_topic,
             summary.clouds_without_pose

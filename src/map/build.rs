@@ -5,7 +5,7 @@
 //! accumulator. Clouds are used as stored in the log (not deskewed, whatever `register` did).
 
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use mcap::records::Record;
 use nalgebra::Isometry3;
@@ -25,7 +25,10 @@ pub enum TrajectoryChoice {
     Odometry,
     /// `…/pose_optimized`: the loop-closed trajectory (same message type).
     Optimized,
-    /// `…/pose_optimized` when the log has it, else `…/pose`.
+    /// `…/pose_merged`: the trajectory `mireg merge` put in its group's frame.
+    Merged,
+    /// `…/pose_merged` when the log has it, else `…/pose_optimized` when it has that, else
+    /// `…/pose`.
     #[default]
     Auto,
 }
@@ -70,15 +73,23 @@ pub struct MapSummary {
     pub intensity: bool,
 }
 
-/// The pose topics of the newest `mireg` run of a log: (odometry, optimized).
-fn run_pose_topics(channels: &[ChannelInfo]) -> (String, String) {
+/// The pose topics of the newest `mireg` run of a log: (odometry, optimized, merged).
+fn run_pose_topics(channels: &[ChannelInfo]) -> (String, String, String) {
     let ns = trajectory::newest_mireg_namespace(channels)
         .unwrap_or_else(|| trajectory::MIREG_NAMESPACE.to_string());
-    (format!("{ns}/pose"), format!("{ns}/pose_optimized"))
+    (
+        format!("{ns}/pose"),
+        format!("{ns}/pose_optimized"),
+        format!("{ns}/pose_merged"),
+    )
 }
 
-/// Poses by header stamp \[ns\], and the `mireg` metadata records of a log.
-type PosesAndMetadata = (Vec<(i64, Isometry3<f64>)>, Vec<BTreeMap<String, String>>);
+/// Poses by header stamp \[ns\], and the `mireg` and `mireg_merge` metadata records of a log.
+type PosesAndMetadata = (
+    Vec<(i64, Isometry3<f64>)>,
+    Vec<BTreeMap<String, String>>,
+    Vec<BTreeMap<String, String>>,
+);
 
 /// Reads the poses on `topic` (sorted by header stamp) and the `mireg` metadata records in
 /// one pass.
@@ -90,10 +101,12 @@ fn read_poses_and_metadata(
     let mut ids = Vec::new();
     let mut poses = Vec::new();
     let mut metas = Vec::new();
+    let mut merges = Vec::new();
     for_each_record(path, |r| {
         match r {
             Record::Channel(c) if c.topic == topic => ids.push(c.id),
             Record::Metadata(m) if m.name == "mireg" => metas.push(m.metadata),
+            Record::Metadata(m) if m.name == "mireg_merge" => merges.push(m.metadata),
             Record::Message { header, data } if ids.contains(&header.channel_id) => {
                 let (h, pose) = decode(&data).map_err(|e| {
                     crate::io::format_err(
@@ -111,7 +124,7 @@ fn read_poses_and_metadata(
         Ok(())
     })?;
     poses.sort_by_key(|p| p.0);
-    Ok((poses, metas))
+    Ok((poses, metas, merges))
 }
 
 /// Builds the map of `input`, a `mireg register` output (MCAP holding the clouds and the
@@ -123,11 +136,73 @@ fn read_poses_and_metadata(
 /// poses on it, no voxel (neither `voxel_m` nor `mireg` metadata), or no cloud topic;
 /// [`Error::Io`] / [`Error::Format`] for an unreadable or malformed file.
 pub fn build_map(input: &Path, opts: &MapOptions) -> Result<(VoxelMap, MapSummary)> {
+    build_map_of_runs(&[input.to_path_buf()], opts)
+}
+
+/// One map of several runs in one frame: the outputs of one `mireg merge` (their merged
+/// trajectories, `…/pose_merged`, all in the same merged frame), accumulated as [`build_map`]
+/// accumulates one run. The voxel is the first run's (or `opts.voxel_m`); the summary's counts
+/// are summed over the runs, its topics the first run's.
+///
+/// # Errors
+/// As [`build_map`] for each run; [`Error::InvalidInput`] when several runs are given and one
+/// has no merged trajectory, or two were merged into different frames.
+pub fn build_map_of_runs(inputs: &[PathBuf], opts: &MapOptions) -> Result<(VoxelMap, MapSummary)> {
+    let Some(first) = inputs.first() else {
+        return Err(Error::InvalidInput("a map needs at least one run".into()));
+    };
+    let mut opts = opts.clone();
+    if inputs.len() > 1 {
+        opts.trajectory = match opts.trajectory {
+            TrajectoryChoice::Auto | TrajectoryChoice::Merged => TrajectoryChoice::Merged,
+            _ => {
+                return Err(Error::InvalidInput(
+                    "a map of several runs places them by their merged trajectories \
+                     (`mireg merge`); --trajectory must be merged or auto"
+                        .into(),
+                ));
+            }
+        };
+    }
+    let (mut map, mut summary, frame) = add_run(None, first, &opts)?;
+    for input in &inputs[1..] {
+        let (m, s, f) = add_run(Some(map), input, &opts)?;
+        if f != frame {
+            return Err(Error::InvalidInput(format!(
+                "{} was merged into {}, {} into {}: a map of several runs needs runs of one merge \
+                 group",
+                first.display(),
+                frame.as_deref().unwrap_or("no merged frame"),
+                input.display(),
+                f.as_deref().unwrap_or("no merged frame"),
+            )));
+        }
+        map = m;
+        summary.poses += s.poses;
+        summary.clouds_used += s.clouds_used;
+        summary.clouds_without_pose += s.clouds_without_pose;
+        summary.intensity &= s.intensity;
+    }
+    summary.points_in = map.points_added();
+    summary.points_out_of_range = map.points_out_of_range();
+    summary.map_points = map.len();
+    Ok((map, summary))
+}
+
+/// Adds the clouds of one run to `map` (a new map at the run's voxel when `None`); returns the
+/// map, the run's summary and the merged frame it was put in (`mireg_merge` metadata), if any.
+fn add_run(
+    map: Option<VoxelMap>,
+    input: &Path,
+    opts: &MapOptions,
+) -> Result<(VoxelMap, MapSummary, Option<String>)> {
     let channels = list_channels(input)?;
-    let (odometry, optimized) = run_pose_topics(&channels);
+    let (odometry, optimized, merged) = run_pose_topics(&channels);
     let pose_topic = match opts.trajectory {
         TrajectoryChoice::Odometry => odometry.clone(),
         TrajectoryChoice::Optimized => optimized,
+        TrajectoryChoice::Merged => merged,
+        TrajectoryChoice::Auto if trajectory::has_optimized_poses(&channels, &merged) => merged,
         TrajectoryChoice::Auto if trajectory::has_optimized_poses(&channels, &optimized) => {
             optimized
         }
@@ -135,26 +210,38 @@ pub fn build_map(input: &Path, opts: &MapOptions) -> Result<(VoxelMap, MapSummar
     };
     let decode = check_pose_topic(input, &channels, &pose_topic).map_err(|e| match e {
         Error::InvalidInput(m) => Error::InvalidInput(format!(
-            "{m} (mireg map needs the poses of a `mireg register` output)"
+            "{m} (mireg map needs the poses of a `mireg register` or `mireg merge` output)"
         )),
         e => e,
     })?;
-    let (poses, metas) = read_poses_and_metadata(input, &pose_topic, decode)?;
+    let (poses, metas, merge_metas) = read_poses_and_metadata(input, &pose_topic, decode)?;
     if poses.is_empty() {
         return Err(Error::InvalidInput(format!(
             "{}: no poses: topic {pose_topic} has no messages",
             input.display()
         )));
     }
+    let frame = merge_metas
+        .iter()
+        .rev()
+        .find(|m| m.get("merged_pose_topic") == Some(&pose_topic))
+        .and_then(|m| {
+            Some(format!(
+                "{} of merge {}",
+                m.get("merged_frame")?,
+                m.get("merge_id")?
+            ))
+        });
     // The metadata of the run that wrote these poses (the last one when none names them).
     let meta = metas
         .iter()
         .rev()
         .find(|m| m.get("pose_topic") == Some(&odometry))
         .or(metas.last());
-    let (voxel_m, voxel_source) = match opts.voxel_m {
-        Some(v) => (v, "option"),
-        None => {
+    let (voxel_m, voxel_source) = match (opts.voxel_m, &map) {
+        (_, Some(m)) => (m.voxel_m(), "first_run"),
+        (Some(v), None) => (v, "option"),
+        (None, None) => {
             let v = meta
                 .and_then(|m| m.get("voxel_m"))
                 .and_then(|v| v.parse::<f64>().ok())
@@ -168,7 +255,10 @@ pub fn build_map(input: &Path, opts: &MapOptions) -> Result<(VoxelMap, MapSummar
             (v, "register_metadata")
         }
     };
-    let mut map = VoxelMap::new(voxel_m)?;
+    let mut map = match map {
+        Some(m) => m,
+        None => VoxelMap::new(voxel_m)?,
+    };
     let topic = opts
         .topic
         .clone()
@@ -201,5 +291,5 @@ pub fn build_map(input: &Path, opts: &MapOptions) -> Result<(VoxelMap, MapSummar
         map_points: map.len(),
         intensity: used > 0 && all_intensity,
     };
-    Ok((map, summary))
+    Ok((map, summary, frame))
 }

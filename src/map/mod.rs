@@ -19,7 +19,7 @@ use crate::hash::FastHash;
 
 mod build;
 
-pub use build::{MapOptions, MapSummary, TrajectoryChoice, build_map};
+pub use build::{MapOptions, MapSummary, TrajectoryChoice, build_map, build_map_of_runs};
 
 /// One occupied voxel's running sums.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]

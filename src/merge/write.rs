@@ -206,10 +206,28 @@ pub(super) fn write_session(
         ("merged_tf_topic".to_string(), tf_topic),
         ("session_links_topic".to_string(), links_topic),
         ("merged_frame".to_string(), frame_id.to_string()),
+        ("merge_id".to_string(), merge_id(opts)),
         ("trajectory_used".to_string(), session.pose_topic.clone()),
     ]);
     out.write_metadata("mireg_merge", meta)?;
     out.finish()
+}
+
+/// What tells one merge's outputs from another's: a hash of the runs' paths and sizes, the
+/// seed and the command line, in hex.
+fn merge_id(opts: &MergeOptions) -> String {
+    use std::hash::{Hash, Hasher};
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    for r in &opts.runs {
+        r.hash(&mut h);
+        std::fs::metadata(r)
+            .map(|m| m.len())
+            .unwrap_or(0)
+            .hash(&mut h);
+    }
+    opts.seed.hash(&mut h);
+    opts.command_line.hash(&mut h);
+    format!("{:016x}", h.finish())
 }
 
 /// Writes the report as pretty JSON to `target`, whole or not at all.
