@@ -9,6 +9,7 @@ mod export;
 mod flags;
 mod info;
 mod inputs;
+mod localize;
 mod map;
 mod merge;
 mod pair;
@@ -24,6 +25,7 @@ pub use evaluate::{
 pub use export::{ExportArgs, ExportFormat};
 pub use flags::{RankingArg, RegistrationFlags, SamplerArg, VerificationArg};
 pub use info::InfoArgs;
+pub use localize::LocalizeArgs;
 pub use map::MapArgs;
 pub use merge::MergeArgs;
 pub use pair::{GtFormat, PairArgs, RegistrationFailed, pair_json};
@@ -68,6 +70,9 @@ pub enum Command {
     /// Put several `register` outputs of one site (sessions, each in its own frame) into one
     /// frame: links between sessions found and verified prior-free, one robust pose graph.
     Merge(MergeArgs),
+    /// Place a log in a prior map (a `register` output), prior-free: each frame localized,
+    /// tracking, outside the map, or lost.
+    Localize(LocalizeArgs),
 }
 
 /// Runs the parsed command line.
@@ -85,6 +90,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Some(Command::Sweep(args)) => sweep::run_sweep(&args),
         Some(Command::Map(args)) => map::run_map(&args),
         Some(Command::Merge(args)) => merge::run_merge(&args),
+        Some(Command::Localize(args)) => localize::run_localize(&args),
         None => register::run_default(),
     }
 }

@@ -136,3 +136,77 @@ pub fn solve_group(
         iterations,
     })
 }
+
+/// A frame of a log measured in a prior map's world (a link to the prior, whose poses are held):
+/// `world_from_sensor` of frame `frame`, with the information of the registration on its right
+/// perturbation (`None`: a loop's default deviations).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Fix {
+    /// The log's frame.
+    pub frame: usize,
+    /// Its sensor pose in the prior's world.
+    pub world_from_sensor: Isometry3<f64>,
+    /// See [`Fix`].
+    pub information: Option<nalgebra::Matrix6<f64>>,
+}
+
+/// A log's trajectory `track` (its own world) solved into a prior's world that stays fixed: the
+/// log's frames start at `alignment · track` and are joined by its steps (as in
+/// [`solve_group`]); each fix ties its frame to the prior's world (an edge from a fixed node at
+/// the prior's origin, so the right perturbation and its information carry over). Returns the
+/// poses in the prior's world and each fix's robust weight.
+///
+/// # Errors
+/// [`Error::InvalidInput`] for a fix outside the track; the solver's errors.
+pub fn solve_in_prior(
+    track: &[Isometry3<f64>],
+    alignment: &Isometry3<f64>,
+    fixes: &[Fix],
+    config: &LoopConfig,
+) -> Result<GroupSolution> {
+    if let Some(f) = fixes.iter().find(|f| f.frame >= track.len()) {
+        return Err(Error::InvalidInput(format!(
+            "solve_in_prior: fix of frame {} outside a track of {} frames",
+            f.frame,
+            track.len()
+        )));
+    }
+    let mut poses = vec![Isometry3::identity()];
+    poses.extend(track.iter().map(|p| alignment * p));
+    let step = diagonal_information(config.odometry_sigma_m, config.odometry_sigma_deg);
+    let prior = edge_prior(config);
+    let fallback = diagonal_information(config.loop_sigma_m, config.loop_sigma_deg);
+    let mut edges: Vec<Edge> = (1..track.len())
+        .map(|k| Edge {
+            from: k,
+            to: k + 1,
+            measurement: track[k - 1].inverse() * track[k],
+            information: step,
+            robust: true,
+        })
+        .collect();
+    let steps = edges.len();
+    edges.extend(fixes.iter().map(|f| Edge {
+        from: 0,
+        to: f.frame + 1,
+        measurement: f.world_from_sensor,
+        information: match f.information {
+            Some(omega) if omega.iter().all(|v| v.is_finite()) => {
+                omega * LOOP_INFORMATION_SCALE + prior
+            }
+            _ => fallback,
+        },
+        robust: true,
+    }));
+    if fixes.is_empty() {
+        return Err(Error::InvalidInput(
+            "solve_in_prior: no fix ties the log to the prior".into(),
+        ));
+    }
+    let s = solve_annealed(PoseGraph { poses, edges }, config.kernel_scale)?;
+    Ok(GroupSolution {
+        poses: vec![s.poses[1..].to_vec()],
+        link_weights: s.edge_weights[steps..].to_vec(),
+        iterations: s.iterations,
+    })
+}

@@ -326,26 +326,26 @@ fn check_outputs(opts: &MergeOptions) -> Result<Vec<PathBuf>> {
 }
 
 /// What linking needs of a merge, shared by every pair of sessions.
-struct Linker<'s> {
-    sessions: &'s [Session],
-    tracks: &'s [Track<'s>],
-    pair: &'s PairConfig,
-    loops: &'s LoopConfig,
-    agreement: &'s AgreementConfig,
-    config: &'s MergeConfig,
+pub(super) struct Linker<'s> {
+    pub(super) sessions: &'s [Session],
+    pub(super) tracks: &'s [Track<'s>],
+    pub(super) pair: &'s PairConfig,
+    pub(super) loops: &'s LoopConfig,
+    pub(super) agreement: &'s AgreementConfig,
+    pub(super) config: &'s MergeConfig,
 }
 
 /// One pair of sessions linked: its report and, when they join, the join and the agreeing links
 /// (indices into the attempts).
-struct PairOutcome {
-    report: PairReport,
-    join: Option<(Join, Vec<usize>)>,
+pub(super) struct PairOutcome {
+    pub(super) report: PairReport,
+    pub(super) join: Option<(Join, Vec<usize>)>,
 }
 
 impl Linker<'_> {
     /// Verifies candidates between sessions `a` and `b` (by appearance; then, once aligned, by
     /// place), appending every attempt to `attempts`.
-    fn link_pair(
+    pub(super) fn link_pair(
         &self,
         (a, b): (usize, usize),
         attempts: &mut Vec<Attempt>,

@@ -17,6 +17,9 @@
 //!
 //! Sessions that join nothing stay apart, in their own frame, and the report says why.
 //!
+//! `mireg localize` ([`localize`]) is the same linking with the prior map as the first session,
+//! held fixed.
+//!
 //! Pure parts: [`links`], [`graph`], [`group_sessions`]; `job.rs` reads and writes the files.
 
 use nalgebra::Isometry3;
@@ -24,11 +27,15 @@ use nalgebra::Isometry3;
 pub mod graph;
 mod job;
 pub mod links;
+mod localize;
 mod session;
 mod write;
 
 pub use job::{MergeOptions, MergeSummary, PairReport, SessionReport, merge};
 pub use links::{AgreementConfig, LinkSource, SessionLink};
+pub use localize::{
+    FrameStatus, LocalizeOptions, LocalizeSummary, localization_json_schema, localize,
+};
 
 /// Default [`MergeConfig::min_links`]: 2.
 pub const DEFAULT_MIN_LINKS: usize = 2;

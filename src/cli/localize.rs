@@ -1,0 +1,80 @@
+//! `mireg localize`: a log placed in a prior map ([`crate::merge::localize`]).
+
+use anyhow::Result;
+use clap::Args;
+use std::path::PathBuf;
+
+use crate::merge::{LocalizeOptions, MergeConfig};
+
+/// Arguments of `mireg localize`.
+#[derive(Debug, Args)]
+pub struct LocalizeArgs {
+    /// The log to localise (MCAP, ROS 1 bag or ROS 2 bag directory).
+    pub log: PathBuf,
+    /// The prior map: an output of `mireg register` (its clouds and best trajectory).
+    #[arg(long, value_name = "RUN")]
+    pub map: PathBuf,
+    /// Output MCAP [default: LOG's name with `.localized.mcap`, beside it].
+    #[arg(short, long)]
+    pub output: Option<PathBuf>,
+    /// Point cloud topic of the log [default: as `register` chooses].
+    #[arg(long)]
+    pub topic: Option<String>,
+    /// Agreeing links to the map, at distinct keyframes, needed to localise.
+    #[arg(long, value_name = "N", default_value_t = crate::merge::DEFAULT_MIN_LINKS)]
+    pub min_links: usize,
+    /// Seed of the registrations' randomness.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Replace an existing output.
+    #[arg(long)]
+    pub force: bool,
+    /// Print the summary as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `mireg localize`.
+pub(super) fn run_localize(args: &LocalizeArgs) -> Result<()> {
+    let output = args.output.clone().unwrap_or_else(|| {
+        let stem = args
+            .log
+            .file_stem()
+            .map_or_else(|| "log".into(), |s| s.to_string_lossy().into_owned());
+        args.log.with_file_name(format!("{stem}.localized.mcap"))
+    });
+    let opts = LocalizeOptions {
+        log: args.log.clone(),
+        prior: args.map.clone(),
+        output,
+        force: args.force,
+        seed: args.seed,
+        config: MergeConfig {
+            min_links: args.min_links,
+            ..MergeConfig::default()
+        },
+        topic: args.topic.clone(),
+        command_line: super::process::command_line(),
+    };
+    let s = crate::merge::localize(&opts)?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&s)?);
+        return Ok(());
+    }
+    println!(
+        "localized {} of {} frames in {} ({} tracking, {} outside the map, {} lost), {} links of {} \
+         candidates, {:.2} s -> {}",
+        s.localized,
+        s.frames,
+        s.map_frame,
+        s.tracking,
+        s.outside_map,
+        s.lost,
+        s.links,
+        s.candidates,
+        s.elapsed_s,
+        s.output.display()
+    );
+    println!("  {}", s.reason);
+    Ok(())
+}

@@ -1,0 +1,373 @@
+//! [`localize`]: a log placed in a prior map, the map held fixed. `mireg localize LOG --map
+//! PRIOR`.
+//!
+//! The log is registered first (`mireg register`'s odometry and loop closure, into a temporary
+//! file beside the output), so that its own trajectory bridges the frames that see nothing of
+//! the map. Then, as [`super::merge`] links two sessions, with the prior as the first: its
+//! keyframes against the log's by appearance (prior-free: the log may start anywhere in the map,
+//! at any heading — the kidnapped robot), each verified by MI-RANSAC + ICP; the links that agree
+//! on one placement kept, at least [`super::MergeConfig::min_links`] at distinct keyframes to
+//! localise at all; then by place once placed. The log's trajectory is solved into the prior's
+//! world with the prior's poses fixed ([`super::graph::solve_in_prior`]).
+//!
+//! Each frame's status on `…/localization`: `localized` (a link to the map holds it), `tracking`
+//! (placed by its own trajectory between fixes, within reach of the map), `outside_map` (placed
+//! by its trajectory, but farther than the place search's largest radius from every keyframe of
+//! the prior: the map does not cover it), or `lost` (the log never localised: no pose is written,
+//! none is guessed).
+//!
+//! NOTE: offline, not a tracker at the sensor's rate: the whole log is registered, then placed.
+//! The prior is a `register` (or `merge`) output, read whole; a tiled map and map files (PLY,
+//! PCD, npy) as priors are not done yet.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use nalgebra::{Isometry3, Point3};
+use serde_json::json;
+
+use super::MergeConfig;
+use super::graph::{Fix, solve_in_prior};
+use super::job::{Attempt, Linker};
+use super::links::{AgreementConfig, Track};
+use super::session::{Session, merge_pair_config};
+use crate::io::atomic_file::{check_target, same_file};
+use crate::io::codec::Time;
+use crate::io::input_log::InputLog;
+use crate::io::mcap::log::OutputLog;
+use crate::loops::LoopConfig;
+use crate::odometry::OdometryConfig;
+use crate::register::{
+    CloudKind, RegisterOptions, StampedPose, encode_pose, pose_channels, register_log,
+};
+use crate::{Error, Result};
+
+/// What [`localize`] needs.
+#[derive(Debug, Clone)]
+pub struct LocalizeOptions {
+    /// The log to localise (MCAP, ROS 1 bag or ROS 2 bag directory, as `register` reads).
+    pub log: PathBuf,
+    /// The prior: a `mireg register` output (its clouds and best trajectory).
+    pub prior: PathBuf,
+    /// The output MCAP: the log's messages, its poses in the prior's world, the status per frame.
+    pub output: PathBuf,
+    /// Replace an existing output.
+    pub force: bool,
+    /// Seed of the registrations' randomness. Default 0.
+    pub seed: u64,
+    /// How the log is linked to the prior.
+    pub config: MergeConfig,
+    /// The log's point cloud topic (`None`: as `register` chooses).
+    pub topic: Option<String>,
+    /// Recorded in the output's metadata.
+    pub command_line: String,
+}
+
+/// A frame's status on `…/localization`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FrameStatus {
+    /// A link to the map holds it.
+    Localized,
+    /// Placed by the log's own trajectory, within reach of the map.
+    Tracking,
+    /// Placed by the log's trajectory, beyond the map.
+    OutsideMap,
+    /// Not placed: the log never localised.
+    Lost,
+}
+
+/// What [`localize`] did.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct LocalizeSummary {
+    /// The output file.
+    pub output: PathBuf,
+    /// The prior's frame id, the parent of the output's transforms.
+    pub map_frame: String,
+    /// Frames of the log.
+    pub frames: usize,
+    /// Frames per status.
+    pub localized: usize,
+    /// See [`LocalizeSummary::localized`].
+    pub tracking: usize,
+    /// See [`LocalizeSummary::localized`].
+    pub outside_map: usize,
+    /// See [`LocalizeSummary::localized`].
+    pub lost: usize,
+    /// Candidates tried against the map, and links kept.
+    pub candidates: usize,
+    /// See [`LocalizeSummary::candidates`].
+    pub links: usize,
+    /// Why the log localised or not.
+    pub reason: String,
+    /// The output's topics: poses, transforms, statuses.
+    pub pose_topic: String,
+    /// See [`LocalizeSummary::pose_topic`].
+    pub tf_topic: String,
+    /// See [`LocalizeSummary::pose_topic`].
+    pub localization_topic: String,
+    /// Wall-clock seconds, the log's registration included.
+    pub elapsed_s: f64,
+}
+
+/// One frame's placement.
+struct Placed {
+    status: FrameStatus,
+    pose: Option<Isometry3<f64>>,
+    /// The link holding it: inliers, fitness, robust weight.
+    fix: Option<(usize, f64, f64)>,
+    distance_to_map_m: Option<f64>,
+}
+
+/// Localises `opts.log` in `opts.prior`; see the module doc.
+///
+/// # Errors
+/// [`Error::InvalidInput`] when the output is an input or exists without `force`, the prior is
+/// not a `register` output (naming it); `register`'s errors on the log; the writers' errors. A
+/// log that does not localise is not an error: its frames are `lost`.
+pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
+    let t0 = Instant::now();
+    for input in [&opts.log, &opts.prior] {
+        if same_file(input, &opts.output) {
+            return Err(Error::InvalidInput(format!(
+                "output {} is one of the inputs; mireg never writes over its input",
+                opts.output.display()
+            )));
+        }
+    }
+    check_target(&opts.output, opts.force)?;
+    let mut prior = Session::read(&opts.prior)?;
+    // The log's own trajectory, in a temporary folder beside the output (removed on return).
+    let dir = opts.output.parent().filter(|p| !p.as_os_str().is_empty());
+    let tmp = tempfile::Builder::new()
+        .prefix(".mireg-localize-")
+        .tempdir_in(dir.unwrap_or(Path::new(".")))
+        .map_err(|e| crate::io::io_err(dir.unwrap_or(Path::new(".")), e))?;
+    let registered = tmp.path().join("log.mcap");
+    let mut ropts = RegisterOptions::new(&opts.log, &registered, OdometryConfig::default());
+    ropts.derive_voxel = true;
+    ropts.topic.clone_from(&opts.topic);
+    ropts.config.pair.seed = opts.seed;
+    register_log(&ropts)?;
+    let mut log = Session::read(&registered)?;
+    let loops = LoopConfig::for_voxel(prior.voxel_m);
+    let pair = merge_pair_config(&prior, &loops, opts.seed);
+    prior.prepare_keyframes(&loops, &pair)?;
+    log.prepare_keyframes(&loops, &pair)?;
+    let sessions = [prior, log];
+    let tracks: Vec<Track<'_>> = sessions
+        .iter()
+        .map(|s| Track {
+            poses: &s.poses,
+            travelled_m: &s.travelled_m,
+        })
+        .collect();
+    let linker = Linker {
+        sessions: &sessions,
+        tracks: &tracks,
+        pair: &pair,
+        loops: &loops,
+        agreement: &AgreementConfig::for_voxel(sessions[0].voxel_m),
+        config: &opts.config,
+    };
+    let mut attempts = Vec::new();
+    let outcome = linker.link_pair((0, 1), &mut attempts)?;
+    let placed = place(&sessions, &attempts, outcome.join.as_ref(), &loops)?;
+    let [prior, log] = &sessions;
+    let map_frame = prior.output.world_frame.clone();
+    let topics = write_output(opts, log, &map_frame, &placed)?;
+    let count = |s: FrameStatus| placed.iter().filter(|p| p.status == s).count();
+    Ok(LocalizeSummary {
+        output: opts.output.clone(),
+        map_frame,
+        frames: placed.len(),
+        localized: count(FrameStatus::Localized),
+        tracking: count(FrameStatus::Tracking),
+        outside_map: count(FrameStatus::OutsideMap),
+        lost: count(FrameStatus::Lost),
+        candidates: attempts.len(),
+        links: outcome.join.as_ref().map_or(0, |(_, kept)| kept.len()),
+        reason: outcome.report.reason,
+        pose_topic: topics[0].clone(),
+        tf_topic: topics[1].clone(),
+        localization_topic: topics[2].clone(),
+        elapsed_s: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// Each frame of the log (`sessions[1]`) placed in the prior's world (`sessions[0]`) by the
+/// agreeing links of `join`, or lost without one.
+fn place(
+    sessions: &[Session; 2],
+    attempts: &[Attempt],
+    join: Option<&(super::Join, Vec<usize>)>,
+    loops: &LoopConfig,
+) -> Result<Vec<Placed>> {
+    let [prior, log] = sessions;
+    let Some((join, kept)) = join else {
+        return Ok(log
+            .poses
+            .iter()
+            .map(|_| Placed {
+                status: FrameStatus::Lost,
+                pose: None,
+                fix: None,
+                distance_to_map_m: None,
+            })
+            .collect());
+    };
+    let fixes: Vec<Fix> = kept
+        .iter()
+        .map(|&k| {
+            let l = &attempts[k].link;
+            Fix {
+                frame: l.frame_b,
+                world_from_sensor: prior.poses[l.frame_a] * l.a_from_b,
+                information: l.information,
+            }
+        })
+        .collect();
+    let solution = solve_in_prior(&log.poses, &join.a_from_b, &fixes, loops)?;
+    let mut held: BTreeMap<usize, (usize, f64, f64)> = BTreeMap::new();
+    for ((&k, f), w) in kept.iter().zip(&fixes).zip(&solution.link_weights) {
+        let t = &attempts[k];
+        if *w >= 0.5 && held.get(&f.frame).is_none_or(|h| t.link.inliers > h.0) {
+            held.insert(f.frame, (t.link.inliers, t.fitness, *w));
+        }
+    }
+    let keyframes: Vec<Point3<f64>> = prior
+        .keyframes
+        .iter()
+        .map(|&k| prior.poses[k] * Point3::origin())
+        .collect();
+    let reach = loops.candidates.max_place_radius_m;
+    Ok(solution.poses[0]
+        .iter()
+        .enumerate()
+        .map(|(k, p)| {
+            let at = p * Point3::origin();
+            let d = keyframes
+                .iter()
+                .map(|q| (q - at).norm())
+                .fold(f64::INFINITY, f64::min);
+            let status = if held.contains_key(&k) {
+                FrameStatus::Localized
+            } else if d <= reach {
+                FrameStatus::Tracking
+            } else {
+                FrameStatus::OutsideMap
+            };
+            Placed {
+                status,
+                pose: Some(*p),
+                fix: held.get(&k).copied(),
+                distance_to_map_m: d.is_finite().then_some(d),
+            }
+        })
+        .collect())
+}
+
+/// The JSON schema of `…/localization`.
+#[must_use]
+pub fn localization_json_schema() -> serde_json::Value {
+    let num = json!({"type": "number"});
+    let nullable = json!({"type": ["number", "null"]});
+    json!({
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": "mireg.Localization",
+        "description": "A frame of a log localised by mireg localize in a prior map: its status, the link to the map holding it (inliers, ICP fitness, robust weight) when there is one, and its distance to the nearest keyframe of the map",
+        "type": "object",
+        "properties": {
+            "frame": {"type": "integer"}, "stamp_ns": {"type": "integer"},
+            "status": {"type": "string", "enum": ["localized", "tracking", "outside_map", "lost"]},
+            "inliers": {"type": ["integer", "null"]}, "fitness": nullable, "weight": nullable,
+            "distance_to_map_m": nullable, "reason": {"type": "string"}
+        },
+        "required": ["frame", "stamp_ns", "status", "distance_to_map_m", "reason"],
+        "additionalProperties": num
+    })
+}
+
+/// Writes the output: the log's messages copied whole, then per placed frame its pose and
+/// transform (parent `map_frame`), and every frame's status. Returns the topics (pose, tf,
+/// localization).
+fn write_output(
+    opts: &LocalizeOptions,
+    log: &Session,
+    map_frame: &str,
+    placed: &[Placed],
+) -> Result<[String; 3]> {
+    let (input, catalog) = InputLog::open(&opts.log)?;
+    let channels = catalog.channel_infos();
+    let ns = crate::trajectory::free_mireg_namespace(channels.iter().map(|c| c.topic.as_str()));
+    let tf_topic = if channels.iter().any(|c| c.topic == "/tf") {
+        format!("{ns}/tf")
+    } else {
+        "/tf".to_string()
+    };
+    let topics = [format!("{ns}/pose"), tf_topic, format!("{ns}/localization")];
+    let kind = log.output.kind;
+    let profile = match kind {
+        CloudKind::Ros1 | CloudKind::LivoxRos1(_) => "ros1",
+        _ => "ros2",
+    };
+    let mut out = OutputLog::create(&opts.output, opts.force, profile)?;
+    out.declare_input(&opts.log, &catalog)?;
+    let (tf, pose) = pose_channels(&mut out, kind, &topics[1], &topics[0])?;
+    let schema = serde_json::to_string(&localization_json_schema()).expect("schema JSON");
+    let status = out.add_channel(
+        &topics[2],
+        "mireg.Localization",
+        "jsonschema",
+        schema.as_bytes(),
+        "json",
+    )?;
+    input.pass_through(&mut out, &BTreeSet::new(), None, |_, _, _| Ok(()))?;
+    for (k, (f, p)) in log.output.frames.iter().zip(placed).enumerate() {
+        if let Some(world_from_sensor) = p.pose {
+            let stamped = StampedPose {
+                stamp: Time::from_ns(f.stamp_ns).unwrap_or_default(),
+                child_frame: &f.child_frame,
+                world_from_frame: world_from_sensor,
+                log_time: f.log_time,
+                publish_time: f.publish_time,
+            };
+            let (pose_msg, tf_msg) = encode_pose(kind, map_frame, &stamped);
+            out.write(tf, f.log_time, f.publish_time, &tf_msg)?;
+            out.write(pose, f.log_time, f.publish_time, &pose_msg)?;
+        }
+        let reason = match p.status {
+            FrameStatus::Localized => "registered against the map",
+            FrameStatus::Tracking => "placed by the log's own trajectory between links to the map",
+            FrameStatus::OutsideMap => "beyond the map: placed by the log's own trajectory",
+            FrameStatus::Lost => "the log did not localise in the map: no pose",
+        };
+        let record = json!({
+            "frame": k, "stamp_ns": f.stamp_ns, "status": p.status,
+            "inliers": p.fix.map(|x| x.0), "fitness": p.fix.map(|x| x.1),
+            "weight": p.fix.map(|x| x.2), "distance_to_map_m": p.distance_to_map_m,
+            "reason": reason,
+        });
+        out.write(
+            status,
+            f.log_time,
+            f.publish_time,
+            &serde_json::to_vec(&record).expect("JSON"),
+        )?;
+    }
+    let meta = BTreeMap::from([
+        ("version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
+        ("command_line".to_string(), opts.command_line.clone()),
+        ("input".to_string(), opts.log.display().to_string()),
+        ("prior".to_string(), opts.prior.display().to_string()),
+        ("map_frame".to_string(), map_frame.to_string()),
+        ("pose_topic".to_string(), topics[0].clone()),
+        ("tf_topic".to_string(), topics[1].clone()),
+        ("localization_topic".to_string(), topics[2].clone()),
+        ("voxel_m".to_string(), log.voxel_m.to_string()),
+    ]);
+    out.write_metadata("mireg_localize", meta)?;
+    out.finish()?;
+    Ok(topics)
+}
