@@ -1,0 +1,116 @@
+#!/usr/bin/env python3
+"""Sessions from real logs, merged and localised, scored against the reference (issue "Many logs,
+one map"). For each log: the first half and the second half of its clouds registered as two
+sessions, each in its own world (`mireg register --start/--end --copy-window`: a segment's world
+is its first frame; mireg is not told how they relate); the whole log registered as one, for
+comparison. Then
+
+* `mireg merge A B`, scored by tools/merge_ate.py: the joint ATE (one alignment for both) against
+  the whole log's loop-closed ATE, and the accepted links against the reference;
+* `mireg localize LOG --map B` (the whole raw log in a prior map of its second half), scored by
+  tools/localize_error.py: unaligned position error in the prior's world;
+* a foreign pair (the first log's first half with the last log's second half) must stay apart.
+
+Timings are wall-clock seconds of each command on this machine. Logs: the ICL fixture and, when
+given, logs from tools/make_loop_logs.py (out-and-back: the halves are the way out and the way
+back, different scans of the same places).
+
+Usage: tools/.venv-merge/bin/python tools/bench_sessions.py [--mireg BIN] [--work DIR] LOG...
+(venv: `bash tools/setup_venv.sh merge`).
+"""
+
+import argparse
+import json
+import pathlib
+import subprocess
+import sys
+import time
+
+import localize_error
+import merge_ate
+
+
+def run(cmd):
+    t = time.perf_counter()
+    p = subprocess.run([str(c) for c in cmd], capture_output=True, text=True)
+    if p.returncode != 0:
+        sys.exit(f"{' '.join(map(str, cmd))}: {p.stderr}")
+    return time.perf_counter() - t, p.stdout
+
+
+def clouds(mireg, log):
+    _, out = run([mireg, "info", log])
+    for line in out.splitlines():
+        if line.startswith("point clouds:"):
+            return int(line.split(",")[1].split()[0])
+    sys.exit(f"{log}: no point cloud topic")
+
+
+def json_of(tool, argv):
+    import contextlib
+    import io
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        tool.main(argv + ["--json"])
+    return json.loads(buf.getvalue())
+
+
+def main(argv):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("logs", nargs="+", type=pathlib.Path)
+    ap.add_argument("--mireg", default="target/release/mireg")
+    ap.add_argument("--work", type=pathlib.Path, default=pathlib.Path("/tmp/mireg-sessions"))
+    args = ap.parse_args(argv)
+    args.work.mkdir(parents=True, exist_ok=True)
+    m = args.mireg
+    rows, halves = [], []
+    for log in args.logs:
+        name = log.stem
+        n = clouds(m, log)
+        h = (n + 1) // 2
+        a, b, whole = (args.work / f"{name}_{x}.mcap" for x in ("a", "b", "whole"))
+        run([m, "register", log, "--end", h, "--copy-window", "-o", a, "--force", "--quiet"])
+        run([m, "register", log, "--start", h, "--copy-window", "-o", b, "--force", "--quiet"])
+        t_reg, _ = run([m, "register", log, "-o", whole, "--force", "--quiet"])
+        _, ev = run([m, "evaluate", whole, "--json"])
+        whole_ate = json.loads(ev)["ate_rmse_m"]
+        merged = args.work / f"{name}_merged"
+        t_merge, _ = run([m, "merge", a, b, "-o", merged, "--force"])
+        mr = json_of(merge_ate, [str(merged)])
+        loc = args.work / f"{name}_localized.mcap"
+        t_loc, _ = run([m, "localize", log, "--map", b, "-o", loc, "--force"])
+        lr = json_of(localize_error, [str(loc), str(b)])
+        g = mr["groups"]
+        rows.append({
+            "log": name, "clouds": n, "groups": len(g),
+            "joint_ate_m": g[min(g)]["joint_ate_m"], "whole_ate_m": whole_ate,
+            "links": mr["links"], "merge_s": t_merge, "register_s": t_reg,
+            "localize": lr, "localize_s": t_loc,
+        })
+        halves.append((a, b))
+    foreign = None
+    if len(halves) > 1:
+        fdir = args.work / "foreign_merged"
+        run([m, "merge", halves[0][0], halves[-1][1], "-o", fdir, "--force"])
+        report = json.loads((fdir / "merge_report.json").read_text())
+        foreign = {"pair": [halves[0][0].name, halves[-1][1].name], "groups": report["groups"],
+                   "links_accepted": report["links_accepted"]}
+    print("| log | clouds | merge: groups | joint ATE | one log's ATE | ratio | links (wrong) | "
+          "merge s | localize: placed (localized) | unaligned RMSE | prior's own unaligned | "
+          "localize s | register s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        lr = r["localize"]
+        print(f"| {r['log']} | {r['clouds']} | {r['groups']} | {100 * r['joint_ate_m']:.2f} cm | "
+              f"{100 * r['whole_ate_m']:.2f} cm | {r['joint_ate_m'] / r['whole_ate_m']:.2f} | "
+              f"{r['links']['accepted']} ({r['links']['wrong']}) | {r['merge_s']:.2f} | "
+              f"{lr['placed']} ({lr['statuses'].get('localized', 0)}) | {100 * lr['rmse_m']:.2f} cm | "
+              f"{100 * lr['prior_unaligned_rmse_m']:.2f} cm | {r['localize_s']:.2f} | {r['register_s']:.2f} |")
+    if foreign:
+        print(f"\nforeign pair {foreign['pair']}: {foreign['groups']} groups, "
+              f"{foreign['links_accepted']} links accepted")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
