@@ -352,15 +352,40 @@ impl Linker<'_> {
     ) -> Result<PairOutcome> {
         let (sa, sb) = (&self.sessions[a], &self.sessions[b]);
         let first = attempts.len();
-        let by_look = appearance_candidates(
-            &sa.descriptors,
-            &sb.descriptors,
-            self.config.appearance_per_keyframe,
-            self.config.max_appearance_candidates,
-        );
-        let tried: Vec<Candidate> = by_look.iter().map(|&(ka, kb)| (ka, kb, None)).collect();
-        attempts.extend(self.verify_candidates((a, b), &tried, LinkSource::Appearance)?);
-        let mut agreeing = self.agreeing(attempts, first, (a, b));
+        // NOTE: appearance in two passes: a spread of at most `first_pass_keyframes` of b's
+        // keyframes first, the rest only when those did not join the sessions; once joined,
+        // place candidates (with the alignment to check against) cover the rest for less.
+        let nb = sb.descriptors.len();
+        let stride = nb.div_ceil(self.config.first_pass_keyframes.max(1)).max(1);
+        let passes: [Vec<usize>; 2] = [
+            (0..nb).step_by(stride).collect(),
+            (0..nb).filter(|k| k % stride != 0).collect(),
+        ];
+        let mut by_look: Vec<(usize, usize)> = Vec::new();
+        let mut agreeing = Vec::new();
+        for subset in passes {
+            let budget = self.config.max_appearance_candidates - by_look.len();
+            if subset.is_empty()
+                || budget == 0
+                || joining_alignment(attempts, &agreeing, self.tracks, self.config).is_some()
+            {
+                break;
+            }
+            let descriptors: Vec<_> = subset.iter().map(|&k| sb.descriptors[k].clone()).collect();
+            let found: Vec<(usize, usize)> = appearance_candidates(
+                &sa.descriptors,
+                &descriptors,
+                self.config.appearance_per_keyframe,
+                budget,
+            )
+            .into_iter()
+            .map(|(ka, i)| (ka, subset[i]))
+            .collect();
+            let tried: Vec<Candidate> = found.iter().map(|&(ka, kb)| (ka, kb, None)).collect();
+            attempts.extend(self.verify_candidates((a, b), &tried, LinkSource::Appearance)?);
+            by_look.extend(found);
+            agreeing = self.agreeing(attempts, first, (a, b));
+        }
         let mut place = 0;
         if let Some(align) = joining_alignment(attempts, &agreeing, self.tracks, self.config) {
             let tried = self.place_candidates((a, b), &align, &by_look);

@@ -51,6 +51,9 @@ pub struct MergeConfig {
     pub appearance_per_keyframe: usize,
     /// Appearance candidates per pair of sessions, the closest descriptors first. Default 300.
     pub max_appearance_candidates: usize,
+    /// Keyframes of the later session, spread along it, whose appearance candidates are tried
+    /// first; the others' only when those did not join the two sessions. Default 30.
+    pub first_pass_keyframes: usize,
     /// Place candidates per keyframe once two sessions are aligned. Default 2.
     pub place_per_keyframe: usize,
     /// Place candidates per pair of sessions. Default 300.
@@ -63,6 +66,7 @@ impl Default for MergeConfig {
             min_links: DEFAULT_MIN_LINKS,
             appearance_per_keyframe: 3,
             max_appearance_candidates: 300,
+            first_pass_keyframes: 30,
             place_per_keyframe: 2,
             max_place_candidates: 300,
         }
