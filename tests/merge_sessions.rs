@@ -14,6 +14,7 @@ use mireg::evaluate::ate_rmse;
 use mireg::io::mcap::log::for_each_record;
 use mireg::io::poses::read_mcap_pose_topic;
 use mireg::map::{MapOptions, build_map, build_map_of_runs};
+use mireg::merge::{MergeConfig, MergeOptions, merge};
 use mireg::trajectory::Trajectory;
 use nalgebra::Isometry3;
 
@@ -362,4 +363,27 @@ fn one_map_of_the_merged_sessions() {
     let mixed = [dir.join("a.mcap"), other.join("t2.mcap")];
     let e = build_map_of_runs(&mixed, &opts).unwrap_err().to_string();
     assert!(e.contains("one merge group"), "{e}");
+}
+
+#[test]
+fn keyframes_prepared_again_give_the_same_poses() {
+    let out = tempfile::tempdir().unwrap();
+    let mut poses = Vec::new();
+    for (name, budget) in [("kept", 128 << 20), ("none_kept", 0)] {
+        let opts = MergeOptions {
+            runs: vec![PathBuf::from(session("a")), PathBuf::from(session("b"))],
+            output_dir: out.path().join(name),
+            force: false,
+            seed: 0,
+            config: MergeConfig {
+                keyframe_memory_bytes: budget,
+                ..MergeConfig::default()
+            },
+            command_line: String::new(),
+        };
+        let summary = merge(&opts).unwrap();
+        assert_eq!(summary.groups, 1);
+        poses.push(merged(&out.path().join(name).join("b.mcap")).poses);
+    }
+    assert_eq!(poses[0], poses[1]);
 }

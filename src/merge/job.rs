@@ -1,6 +1,6 @@
 //! [`merge`]: the job, from the `register` outputs to the merged outputs and the report.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -17,7 +17,7 @@ use super::{Join, MergeConfig, graph::solve_group, group_sessions};
 use crate::io::atomic_file::{check_target, same_file};
 use crate::loops::{LoopConfig, verify};
 use crate::odometry::uncertainty::registration_information;
-use crate::pipeline::PairConfig;
+use crate::pipeline::{PairConfig, PreparedFrame};
 use crate::{Error, Result};
 
 /// What [`merge`] needs.
@@ -128,7 +128,10 @@ pub fn merge(opts: &MergeOptions) -> Result<MergeSummary> {
         .iter()
         .map(|p| Session::read(p))
         .collect::<Result<Vec<_>>>()?;
-    let loops = LoopConfig::for_voxel(sessions[0].voxel_m);
+    let loops = LoopConfig {
+        memory_budget_bytes: opts.config.keyframe_memory_bytes,
+        ..LoopConfig::for_voxel(sessions[0].voxel_m)
+    };
     let pair = merge_pair_config(&sessions[0], &loops, opts.seed);
     for s in &mut sessions {
         s.prepare_keyframes(&loops, &pair)?;
@@ -371,7 +374,7 @@ impl Linker<'_> {
             {
                 break;
             }
-            let descriptors: Vec<_> = subset.iter().map(|&k| sb.descriptors[k].clone()).collect();
+            let descriptors: Vec<_> = subset.iter().map(|&k| sb.descriptors[k]).collect();
             let found: Vec<(usize, usize)> = appearance_candidates(
                 &sa.descriptors,
                 &descriptors,
@@ -491,12 +494,32 @@ impl Linker<'_> {
         found_by: LinkSource,
     ) -> Result<Vec<Attempt>> {
         let (sa, sb) = (&self.sessions[a], &self.sessions[b]);
+        // The frames not kept in memory, prepared again for this batch only.
+        let wanted = |side: usize| -> BTreeSet<usize> {
+            candidates
+                .iter()
+                .map(|c| if side == 0 { c.0 } else { c.1 })
+                .collect()
+        };
+        let (loaded_a, loaded_b) = (
+            sa.load(&wanted(0), self.pair)?,
+            sb.load(&wanted(1), self.pair)?,
+        );
         candidates
             .par_iter()
-            .map(|&(ka, kb, prior)| {
+            .filter_map(|&(ka, kb, prior)| {
+                Some((
+                    ka,
+                    kb,
+                    prior,
+                    frame(sa, &loaded_a, ka)?,
+                    frame(sb, &loaded_b, kb)?,
+                ))
+            })
+            .map(|(ka, kb, prior, fa, fb)| {
                 let v = verify(
-                    &sb.frames[kb],
-                    &sa.frames[ka],
+                    fb,
+                    fa,
                     &prior.unwrap_or_else(Isometry3::identity),
                     prior.map(|_| self.loops.candidates.place_radius_m),
                     self.pair,
@@ -526,6 +549,15 @@ impl Linker<'_> {
             })
             .collect()
     }
+}
+
+/// Keyframe `k`'s prepared cloud: kept by the session, or prepared again into `loaded`.
+fn frame<'f>(
+    s: &'f Session,
+    loaded: &'f BTreeMap<usize, PreparedFrame>,
+    k: usize,
+) -> Option<&'f PreparedFrame> {
+    s.frames[k].as_ref().or_else(|| loaded.get(&k))
 }
 
 /// A candidate: a keyframe of session `a`, one of `b` (indices into their keyframes), and the

@@ -151,7 +151,10 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
     ropts.config.pair.seed = opts.seed;
     register_log(&ropts)?;
     let mut log = Session::read(&registered)?;
-    let loops = LoopConfig::for_voxel(prior.voxel_m);
+    let loops = LoopConfig {
+        memory_budget_bytes: opts.config.keyframe_memory_bytes,
+        ..LoopConfig::for_voxel(prior.voxel_m)
+    };
     let pair = merge_pair_config(&prior, &loops, opts.seed);
     prior.prepare_keyframes(&loops, &pair)?;
     log.prepare_keyframes(&loops, &pair)?;

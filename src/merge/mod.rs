@@ -58,6 +58,11 @@ pub struct MergeConfig {
     pub place_per_keyframe: usize,
     /// Place candidates per pair of sessions. Default 300.
     pub max_place_candidates: usize,
+    /// Prepared keyframes kept in memory per session \[bytes\]
+    /// ([`crate::pipeline::PreparedFrame::idle_bytes`]); the others are prepared again, for the
+    /// candidates verified at once, when needed. Default
+    /// [`crate::loops::closure::DEFAULT_LOOP_MEMORY_BYTES`] (128 MiB).
+    pub keyframe_memory_bytes: usize,
 }
 
 impl Default for MergeConfig {
@@ -69,6 +74,7 @@ impl Default for MergeConfig {
             first_pass_keyframes: 30,
             place_per_keyframe: 2,
             max_place_candidates: 300,
+            keyframe_memory_bytes: crate::loops::closure::DEFAULT_LOOP_MEMORY_BYTES,
         }
     }
 }

@@ -1,7 +1,7 @@
 //! One session of a merge, read back from its `register` output: the best trajectory, the
 //! keyframes and their prepared clouds.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
 use nalgebra::Isometry3;
@@ -33,10 +33,11 @@ pub(super) struct Session {
     /// The run's ICP voxel and feature voxel \[m\].
     pub(super) voxel_m: f64,
     pub(super) feature_voxel_m: f64,
-    /// Keyframes (frame indices), with their prepared clouds and descriptors (keyframes whose
-    /// cloud did not prepare are left out).
+    /// Keyframes (frame indices), with their descriptors and, while they fit the budget
+    /// ([`Session::prepare_keyframes`]), their prepared clouds (keyframes whose cloud did not
+    /// prepare are left out).
     pub(super) keyframes: Vec<usize>,
-    pub(super) frames: Vec<PreparedFrame>,
+    pub(super) frames: Vec<Option<PreparedFrame>>,
     pub(super) descriptors: Vec<Descriptor>,
 }
 
@@ -104,34 +105,83 @@ impl Session {
     }
 
     /// Selects the keyframes by `config`'s rule and prepares their clouds with `pair`, streaming
-    /// the output's clouds once.
+    /// the output's clouds once: each keyframe's descriptor is kept, its prepared cloud only
+    /// while the kept ones stay within [`LoopConfig::memory_budget_bytes`] (by
+    /// [`PreparedFrame::idle_bytes`]); the others are prepared again when a candidate needs them
+    /// ([`Session::load`]).
     pub(super) fn prepare_keyframes(
         &mut self,
         config: &LoopConfig,
         pair: &PairConfig,
     ) -> Result<()> {
         let keys = select_keyframes(&self.poses, &self.travelled_m, &config.keyframes)?;
+        let mut bytes = 0usize;
+        let budget = config.memory_budget_bytes;
+        let (mut keyframes, mut frames, mut descriptors) = (Vec::new(), Vec::new(), Vec::new());
+        self.for_each_prepared(&keys, pair, |k, frame| {
+            descriptors.push(Descriptor::from_prepared(&frame));
+            keyframes.push(k);
+            let b = frame.idle_bytes();
+            if bytes + b <= budget {
+                bytes += b;
+                frames.push(Some(frame));
+            } else {
+                frames.push(None);
+            }
+        })?;
+        (self.keyframes, self.frames, self.descriptors) = (keyframes, frames, descriptors);
+        Ok(())
+    }
+
+    /// The prepared clouds of the keyframes `wanted` (indices into [`Session::keyframes`]) that
+    /// are not kept, prepared again from the output.
+    pub(super) fn load(
+        &self,
+        wanted: &BTreeSet<usize>,
+        pair: &PairConfig,
+    ) -> Result<BTreeMap<usize, PreparedFrame>> {
+        let missing: Vec<usize> = wanted
+            .iter()
+            .copied()
+            .filter(|&k| self.frames[k].is_none())
+            .collect();
+        let mut out = BTreeMap::new();
+        if missing.is_empty() {
+            return Ok(out);
+        }
+        let frames: Vec<usize> = missing.iter().map(|&k| self.keyframes[k]).collect();
+        self.for_each_prepared(&frames, pair, |f, frame| {
+            if let Some(i) = missing.iter().position(|&k| self.keyframes[k] == f) {
+                out.insert(missing[i], frame);
+            }
+        })?;
+        Ok(out)
+    }
+
+    /// Streams the output's clouds once, calling `f(frame, prepared)` for each frame of `keys`
+    /// (frame indices) whose cloud prepares with features, in the file's order, one at a time.
+    fn for_each_prepared(
+        &self,
+        keys: &[usize],
+        pair: &PairConfig,
+        mut f: impl FnMut(usize, PreparedFrame),
+    ) -> Result<()> {
         let by_stamp: BTreeMap<i64, usize> = keys
             .iter()
             .map(|&k| (self.output.frames[k].stamp_ns, k))
             .collect();
-        let mut prepared: BTreeMap<usize, PreparedFrame> = BTreeMap::new();
+        let mut seen = BTreeSet::new();
         let topic = self.output.meta.get("topic").cloned();
         for_each_cloud(&self.output.path, topic.as_deref(), |_, cloud| {
             if let Some(&k) = by_stamp.get(&cloud.header.stamp.to_ns())
-                && !prepared.contains_key(&k)
+                && seen.insert(k)
                 && let Ok(frame) = prepare_frame(&cloud.points, pair)
                 && !frame.features.is_empty()
             {
-                prepared.insert(k, frame);
+                f(k, frame);
             }
             Ok(std::ops::ControlFlow::Continue(()))
         })?;
-        for (k, frame) in prepared {
-            self.descriptors.push(Descriptor::from_prepared(&frame));
-            self.keyframes.push(k);
-            self.frames.push(frame);
-        }
         Ok(())
     }
 }
