@@ -22,6 +22,7 @@ pub mod loops;
 pub mod map;
 pub mod ransac;
 pub mod refine;
+pub mod settings;
 pub mod simulate;
 pub mod sweep;
 

@@ -21,7 +21,10 @@ pub use evaluate::{
     EVALUATE_CSV_HEADER, EvaluateArgs, TrajectoryFormat, evaluate_log, evaluation_json,
 };
 pub use export::{ExportArgs, ExportFormat};
-pub use flags::{RankingArg, RegistrationFlags, SamplerArg, VerificationArg};
+pub use flags::{
+    DeskewArg, LivoxTagsArg, OutputMessagesArg, RankingArg, RegistrationFlags, SamplerArg,
+    VerificationArg,
+};
 pub use info::InfoArgs;
 pub use map::MapArgs;
 pub use pair::{GtFormat, PairArgs, RegistrationFailed, pair_json};
