@@ -8,7 +8,6 @@ mod evaluate;
 mod export;
 mod flags;
 mod info;
-mod inputs;
 mod map;
 mod pair;
 mod process;
@@ -17,9 +16,7 @@ mod simulate;
 mod stitch;
 mod sweep;
 
-pub use evaluate::{
-    EVALUATE_CSV_HEADER, EvaluateArgs, TrajectoryFormat, evaluate_log, evaluation_json,
-};
+pub use evaluate::{EVALUATE_CSV_HEADER, EvaluateArgs, TrajectoryFormatArg};
 pub use export::{ExportArgs, ExportFormat};
 pub use flags::{
     DeskewArg, LivoxTagsArg, OutputMessagesArg, RankingArg, RegistrationFlags, SamplerArg,
