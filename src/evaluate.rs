@@ -1,5 +1,16 @@
 //! Trajectory error metrics (Sturm et al. 2012, "A Benchmark for the Evaluation of RGB-D SLAM
-//! Systems"): absolute trajectory error after alignment and relative pose error. Pure functions.
+//! Systems"): absolute trajectory error after alignment and relative pose error. Pure functions;
+//! the `evaluate` job that reads a `register` output and its reference is `job.rs`, the check
+//! of its input `inputs.rs`.
+
+mod inputs;
+mod job;
+
+pub use inputs::registered_log;
+pub use job::{
+    EvaluateOptions, EvaluateSummary, LogEvaluation, TrajectoryFormat, evaluate_log, evaluate_run,
+    evaluation_json, run_topics,
+};
 
 use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3};
 

@@ -23,6 +23,7 @@ pub mod map;
 pub mod merge;
 pub mod ransac;
 pub mod refine;
+pub mod settings;
 pub mod simulate;
 pub mod sweep;
 

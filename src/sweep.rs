@@ -12,7 +12,12 @@
 //!
 //! Pure: frames come in prepared ([`crate::pipeline::prepare_frame`], once per frame, shared by
 //! every cell), pairs as indices with their ground truth. Every registration is seeded by its run
-//! index, so the table is the same on any thread count (timings aside).
+//! index, so the table is the same on any thread count (timings aside). The job that reads the
+//! frames and pairs from a log or a `gt.log` and settles the defaults is `job.rs`.
+
+mod job;
+
+pub use job::{PreparedSweep, SweepOptions, prepare_sweep};
 
 use nalgebra::{Isometry3, Matrix6, Vector6};
 use rayon::prelude::*;

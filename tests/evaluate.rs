@@ -4,7 +4,7 @@
 use std::path::Path;
 use std::process::Command;
 
-use mireg::cli::{EvaluateArgs, TrajectoryFormat, evaluate_log};
+use mireg::evaluate::{EvaluateOptions, TrajectoryFormat, evaluate_log};
 use mireg::io::codec::{Header, Time, cdr};
 use mireg::io::mcap::log::OutputLog;
 use mireg::trajectory::{self, Trajectory};
@@ -73,17 +73,11 @@ fn write_log(path: &Path, est: &[Isometry3<f64>], gt: &[Isometry3<f64>], failed:
     log.finish().expect("finish");
 }
 
-fn args(input: &Path) -> EvaluateArgs {
-    EvaluateArgs {
+fn args(input: &Path) -> EvaluateOptions {
+    EvaluateOptions {
         input: input.to_path_buf(),
-        gt_topic: None,
-        gt: None,
-        gt_format: TrajectoryFormat::Tum,
         est_topic: Some("/mireg/pose".into()),
-        odometry: false,
-        max_dt: 0.01,
-        csv: false,
-        json: false,
+        ..Default::default()
     }
 }
 
@@ -116,7 +110,8 @@ fn gt_composed_with_fixed_se3_has_zero_ate_and_rpe() {
     let gt: Vec<_> = est.iter().map(|e| x * e).collect();
     write_log(&path, &est, &gt, &[7, 8]);
 
-    let (ev, reference) = evaluate_log(&args(&path)).expect("evaluates");
+    let run = evaluate_log(&args(&path)).expect("evaluates");
+    let (ev, reference) = (run.evaluation, run.reference);
     assert_eq!(reference, "/ground_truth/pose");
     assert_eq!(ev.rows.len(), 40);
     assert_eq!(ev.max_pair_dt_ns, GT_LAG_NS);
@@ -155,7 +150,7 @@ fn known_per_step_drift_gives_known_rpe_in_library_csv_and_json() {
     }
     write_log(&path, &est, &gt, &[]);
 
-    let ev = evaluate_log(&args(&path)).expect("evaluates").0;
+    let ev = evaluate_log(&args(&path)).expect("evaluates").evaluation;
     assert_eq!(ev.failed_frames, Some(0));
     assert!((ev.rpe_trans_mean_m - 0.02).abs() < 1e-9);
     assert!(ev.rpe_rot_mean_deg < 1e-6);
@@ -222,9 +217,9 @@ fn export_tum_and_kitti_reproduce_the_estimate() {
     let mut a = args(&path);
     a.gt = Some(out);
     a.gt_format = TrajectoryFormat::Kitti;
-    let ev = evaluate_log(&a).expect("evaluates");
-    assert_eq!(ev.0.association, trajectory::AssociationMethod::Index);
-    assert!(ev.0.ate_rmse_m < 1e-9);
+    let ev = evaluate_log(&a).expect("evaluates").evaluation;
+    assert_eq!(ev.association, trajectory::AssociationMethod::Index);
+    assert!(ev.ate_rmse_m < 1e-9);
 }
 
 fn assert_poses_equal(t: &Trajectory, want: &[Isometry3<f64>]) {

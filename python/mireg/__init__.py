@@ -130,30 +130,25 @@ def read_clouds(path: PathLike, topic: Optional[str] = None
     return _mireg.CloudReader(os.fspath(path), topic)
 
 
-def _flag(name: str, value: Any) -> list[str]:
-    flag = "--" + name.replace("_", "-")
-    if value is True:
-        return [flag]
-    if value is False or value is None:
-        return []
-    return [flag, str(value)]
-
-
 def register_log(path: PathLike, output: Optional[PathLike] = None,
                  progress: Optional[Callable[[int, int], Any]] = None, **flags: Any) -> dict:
     """``mireg register PATH``: register every cloud of a log and write poses, statistics and
     the loop-closed trajectory into a new MCAP (``output``, default ``PATH.mireg.mcap`` beside
-    it). Keyword arguments are the command's flags: ``voxel=0.5`` is ``--voxel 0.5``,
-    ``no_loops=True`` is ``--no-loops``, ``force=True`` replaces an existing output.
-    ``progress``: called as ``progress(frames_written, frames_in_log)`` after each frame
-    (``frames_in_log`` is 0 when the log does not say). Returns the ``--json`` summary as a dict.
+    it). Keyword arguments are the command's flags by name, with typed values: ``voxel=0.5`` is
+    ``--voxel 0.5``, ``no_loops=True`` is ``--no-loops``, ``force=True`` replaces an existing
+    output, ``livox_tags="keep-all"``, ``start=120`` or ``start="1700000012.5s"``; ``None``
+    leaves a flag at its default; an unknown name is a ``TypeError``, a value of the wrong type a
+    ``ValueError``. ``progress``: called as ``progress(frames_written, frames_in_log)`` after
+    each frame (``frames_in_log`` is 0 when the log does not say). Returns the ``--json``
+    summary as a dict.
     """
-    args = [os.fspath(path)]
-    if output is not None:
-        args += ["-o", os.fspath(output)]
-    for name, value in flags.items():
-        args += _flag(name, value)
-    return json.loads(_mireg.register_log(args, progress))
+    defaults = json.loads(_mireg.default_register_settings())
+    given = {k: os.fspath(v) if isinstance(v, os.PathLike) else v for k, v in flags.items()}
+    _merge(defaults, given)  # an unknown name: TypeError, as register_pair and Odometry
+    settings = {k: v for k, v in given.items() if v is not None}
+    out = None if output is None else os.fspath(output)
+    return json.loads(_mireg.register_log(os.fspath(path), out,
+                                          json.dumps(settings), progress))
 
 
 class Odometry:

@@ -5,8 +5,8 @@
 //!
 //! Results are those of the `mireg` command for the same configuration and seed, bit for bit:
 //! `register_pair` calls what `mireg pair` calls and returns the same JSON object;
-//! `register_log` parses its flags with the CLI's own parser and runs `mireg register`'s
-//! options.
+//! `register_log` fills the library's settings by flag name ([`RegisterSettings`], as `mireg
+//! register` fills them from its flags) and runs the options they give.
 
 mod command;
 mod run;
@@ -15,18 +15,17 @@ use std::sync::Mutex;
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 use std::thread::JoinHandle;
 
-use clap::Parser;
 use nalgebra::Point3;
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use mireg::cli::{Cli, Command, pair_json, register_options};
+use mireg::cli::pair_json;
 use mireg::odometry::OdometryConfig;
 use mireg::odometry::stream::StreamOdometry;
 use mireg::pipeline::{PairConfig, register_pair as pair};
-use mireg::register::{OnFrame, for_each_cloud, register_log as run_log};
+use mireg::register::{OnFrame, RegisterSettings, for_each_cloud, register_log as run_log};
 
 /// A mireg error as the Python exception a user expects: `OSError` for files, `ValueError` for
 /// bad input, `RuntimeError` otherwise; the message is the CLI's.
@@ -36,13 +35,6 @@ pub(crate) fn py_err(e: &mireg::Error) -> PyErr {
         mireg::Error::Io { .. } => PyOSError::new_err(text),
         mireg::Error::InvalidInput(_) | mireg::Error::Format { .. } => PyValueError::new_err(text),
         _ => PyRuntimeError::new_err(text),
-    }
-}
-
-fn anyhow_err(e: &anyhow::Error) -> PyErr {
-    match e.downcast_ref::<mireg::Error>() {
-        Some(m) => py_err(m),
-        None => PyValueError::new_err(mireg::cli::error_text(e)),
     }
 }
 
@@ -90,25 +82,33 @@ fn default_pair_config() -> String {
     serde_json::to_string(&PairConfig::default()).expect("PairConfig serialises")
 }
 
-/// `register_log(args, progress) -> str`: `mireg register ARGS` (the CLI's flags, parsed by its
-/// parser), without a progress bar; `progress(frames_written, frames_in_log)` is called after
-/// each frame (an exception it raises is printed, not raised: the run goes on). Returns the
-/// `--json` summary.
+/// The default settings of `register_log` as JSON (`mireg register`'s flags by name, at their
+/// defaults), for the Python side to check keyword arguments against.
 #[pyfunction]
-#[pyo3(signature = (args, progress=None))]
+fn default_register_settings() -> String {
+    serde_json::to_string(&RegisterSettings::default()).expect("RegisterSettings serialises")
+}
+
+/// `register_log(path, output, settings_json, progress) -> str`: `mireg register PATH` into
+/// `output` (default `PATH.mireg.mcap` beside it) with the settings given as JSON (the flags'
+/// names and values, [`RegisterSettings`]), without a progress bar; `progress(frames_written,
+/// frames_in_log)` is called after each frame (an exception it raises is printed, not raised:
+/// the run goes on). Returns the `--json` summary.
+#[pyfunction]
+#[pyo3(signature = (path, output, settings_json, progress=None))]
 fn register_log(
     py: Python<'_>,
-    args: Vec<String>,
+    path: std::path::PathBuf,
+    output: Option<std::path::PathBuf>,
+    settings_json: &str,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<String> {
-    let argv = std::iter::once("mireg".to_string())
-        .chain(std::iter::once("register".to_string()))
-        .chain(args);
-    let cli = Cli::try_parse_from(argv).map_err(|e| PyValueError::new_err(e.to_string()))?;
-    let Some(Command::Register(args)) = cli.command else {
-        return Err(PyRuntimeError::new_err("not a register command"));
-    };
-    let mut opts = register_options(&args).map_err(|e| anyhow_err(&e))?;
+    let settings = RegisterSettings::from_json(settings_json).map_err(|e| py_err(&e))?;
+    let mut opts = settings
+        .options(&path, output.as_deref())
+        .map_err(|e| py_err(&e))?;
+    // As `mireg register` records its own: this process's command line.
+    opts.command_line = std::env::args().collect::<Vec<_>>().join(" ");
     opts.progress = false;
     if let Some(callback) = progress {
         opts.on_frame = Some(OnFrame(std::sync::Arc::new(move |done, total| {
@@ -351,6 +351,7 @@ fn _mireg(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(run::evaluate_topics, m)?)?;
     m.add_function(wrap_pyfunction!(register_pair, m)?)?;
     m.add_function(wrap_pyfunction!(default_pair_config, m)?)?;
+    m.add_function(wrap_pyfunction!(default_register_settings, m)?)?;
     m.add_function(wrap_pyfunction!(register_log, m)?)?;
     m.add_class::<CloudReader>()?;
     m.add_class::<Odometry>()?;

@@ -193,8 +193,11 @@ def test_register_log_is_the_cli(tmp_path):
     mireg.register_log(FIXTURES / "bags/icl4_lz4.bag", tmp_path / "p.mcap", no_loops=True,
                        progress=lambda done, total: calls.append((done, total)))
     assert calls == [(1, 4), (2, 4), (3, 4), (4, 4)]
-    with pytest.raises(ValueError, match="unexpected argument '--no-such-flag'"):
+    # An unknown name is a TypeError, as in register_pair and Odometry; a bad value a ValueError.
+    with pytest.raises(TypeError, match="unknown configuration key 'no_such_flag'"):
         mireg.register_log(FIXTURES / "bags/icl4_lz4.bag", tmp_path / "x.mcap", no_such_flag=1)
+    with pytest.raises(ValueError, match="settings"):
+        mireg.register_log(FIXTURES / "bags/icl4_lz4.bag", tmp_path / "x.mcap", voxel="big")
 
 
 def pose_matrices(path: Path, topic: str = "/mireg/pose") -> list[np.ndarray]:

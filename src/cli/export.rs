@@ -6,11 +6,11 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 
-use super::inputs::registered_log;
+use crate::evaluate::{registered_log, run_topics};
 use crate::io::atomic_file::{PendingFile, check_target, same_file};
 use crate::trajectory::{self, Trajectory};
 
-use super::evaluate::{ignore_broken_pipe, run_topics};
+use super::evaluate::ignore_broken_pipe;
 
 /// Output format of `mireg export`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]

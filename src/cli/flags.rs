@@ -1,4 +1,6 @@
-//! Registration flags shared by `pair`, `register` and `sweep`: clap arguments → [`PairConfig`].
+//! Registration flags shared by `pair` and `register`, and the value enums of the command line:
+//! clap arguments → [`PairSettings`] → [`PairConfig`], each clap enum mapped onto the library's
+//! own.
 
 use anyhow::{Context, Result};
 use clap::Args;
@@ -7,8 +9,10 @@ use std::path::PathBuf;
 
 use clap::ValueEnum;
 
-use crate::correspondence::ranking::{CountOrder, PAPER_DESCRIPTOR_RADIUS};
-use crate::pipeline::{PairConfig, RankingConfig, SamplerConfig, Verification};
+use crate::io::codec::livox::LivoxTags;
+use crate::pipeline::{PairConfig, Verification};
+use crate::register::{DeskewMode, OutputMessages};
+use crate::settings::{PairSettings, RankingChoice, SamplerChoice};
 
 /// Sampler choice on the command line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -88,111 +92,137 @@ pub struct RegistrationFlags {
     pub seed: Option<u64>,
 }
 
-/// The text of the `--config` file: a regular file of at most
-/// [`crate::io::input_file::MAX_CONFIG_BYTES`].
-fn read_config(path: &std::path::Path) -> Result<String> {
-    Ok(crate::io::input_file::read_limited_text(
-        path,
-        crate::io::input_file::MAX_CONFIG_BYTES,
-        "a configuration file",
-    )?)
+impl From<SamplerArg> for SamplerChoice {
+    fn from(a: SamplerArg) -> Self {
+        match a {
+            SamplerArg::Levy => SamplerChoice::Levy,
+            SamplerArg::Uniform => SamplerChoice::Uniform,
+            SamplerArg::Prosac => SamplerChoice::Prosac,
+        }
+    }
+}
+
+impl From<RankingArg> for RankingChoice {
+    fn from(a: RankingArg) -> Self {
+        match a {
+            RankingArg::Ratio => RankingChoice::Ratio,
+            RankingArg::Distance => RankingChoice::Distance,
+            RankingArg::CountMost => RankingChoice::CountMost,
+            RankingArg::CountFewest => RankingChoice::CountFewest,
+        }
+    }
+}
+
+impl From<VerificationArg> for Verification {
+    fn from(a: VerificationArg) -> Self {
+        match a {
+            VerificationArg::Dense => Verification::Dense,
+            VerificationArg::Correspondences => Verification::Correspondences,
+        }
+    }
+}
+
+/// `--deskew` ([`DeskewMode`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ValueEnum)]
+pub enum DeskewArg {
+    /// Deskew every cloud that has a time field.
+    #[default]
+    Auto,
+    /// As `auto`, and a cloud without a time field is an error.
+    On,
+    /// Never deskew.
+    Off,
+}
+
+impl From<DeskewArg> for DeskewMode {
+    fn from(a: DeskewArg) -> Self {
+        match a {
+            DeskewArg::Auto => DeskewMode::Auto,
+            DeskewArg::On => DeskewMode::On,
+            DeskewArg::Off => DeskewMode::Off,
+        }
+    }
+}
+
+/// `--output-messages` ([`OutputMessages`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ValueEnum)]
+pub enum OutputMessagesArg {
+    /// The clouds' family: ROS 2 for ROS 2 clouds, ROS 1 for ROS 1 clouds, foxglove for
+    /// foxglove clouds.
+    #[default]
+    Auto,
+    /// `tf2_msgs/msg/TFMessage` and `geometry_msgs/msg/PoseStamped` in cdr.
+    Ros2,
+    /// `tf2_msgs/TFMessage` and `geometry_msgs/PoseStamped` in ros1.
+    Ros1,
+    /// `foxglove.FrameTransforms` and `foxglove.PoseInFrame` in protobuf.
+    Foxglove,
+}
+
+impl From<OutputMessagesArg> for OutputMessages {
+    fn from(a: OutputMessagesArg) -> Self {
+        match a {
+            OutputMessagesArg::Auto => OutputMessages::Auto,
+            OutputMessagesArg::Ros2 => OutputMessages::Ros2,
+            OutputMessagesArg::Ros1 => OutputMessages::Ros1,
+            OutputMessagesArg::Foxglove => OutputMessages::Foxglove,
+        }
+    }
+}
+
+/// `--livox-tags` ([`LivoxTags`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ValueEnum)]
+pub enum LivoxTagsArg {
+    /// Drop the points tagged as noise with high or moderate confidence by their spatial position
+    /// (bits 0–1 = 01 or 10) or as noise by their intensity (bits 2–3 = 01): rain, dust, fog
+    /// and the stray returns at object edges. Low-confidence noise (11) is kept.
+    #[default]
+    DropNoise,
+    /// Keep every point whatever its tag.
+    KeepAll,
+    /// Keep returns 0 and 1 only (bits 4–5 = 00 or 01), whatever the noise bits, as FAST-LIO's
+    /// Livox front end does.
+    FirstReturns,
+}
+
+impl From<LivoxTagsArg> for LivoxTags {
+    fn from(a: LivoxTagsArg) -> Self {
+        match a {
+            LivoxTagsArg::DropNoise => LivoxTags::DropNoise,
+            LivoxTagsArg::KeepAll => LivoxTags::KeepAll,
+            LivoxTagsArg::FirstReturns => LivoxTags::FirstReturns,
+        }
+    }
 }
 
 impl RegistrationFlags {
+    /// The flags as library settings.
+    pub fn settings(&self) -> PairSettings {
+        PairSettings {
+            config: self.config.clone(),
+            voxel: self.voxel,
+            sampler: self.sampler.map(Into::into),
+            mu: self.mu,
+            levy_c: self.levy_c,
+            with_replacement: self.with_replacement,
+            ranking: self.ranking.map(Into::into),
+            descriptor_radius: self.descriptor_radius,
+            mutual: self.mutual,
+            max_hypotheses: self.max_hypotheses,
+            verification: self.verification.map(Into::into),
+            no_icp: self.no_icp,
+            seed: self.seed,
+        }
+    }
+
     /// Whether the voxel was given, by `--voxel` or as `voxel_size_m` in the `--config` file.
     pub fn voxel_configured(&self) -> Result<bool> {
-        if self.voxel.is_some() {
-            return Ok(true);
-        }
-        let Some(path) = &self.config else {
-            return Ok(false);
-        };
-        let text = read_config(path)?;
-        let table: toml::Table = toml::from_str(&text)
-            .with_context(|| format!("{}: invalid configuration", path.display()))?;
-        Ok(table.contains_key("voxel_size_m"))
+        Ok(self.settings().voxel_configured()?)
     }
 
     /// The configuration: defaults, then `--config`, then explicit flags.
     pub fn config(&self) -> Result<PairConfig> {
-        let mut c = match &self.config {
-            Some(path) => {
-                let text = read_config(path)?;
-                toml::from_str::<PairConfig>(&text)
-                    .with_context(|| format!("{}: invalid configuration", path.display()))?
-            }
-            None => PairConfig::default(),
-        };
-        if let Some(v) = self.voxel {
-            c.voxel_size_m = v;
-        }
-        if self.mutual {
-            c.mutual_filter = true;
-        }
-        if let Some(r) = self.ranking {
-            let radius = self.descriptor_radius.unwrap_or(match c.ranking {
-                RankingConfig::NeighbourCount { radius, .. } => radius,
-                _ => PAPER_DESCRIPTOR_RADIUS as f32,
-            });
-            c.ranking = match r {
-                RankingArg::Ratio => RankingConfig::Ratio,
-                RankingArg::Distance => RankingConfig::Distance,
-                RankingArg::CountMost => RankingConfig::NeighbourCount {
-                    radius,
-                    order: CountOrder::MostFirst,
-                },
-                RankingArg::CountFewest => RankingConfig::NeighbourCount {
-                    radius,
-                    order: CountOrder::FewestFirst,
-                },
-            };
-        } else if let (Some(d), RankingConfig::NeighbourCount { radius, .. }) =
-            (self.descriptor_radius, &mut c.ranking)
-        {
-            *radius = d;
-        }
-        let (mut mu, mut levy_c, window, mut repl) = match c.sampler {
-            SamplerConfig::Levy {
-                mu,
-                c,
-                window,
-                with_replacement,
-            } => (mu, c, window, with_replacement),
-            _ => (-50.0, 1.0, crate::ransac::levy::DEFAULT_WINDOW, false),
-        };
-        mu = self.mu.unwrap_or(mu);
-        levy_c = self.levy_c.unwrap_or(levy_c);
-        repl |= self.with_replacement;
-        let levy = SamplerConfig::Levy {
-            mu,
-            c: levy_c,
-            window,
-            with_replacement: repl,
-        };
-        c.sampler = match self.sampler {
-            Some(SamplerArg::Uniform) => SamplerConfig::Uniform,
-            Some(SamplerArg::Prosac) => SamplerConfig::Prosac {
-                growth_max_samples: crate::ransac::prosac::DEFAULT_GROWTH_MAX_SAMPLES,
-            },
-            Some(SamplerArg::Levy) => levy,
-            None if matches!(c.sampler, SamplerConfig::Levy { .. }) => levy,
-            None => c.sampler,
-        };
-        if let Some(m) = self.max_hypotheses {
-            c.max_hypotheses = m;
-        }
-        if let Some(v) = self.verification {
-            c.verification = match v {
-                VerificationArg::Dense => Verification::Dense,
-                VerificationArg::Correspondences => Verification::Correspondences,
-            };
-        }
-        if self.no_icp {
-            c.icp = false;
-        }
-        if let Some(seed) = self.seed {
-            c.seed = seed;
-        }
+        let c = self.settings().unchecked_config()?;
         c.resolved().context("invalid configuration")?;
         Ok(c)
     }

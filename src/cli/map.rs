@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use anyhow::{Result, bail};
 use clap::{Args, ValueEnum};
 
-use super::inputs::registered_log;
+use crate::evaluate::registered_log;
 use crate::io::atomic_file::{PendingFile, check_target, same_file};
 use crate::io::cloud_file::CloudFileFormat;
 use crate::map::{MapOptions, TrajectoryChoice, build_map_of_runs};

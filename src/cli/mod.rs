@@ -8,7 +8,6 @@ mod evaluate;
 mod export;
 mod flags;
 mod info;
-mod inputs;
 mod localize;
 mod map;
 mod merge;
@@ -19,11 +18,12 @@ mod simulate;
 mod stitch;
 mod sweep;
 
-pub use evaluate::{
-    EVALUATE_CSV_HEADER, EvaluateArgs, TrajectoryFormat, evaluate_log, evaluation_json,
-};
+pub use evaluate::{EVALUATE_CSV_HEADER, EvaluateArgs, TrajectoryFormatArg};
 pub use export::{ExportArgs, ExportFormat};
-pub use flags::{RankingArg, RegistrationFlags, SamplerArg, VerificationArg};
+pub use flags::{
+    DeskewArg, LivoxTagsArg, OutputMessagesArg, RankingArg, RegistrationFlags, SamplerArg,
+    VerificationArg,
+};
 pub use info::InfoArgs;
 pub use localize::LocalizeArgs;
 pub use map::MapArgs;

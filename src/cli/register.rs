@@ -1,16 +1,14 @@
 //! `mireg register` and `mireg` with no arguments (the embedded fixture).
 
-use super::flags::RegistrationFlags;
+use super::flags::{DeskewArg, LivoxTagsArg, OutputMessagesArg, RegistrationFlags};
 use anyhow::{Context, Result};
 use clap::Args;
 
 use std::path::{Path, PathBuf};
 
-use crate::io::codec::livox::LivoxTags;
-use crate::io::damage::ReadPolicy;
 use crate::odometry::OdometryConfig;
 use crate::register::{
-    FLAGGED_FRAMES_LISTED, Flag, RegisterOptions, RegisterSummary, StepError, default_output,
+    FLAGGED_FRAMES_LISTED, Flag, RegisterOptions, RegisterSettings, RegisterSummary, StepError,
     register_log,
 };
 
@@ -63,13 +61,13 @@ pub struct RegisterArgs {
     pub track_first: bool,
     /// Motion-compensate clouds with per-point times (Ouster t, Velodyne time, Hesai timestamp,
     /// Livox offset_time, time_stamp): auto when the field is present, on (required), off.
-    #[arg(long, value_enum, default_value_t = crate::register::DeskewMode::Auto)]
-    pub deskew: crate::register::DeskewMode,
+    #[arg(long, value_enum, default_value_t = DeskewArg::Auto)]
+    pub deskew: DeskewArg,
     /// Message family of our /tf and pose channels: auto (the clouds' own: ROS 2, ROS 1 or
     /// foxglove), or one of them. Rerun decodes ROS 2 and foxglove messages, not ROS 1: pass
     /// foxglove for a ROS 1 log you open in Rerun.
-    #[arg(long, value_enum, default_value_t = crate::register::OutputMessages::Auto)]
-    pub output_messages: crate::register::OutputMessages,
+    #[arg(long, value_enum, default_value_t = OutputMessagesArg::Auto)]
+    pub output_messages: OutputMessagesArg,
     /// Register only the clouds from this one on: a cloud index (120, 0-based in log-time
     /// order), or a log time in seconds (1700000012.5s) or nanoseconds (…ns). The segment's
     /// first frame is its world.
@@ -128,8 +126,8 @@ pub struct RegisterArgs {
     /// the points Livox tags as high- or moderate-confidence noise (rain, dust, fog, edge
     /// stray returns), `keep-all` keeps every point, `first-returns` keeps returns 0 and 1 as
     /// FAST-LIO does (docs/INPUTS.md, "Livox").
-    #[arg(long, value_enum, default_value_t = LivoxTags::DropNoise)]
-    pub livox_tags: LivoxTags,
+    #[arg(long, value_enum, default_value_t = LivoxTagsArg::DropNoise)]
+    pub livox_tags: LivoxTagsArg,
     /// Replace an existing output file.
     #[arg(long)]
     pub force: bool,
@@ -151,59 +149,51 @@ fn parse_fraction(s: &str) -> std::result::Result<f64, String> {
     }
 }
 
-/// The [`RegisterOptions`] that `mireg register` runs with for `args` (the command line recorded
-/// in the output is this process's), for callers that run [`register_log`] themselves (the
-/// Python package).
+impl RegisterArgs {
+    /// The flags as library settings (all but `--output`, `--json` and the input).
+    pub fn settings(&self) -> RegisterSettings {
+        RegisterSettings {
+            pair: self.flags.settings(),
+            topic: self.topic.clone(),
+            min_inliers: self.min_inliers,
+            min_fitness: self.min_fitness,
+            no_local_map: self.no_local_map,
+            no_map_fine: self.no_map_fine,
+            map_fine: self.map_fine,
+            track_first: self.track_first,
+            deskew: self.deskew.into(),
+            output_messages: self.output_messages.into(),
+            start: self.start,
+            end: self.end,
+            copy_window: self.copy_window,
+            map_points_per_voxel: self.map_points_per_voxel,
+            feature_points: self.feature_points,
+            world_frame: self.world_frame.clone(),
+            max_points: self.max_points,
+            reorder_window: self.reorder_window,
+            no_loops: self.no_loops,
+            loop_memory: self.loop_memory,
+            strict: self.strict,
+            skip_corrupt: self.skip_corrupt,
+            livox_tags: self.livox_tags.into(),
+            force: self.force,
+            quiet: self.quiet,
+        }
+    }
+}
+
+/// The [`RegisterOptions`] that `mireg register` runs with for `args`: its settings
+/// ([`RegisterSettings::options`]) with this process's command line recorded.
 ///
 /// # Errors
 /// A configuration file that cannot be read or parsed, or `--copy-window` without a segment.
 pub fn register_options(args: &RegisterArgs) -> Result<RegisterOptions> {
-    let config = OdometryConfig {
-        pair: args.flags.config()?,
-        min_inliers: args.min_inliers,
-        min_fitness: args.min_fitness,
-        local_map: !args.no_local_map,
-        map_fine: !args.no_map_fine,
-        map_max_points_per_voxel: args.map_points_per_voxel,
-        feature_points: args.feature_points,
-        track_first: args.track_first,
-    };
-    let opts = RegisterOptions {
-        input: args.input.clone(),
-        output: args
-            .output
-            .clone()
-            .unwrap_or_else(|| default_output(&args.input)),
-        topic: args.topic.clone(),
-        config,
-        force: args.force,
-        world_frame: args.world_frame.clone(),
-        command_line: super::process::command_line(),
-        progress: !args.quiet,
-        max_points_per_cloud: args.max_points,
-        reorder_window: args.reorder_window,
-        derive_voxel: !args.flags.voxel_configured()?,
-        deskew: args.deskew,
-        output_messages: args.output_messages,
-        start: args.start,
-        end: args.end,
-        copy_window_only: args.copy_window,
-        loops: !args.no_loops,
-        loop_config: None,
-        loop_memory_bytes: Some(args.loop_memory.saturating_mul(1 << 20)),
-        read_policy: ReadPolicy {
-            strict: args.strict,
-            skip_corrupt: args.skip_corrupt,
-        },
-        livox_tags: args.livox_tags,
-        on_frame: None,
-    };
-    if opts.copy_window_only && opts.start.is_none() && opts.end.is_none() {
-        return Err(crate::Error::InvalidInput(
-            "--copy-window needs a segment: --start and/or --end".into(),
-        )
-        .into());
-    }
+    // The configuration's range checks first, in the command line's words.
+    args.flags.config()?;
+    let mut opts = args
+        .settings()
+        .options(&args.input, args.output.as_deref())?;
+    opts.command_line = super::process::command_line();
     Ok(opts)
 }
 

@@ -18,6 +18,7 @@ use super::bag::compression::{Compression, ZSTD_MAGIC};
 use super::bag::ros1::{self, Bag};
 use super::bag::rosbag2::{Rosbag2, Storage};
 use super::log_order::ChunkTimes;
+use super::magic::SQLITE_MAGIC;
 use super::mcap::log::{InputCatalog, OutputLog, pass_through};
 use super::mcap::read::for_each_record_with;
 use crate::io::damage::{Damage, ReadPolicy};
@@ -25,9 +26,6 @@ use crate::{Error, Result};
 
 /// What `register` accepts, for messages.
 pub const ACCEPTED: &str = "mireg register reads an MCAP file (.mcap), a ROS 1 bag (.bag), or a ROS 2 bag directory (metadata.yaml with .mcap or .db3 files, maybe zstd-compressed)";
-
-/// The first bytes of every SQLite 3 database.
-pub(crate) const SQLITE_MAGIC: &[u8] = b"SQLite format 3\0";
 
 /// An MCAP input: its path, how damage is treated, and what was found wrong with it.
 #[derive(Debug)]

@@ -12,6 +12,7 @@ pub mod damage;
 pub mod input_file;
 pub mod input_log;
 pub mod log_order;
+mod magic;
 pub mod mcap;
 pub mod point_time;
 pub mod pose_file;

@@ -38,8 +38,8 @@ pub(super) use record::LoopRecord;
 use record::record;
 use search::{accepted_loops, first_candidates, keyframes_of};
 
-use super::RegisterOptions;
 use super::frames::Estimate;
+use super::options::RegisterOptions;
 use super::plan::Plan;
 
 /// What loop closure did, in the run's summary.

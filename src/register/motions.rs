@@ -1,40 +1,10 @@
-//! Deskewing inside the streaming pipeline: the `--deskew` mode, and the motions of registered
-//! frames handed back from the registering thread to the preparing one.
+//! Deskewing inside the streaming pipeline: the motions of registered frames handed back from
+//! the registering thread to the preparing one.
 
 use std::collections::BTreeMap;
 use std::sync::mpsc::Receiver;
 
 use nalgebra::Isometry3;
-
-/// `--deskew`: motion compensation of clouds with per-point times
-/// ([`crate::io::point_time`], [`crate::geometry::deskew`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum DeskewMode {
-    /// Deskew every cloud that has a time field.
-    #[default]
-    Auto,
-    /// As `auto`, and a cloud without a time field is an error.
-    On,
-    /// Never deskew.
-    Off,
-}
-
-/// `--output-messages`: the message family of our `/tf` and pose channels.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum OutputMessages {
-    /// The clouds' family: ROS 2 for ROS 2 clouds, ROS 1 for ROS 1 clouds, foxglove for
-    /// foxglove clouds.
-    #[default]
-    Auto,
-    /// `tf2_msgs/msg/TFMessage` and `geometry_msgs/msg/PoseStamped` in cdr.
-    Ros2,
-    /// `tf2_msgs/TFMessage` and `geometry_msgs/PoseStamped` in ros1.
-    Ros1,
-    /// `foxglove.FrameTransforms` and `foxglove.PoseInFrame` in protobuf.
-    Foxglove,
-}
 
 /// The motions of registered frames as the registering thread reports them, for deskewing:
 /// frame `k` is deskewed with frame `k − 2`'s motion, the latest one that is surely known when

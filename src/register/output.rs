@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use nalgebra::Matrix6;
 use serde_json::json;
 
-use super::CloudKind;
+use super::clouds::CloudKind;
 use super::frames::FrameOut;
 use crate::Result;
 use crate::io::codec::{self, cdr, foxglove, ros1};

@@ -13,9 +13,9 @@ use crate::odometry::stream::resolve_config;
 use crate::pipeline::voxel_for_cloud;
 
 use super::clouds::{CloudKind, choose_topic};
+use super::options::{DEFAULT_REFERENCE_TOPIC, RegisterOptions};
 use super::output::Topics;
 use super::window::LogWindow;
-use super::{DEFAULT_REFERENCE_TOPIC, RegisterOptions};
 
 /// What a run reads and how it registers it, settled from the input and the options.
 pub(super) struct Plan {
@@ -26,7 +26,7 @@ pub(super) struct Plan {
     pub(super) kind: CloudKind,
     /// The registration settings with the voxels sized.
     pub(super) config: OdometryConfig,
-    /// `"configured"` or `"first_cloud"` ([`super::RegisterSummary::voxel_source`]).
+    /// `"configured"` or `"first_cloud"` ([`super::summary::RegisterSummary::voxel_source`]).
     pub(super) voxel_source: &'static str,
     /// The ICP voxel \[m\] (before the feature voxel replaced it in `config.pair`).
     pub(super) voxel_m: f64,

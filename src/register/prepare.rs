@@ -16,9 +16,9 @@ use crate::odometry::stream::{self, deskew_cloud, deskew_for};
 use crate::pipeline::{FailureReason, PrepareScratch, prepare_frame};
 use crate::{Error, Result};
 
-use super::DeskewMode;
 use super::frames::{CloudInfo, CloudMsg, Dropped, PreparedMsg};
 use super::motions::Motions;
+use super::options::DeskewMode;
 use super::plan::Plan;
 
 /// The prepare stage's settings.
@@ -26,7 +26,7 @@ pub(super) struct Prepare<'a> {
     pub(super) plan: &'a Plan,
     /// The input, named in errors.
     pub(super) input: &'a Path,
-    /// [`super::RegisterOptions::max_points_per_cloud`].
+    /// [`super::options::RegisterOptions::max_points_per_cloud`].
     pub(super) max_points: usize,
     pub(super) deskew_mode: DeskewMode,
     /// Compute each frame's loop-closure descriptor ([`Descriptor`]).

@@ -9,9 +9,9 @@ use crate::io::mcap::log::OutputLog;
 use crate::{Error, Result};
 
 use super::frames::{CloudMsg, FrameOut};
+use super::options::{QUEUE_CAPACITY, REORDER_WINDOW_BYTES, RegisterOptions};
 use super::plan::Plan;
 use super::writer::Writer;
-use super::{QUEUE_CAPACITY, RegisterOptions};
 
 /// Cloud message buffers outside the reorder window: the queue to the preparing thread, and the
 /// one it decodes.
@@ -71,7 +71,7 @@ pub(super) fn read(
     // earlier follows, else after a window of REORDER_WINDOW clouds.
     let reorder_window = opts.reorder_window;
     let mut pending = Reorder::new(reorder_window, plan.chunk_times.clone())
-        .with_byte_limit(super::REORDER_WINDOW_BYTES);
+        .with_byte_limit(REORDER_WINDOW_BYTES);
     let mut buffers = Buffers {
         recycled,
         allocated: 0,
@@ -94,7 +94,7 @@ pub(super) fn read(
                         detail: format!(
                             "cloud on {topic} at log time {} ns comes after the cloud at log time {handed} ns was registered: the log is out of log-time order by more than the reorder window of {reorder_window} clouds (and at most {} MiB); rerun with a larger --reorder-window (each holds one cloud in memory)",
                             header.log_time,
-                            super::REORDER_WINDOW_BYTES >> 20
+                            REORDER_WINDOW_BYTES >> 20
                         ),
                     });
                 }

@@ -19,11 +19,10 @@ use std::path::{Path, PathBuf};
 use mcap::records::Record;
 use nalgebra::Isometry3;
 
-use super::CloudKind;
-use super::RegisterOptions;
 use super::closure::{LoopOutcome, close_loops, describe};
-use super::clouds::choose_topic;
+use super::clouds::{CloudKind, choose_topic};
 use super::frames::Estimate;
+use super::options::RegisterOptions;
 use super::output::{Outputs, StampedPose, Topics, write_pose};
 use super::plan::Plan;
 use super::writer::{loop_metadata, write_loop_outcome};
@@ -86,7 +85,7 @@ pub struct StitchSummary {
     /// Input messages copied.
     pub messages_copied: u64,
     /// What loop closure over the stitched trajectory did, when it ran.
-    pub loops: Option<super::LoopSummary>,
+    pub loops: Option<super::closure::LoopSummary>,
 }
 
 /// Reads a `register` output back: its metadata, message family, odometry poses (sorted by

@@ -15,13 +15,14 @@ use crate::trajectory::{FrameErrors, Trajectory, evaluate};
 use super::closure::LoopOutcome;
 use super::frames::Estimate;
 use super::frames::FrameOut;
+use super::options::{OnFrame, RegisterOptions};
 use super::output::{Outputs, StampedPose, write_frame, write_loop, write_optimized_pose};
 use super::plan::Plan;
-use super::window::LogWindow;
-use super::{
+use super::summary::{
     DOMINANT_MIN_STEPS, DOMINANT_SHARE, DominantStep, FLAGGED_FRAMES_LISTED, Flag, FlaggedFrame,
-    ReferenceErrors, RegisterOptions, RegisterSummary, StepError,
+    ReferenceErrors, RegisterSummary, StepError,
 };
+use super::window::LogWindow;
 
 /// Writes the frames as they come and keeps what the summary needs.
 pub(super) struct Writer<'a> {
@@ -29,7 +30,7 @@ pub(super) struct Writer<'a> {
     world_frame: &'a str,
     progress: Option<indicatif::ProgressBar>,
     /// [`RegisterOptions::on_frame`], and the clouds the log holds (0: unknown).
-    pub(super) on_frame: Option<super::OnFrame>,
+    pub(super) on_frame: Option<OnFrame>,
     total_frames: u64,
     pub(super) estimates: Vec<Estimate>,
     /// The reference poses read (stamp \[ns\], pose).

@@ -94,7 +94,7 @@ pub fn decompress_file(src: &Path, temp: &mut TempFiles) -> Result<PathBuf> {
     let got =
         super::ros1::read_up_to(&mut decoder, &mut head).map_err(|e| zstd_err(src, "stream", e))?;
     let head = &head[..got];
-    if !(head.starts_with(mcap::MAGIC) || head == crate::io::input_log::SQLITE_MAGIC) {
+    if !(head.starts_with(mcap::MAGIC) || head == crate::io::magic::SQLITE_MAGIC) {
         return Err(format_err(
             src,
             format!(
@@ -274,7 +274,7 @@ mod tests {
     #[test]
     fn files_decompress_streaming_and_cut_files_fail() {
         let dir = tempfile::tempdir().unwrap();
-        let mut data = crate::io::input_log::SQLITE_MAGIC.to_vec();
+        let mut data = crate::io::magic::SQLITE_MAGIC.to_vec();
         data.extend((0..3_000_000u32).map(|i| (i / 7) as u8));
         let z = dir.path().join("a.db3.zstd");
         std::fs::write(&z, zstd::encode_all(&data[..], 3).unwrap()).unwrap();

@@ -233,7 +233,7 @@ impl Rosbag2 {
         let n = std::fs::File::open(&bag.files[0])
             .and_then(|mut f| super::ros1::read_up_to(&mut f, &mut head))
             .map_err(|e| crate::io::io_err(&bag.files[0], e))?;
-        if head[..n] == crate::io::input_log::SQLITE_MAGIC[..] {
+        if head[..n] == crate::io::magic::SQLITE_MAGIC[..] {
             bag.storage = Storage::Sqlite3;
             bag.open_sqlite_files(&[path.to_path_buf()])?;
         }

@@ -41,18 +41,21 @@ pub fn is_custom_msg(schema_name: &str) -> bool {
 /// confidence from the spatial position, 00 normal, 01 high, 10 moderate, 11 low; bits 2–3 from
 /// the intensity, 00 normal, 01 noise; bits 4–5 the return number). `--livox-tags`; default
 /// [`LivoxTags::DropNoise`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum LivoxTags {
     /// Drop the points tagged as noise with high or moderate confidence by their spatial position
     /// (bits 0–1 = 01 or 10) or as noise by their intensity (bits 2–3 = 01): rain, dust, fog
     /// and the stray returns at object edges. Low-confidence noise (11) is kept.
     #[default]
+    #[serde(alias = "drop-noise")]
     DropNoise,
     /// Keep every point whatever its tag.
+    #[serde(alias = "keep-all")]
     KeepAll,
     /// Keep returns 0 and 1 only (bits 4–5 = 00 or 01), whatever the noise bits, as FAST-LIO's
     /// Livox front end does.
+    #[serde(alias = "first-returns")]
     FirstReturns,
 }
 

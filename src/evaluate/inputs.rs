@@ -107,11 +107,7 @@ fn mcap_files_in(dir: &Path) -> String {
 /// [`Error::InvalidInput`] naming `path` when it is not an MCAP file (a bag, a directory, a text
 /// file), or, without `topic_given`, an MCAP that was never registered (no mireg pose topic):
 /// each says what to run first.
-pub(super) fn registered_log(
-    path: &Path,
-    command: &str,
-    topic_given: bool,
-) -> Result<Vec<ChannelInfo>> {
+pub fn registered_log(path: &Path, command: &str, topic_given: bool) -> Result<Vec<ChannelInfo>> {
     let channels = mcap_channels(path, command)?;
     if topic_given || newest_mireg_namespace(&channels).is_some() {
         return Ok(channels);
