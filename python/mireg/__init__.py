@@ -20,7 +20,7 @@ from . import _mireg
 from .run import Run, read_run, read_trajectory
 
 __all__ = ["Registration", "register_pair", "read_clouds", "register_log", "default_config",
-           "Odometry", "Run", "read_run", "read_trajectory"]
+           "Odometry", "Run", "read_run", "read_trajectory", "merge", "localize"]
 __version__ = _mireg.__version__
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -149,6 +149,36 @@ def register_log(path: PathLike, output: Optional[PathLike] = None,
     out = None if output is None else os.fspath(output)
     return json.loads(_mireg.register_log(os.fspath(path), out,
                                           json.dumps(settings), progress))
+
+
+def merge(runs: list, output_dir: PathLike, force: bool = False, seed: int = 0,
+          min_links: int = 2) -> dict:
+    """``mireg merge RUN... -o OUTPUT_DIR``: ``register`` outputs of one site, each in its own
+    frame, put into one (docs/SESSIONS.md). Each run is copied into ``output_dir`` with
+    ``/mireg/pose_merged``, ``/mireg/tf_merged`` and ``/mireg/session_links``; returns the report
+    (``merge_report.json``) as a dict: per session its group and alignment, per pair of sessions
+    whether they joined and why. ``min_links``: agreeing links, at distinct keyframes, that join
+    two sessions. Bad input is a ``ValueError`` naming the file, an unreadable one ``OSError``.
+    """
+    return json.loads(_mireg.merge([os.fspath(r) for r in runs], os.fspath(output_dir),
+                                   force, seed, min_links))
+
+
+def localize(log: PathLike, map: PathLike, output: Optional[PathLike] = None,
+             force: bool = False, seed: int = 0, min_links: int = 2,
+             topic: Optional[str] = None) -> dict:
+    """``mireg localize LOG --map MAP``: the log placed in a prior map (a ``register`` output),
+    wherever it starts, the map held fixed (docs/SESSIONS.md). The output (default
+    ``LOG.localized.mcap`` beside the log) keeps the log's messages and adds ``/mireg/pose``,
+    ``/tf`` and ``/mireg/localization`` (per frame: localized, tracking, outside_map, lost).
+    Returns the summary as a dict.
+    """
+    log = os.fspath(log)
+    if output is None:
+        stem = os.path.splitext(os.path.basename(log.rstrip("/")))[0]
+        output = os.path.join(os.path.dirname(log.rstrip("/")), f"{stem}.localized.mcap")
+    return json.loads(_mireg.localize(log, os.fspath(map), os.fspath(output), force, seed,
+                                      min_links, topic))
 
 
 class Odometry:

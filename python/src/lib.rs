@@ -10,6 +10,7 @@
 
 mod command;
 mod run;
+mod sessions;
 
 use std::sync::Mutex;
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
@@ -353,6 +354,8 @@ fn _mireg(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(default_pair_config, m)?)?;
     m.add_function(wrap_pyfunction!(default_register_settings, m)?)?;
     m.add_function(wrap_pyfunction!(register_log, m)?)?;
+    m.add_function(wrap_pyfunction!(sessions::merge, m)?)?;
+    m.add_function(wrap_pyfunction!(sessions::localize, m)?)?;
     m.add_class::<CloudReader>()?;
     m.add_class::<Odometry>()?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;

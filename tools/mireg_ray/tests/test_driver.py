@@ -120,3 +120,21 @@ def test_symlinked_inputs_keep_their_place_under_the_root(tmp_path):
     root = tmp_path / "logs"
     assert Path(run.output_for(str(tmp_path / "out"), root, logs / "a.mcap")) == \
         tmp_path / "out" / "day1" / "a.mireg.mcap"
+
+
+def test_logs_of_one_site_are_registered_then_merged(tmp_path, monkeypatch, binary):
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    for name in ("one.mcap", "two.mcap"):
+        shutil.copy(FIXTURE, logs / name)
+    monkeypatch.chdir(tmp_path)
+    merged = tmp_path / "merged"
+    args = ["run", "logs/*.mcap", "--out", str(tmp_path / "out"), "--local-cpus", "2",
+            "--merge", str(merged)]
+    assert cli.main(args) == 0
+    report = json.loads((merged / "merge_report.json").read_text())
+    assert report["groups"] == 1
+    assert [s["name"] for s in report["sessions"]] == ["one.mireg", "two.mireg"]
+    # The same log twice: the second session lands on the first (its world is the same frame).
+    t = report["sessions"][1]["alignment"]
+    assert max(abs(v) for v in t[:3]) < 0.01 and abs(abs(t[6]) - 1.0) < 1e-4

@@ -1,0 +1,72 @@
+//! Bindings of `mireg merge` and `mireg localize` ([`mireg::merge`]): options in, the report
+//! as JSON out.
+
+use pyo3::exceptions::PyRuntimeError;
+use pyo3::prelude::*;
+
+use mireg::merge::{LocalizeOptions, MergeConfig, MergeOptions};
+
+use crate::py_err;
+
+/// `merge(runs, output_dir, force, seed, min_links) -> str`: `mireg merge RUN... -o DIR`;
+/// returns the report (`merge_report.json`) as JSON.
+#[pyfunction]
+#[pyo3(signature = (runs, output_dir, force=false, seed=0, min_links=2))]
+pub(crate) fn merge(
+    py: Python<'_>,
+    runs: Vec<std::path::PathBuf>,
+    output_dir: std::path::PathBuf,
+    force: bool,
+    seed: u64,
+    min_links: usize,
+) -> PyResult<String> {
+    let opts = MergeOptions {
+        runs,
+        output_dir,
+        force,
+        seed,
+        config: MergeConfig {
+            min_links,
+            ..MergeConfig::default()
+        },
+        command_line: std::env::args().collect::<Vec<_>>().join(" "),
+    };
+    let summary = py
+        .detach(|| mireg::merge::merge(&opts))
+        .map_err(|e| py_err(&e))?;
+    serde_json::to_string(&summary).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+}
+
+/// `localize(log, map, output, force, seed, min_links, topic) -> str`: `mireg localize LOG
+/// --map MAP -o OUTPUT`; returns the summary as JSON.
+#[pyfunction]
+#[pyo3(signature = (log, map, output, force=false, seed=0, min_links=2, topic=None))]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn localize(
+    py: Python<'_>,
+    log: std::path::PathBuf,
+    map: std::path::PathBuf,
+    output: std::path::PathBuf,
+    force: bool,
+    seed: u64,
+    min_links: usize,
+    topic: Option<String>,
+) -> PyResult<String> {
+    let opts = LocalizeOptions {
+        log,
+        prior: map,
+        output,
+        force,
+        seed,
+        config: MergeConfig {
+            min_links,
+            ..MergeConfig::default()
+        },
+        topic,
+        command_line: std::env::args().collect::<Vec<_>>().join(" "),
+    };
+    let summary = py
+        .detach(|| mireg::merge::localize(&opts))
+        .map_err(|e| py_err(&e))?;
+    serde_json::to_string(&summary).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+}
