@@ -189,6 +189,33 @@ pub fn build_map_of_runs(inputs: &[PathBuf], opts: &MapOptions) -> Result<(Voxel
     Ok((map, summary))
 }
 
+/// The map's voxel \[m\] and where it came from: the map's own when it has one (an earlier
+/// run's), else `opts.voxel_m`, else the `voxel_m` of the run's `mireg` metadata `meta`.
+fn map_voxel(
+    input: &Path,
+    opts: &MapOptions,
+    map: Option<&VoxelMap>,
+    meta: Option<&BTreeMap<String, String>>,
+) -> Result<(f64, &'static str)> {
+    Ok(match (opts.voxel_m, map) {
+        (_, Some(m)) => (m.voxel_m(), "first_run"),
+        (Some(v), None) => (v, "option"),
+        (None, None) => {
+            let v = meta
+                .and_then(|m| m.get("voxel_m"))
+                .and_then(|v| v.parse::<f64>().ok())
+                .ok_or_else(|| {
+                    Error::InvalidInput(format!(
+                        "{}: no mireg metadata with voxel_m (not written by `mireg register`?); \
+                         set the map's voxel with --voxel",
+                        input.display()
+                    ))
+                })?;
+            (v, "register_metadata")
+        }
+    })
+}
+
 /// Adds the clouds of one run to `map` (a new map at the run's voxel when `None`); returns the
 /// map, the run's summary and the merged frame it was put in (`mireg_merge` metadata), if any.
 fn add_run(
@@ -238,23 +265,7 @@ fn add_run(
         .rev()
         .find(|m| m.get("pose_topic") == Some(&odometry))
         .or(metas.last());
-    let (voxel_m, voxel_source) = match (opts.voxel_m, &map) {
-        (_, Some(m)) => (m.voxel_m(), "first_run"),
-        (Some(v), None) => (v, "option"),
-        (None, None) => {
-            let v = meta
-                .and_then(|m| m.get("voxel_m"))
-                .and_then(|v| v.parse::<f64>().ok())
-                .ok_or_else(|| {
-                    Error::InvalidInput(format!(
-                        "{}: no mireg metadata with voxel_m (not written by `mireg register`?); \
-                         set the map's voxel with --voxel",
-                        input.display()
-                    ))
-                })?;
-            (v, "register_metadata")
-        }
-    };
+    let (voxel_m, voxel_source) = map_voxel(input, opts, map.as_ref(), meta)?;
     let mut map = match map {
         Some(m) => m,
         None => VoxelMap::new(voxel_m)?,

@@ -176,6 +176,32 @@ pub fn merge(opts: &MergeOptions) -> Result<MergeSummary> {
         &solved.weights,
         &opts.config,
     );
+    let reports = write_outputs(&sessions, &targets, opts, &solved, &records)?;
+    let summary = MergeSummary {
+        output_dir: opts.output_dir.clone(),
+        sessions: reports,
+        pairs,
+        groups: groups.len(),
+        links_accepted: kept.len(),
+        graph_iterations: solved.iterations,
+        elapsed_s: t0.elapsed().as_secs_f64(),
+    };
+    write_report(
+        &opts.output_dir.join("merge_report.json"),
+        &summary,
+        opts.force,
+    )?;
+    Ok(summary)
+}
+
+/// Writes each session's merged output; returns the sessions' reports.
+fn write_outputs(
+    sessions: &[Session],
+    targets: &[PathBuf],
+    opts: &MergeOptions,
+    solved: &Solved,
+    records: &[LinkRecord],
+) -> Result<Vec<SessionReport>> {
     let frame_of = |g: usize| {
         if g == 0 {
             "mireg_merged".to_string()
@@ -192,7 +218,7 @@ pub fn merge(opts: &MergeOptions) -> Result<MergeSummary> {
             opts,
             &solved.merged[s],
             &frame,
-            &records,
+            records,
             s,
         )?;
         let a = solved.alignment[s];
@@ -209,21 +235,7 @@ pub fn merge(opts: &MergeOptions) -> Result<MergeSummary> {
             alignment: [t.x, t.y, t.z, q.x, q.y, q.z, q.w],
         });
     }
-    let summary = MergeSummary {
-        output_dir: opts.output_dir.clone(),
-        sessions: reports,
-        pairs,
-        groups: groups.len(),
-        links_accepted: kept.len(),
-        graph_iterations: solved.iterations,
-        elapsed_s: t0.elapsed().as_secs_f64(),
-    };
-    write_report(
-        &opts.output_dir.join("merge_report.json"),
-        &summary,
-        opts.force,
-    )?;
-    Ok(summary)
+    Ok(reports)
 }
 
 /// Every group solved: per session its merged poses, its world's placement in its group's, and
