@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -68,3 +69,21 @@ def test_localize_is_the_cli(tmp_path, sessions):
                                                                        "/mireg/pose")
     with pytest.raises(ValueError, match="register"):
         mireg.localize(log, log, tmp_path / "x.mcap")
+
+
+def test_view_of_a_merge_draws_sessions_and_links(tmp_path, sessions):
+    pytest.importorskip("rerun", reason="the viewer extra is not installed")
+    from rerun.chunk import RrdReader
+
+    a, b = sessions
+    report = mireg.merge([a, b], tmp_path / "merged")
+    rrd = tmp_path / "m.rrd"
+    p = subprocess.run([sys.executable, "-m", "mireg.viewer", str(tmp_path / "merged"), "--save",
+                        str(rrd)], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    entities = {c.entity_path.lstrip("/") for c in RrdReader(rrd).stream()}
+    assert {"world/sessions/a", "world/sessions/b"} <= entities
+    links = [e for e in entities if e.startswith("world/session_links/")]
+    # every candidate tried, once (each is on both sessions' outputs)
+    tried = sum(p["appearance_candidates"] + p["place_candidates"] for p in report["pairs"])
+    assert len(links) == tried

@@ -23,7 +23,8 @@ def parse_args(argv=None, description: str = "", prog: str | None = None):
         epilog="Entity paths, the --frame recomputation and --loop are described in "
         "the mireg.viewer package's docstring and docs/VIEWER.md.",
     )
-    p.add_argument("mcap", type=Path, help="output MCAP of `mireg register`")
+    p.add_argument("mcap", type=Path, help="output MCAP of `mireg register` (or of `mireg "
+                   "localize`, or a `mireg merge` folder: their sessions and links)")
     out = p.add_mutually_exclusive_group()
     out.add_argument("--save", type=Path, metavar="OUT.rrd", help="write a .rrd recording")
     out.add_argument("--screenshot", type=Path, metavar="OUT.png", help="headless screenshot")
@@ -78,6 +79,16 @@ def main(argv=None, description: str = "", prog: str | None = None) -> int:
 
         description = doc.split("\n\n")[0]
     args = parse_args(argv, description, prog)
+    from . import sessions
+
+    try:
+        if sessions.is_merge(args.mcap) or sessions.is_localized(args.mcap):
+            if args.screenshot is not None:
+                raise SystemExit("mireg view: --screenshot is not available for merge folders "
+                                 "and localised logs; use --save")
+            return sessions.view(args.mcap, args.save)
+    except (OSError, ValueError) as e:
+        raise SystemExit(f"mireg view: {e}") from None
     try:
         run = read_run(args.mcap, args.cloud_topic, load_clouds=True,
                        reference_topic=args.reference_topic)
