@@ -38,7 +38,12 @@ def metadata(path: Path) -> dict:
 
 
 def is_localized(path: Path) -> bool:
-    return path.is_file() and "mireg_localize" in metadata(path)
+    """Whether ``path`` is a ``mireg localize`` output; anything unreadable is not (the register
+    viewer then says what the input is and what to run)."""
+    try:
+        return path.is_file() and "mireg_localize" in metadata(path)
+    except (OSError, ValueError):
+        return False
 
 
 def log_merge(rr, folder: Path) -> dict:
