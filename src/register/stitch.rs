@@ -124,7 +124,7 @@ pub(crate) fn read_segment(path: &Path) -> Result<Segment> {
     let decode = pose_stamped_decoder(&schema_name, encoding).ok_or_else(|| {
         format_err(
             path,
-            format!("{pose_topic} carries {schema_name} ({encoding}); stitch reads ROS PoseStamped outputs (not --output-messages foxglove)"),
+            format!("{pose_topic} carries {schema_name} ({encoding}); stitch, merge and localize read ROS PoseStamped outputs (not --output-messages foxglove)"),
         )
     })?;
     let kind = if encoding == ros1::MESSAGE_ENCODING {
