@@ -230,8 +230,82 @@ pub fn stitch(
     segs.sort_by_key(|s| s.frames[0].stamp_ns);
     let (input_log, catalog) = InputLog::open(log)?;
     let channels = catalog.channel_infos();
+    let topic = segments_topic(log, &channels, &segs)?;
+    let (stitched, seams) = join_segments(&segs)?;
+
+    let topics = Topics::for_input(&channels);
+    let profile = match segs[0].kind {
+        CloudKind::Ros1 => "ros1",
+        _ => "ros2",
+    };
+    let mut out = OutputLog::create(output, force, profile)?;
+    out.declare_input(log, &catalog)?;
+    let ch = Outputs::create(&mut out, segs[0].kind, &topics, loops, None)?;
+    // Every stitched frame must be a cloud of the log: segments of another log are refused
+    // (the output, not finished, is never committed).
+    let cloud_ids: std::collections::BTreeSet<u16> = channels
+        .iter()
+        .filter(|c| c.topic == topic)
+        .map(|c| c.id)
+        .collect();
+    let mut cloud_times = std::collections::BTreeSet::new();
+    let copied = input_log.pass_through(&mut out, &cloud_ids, None, |_, h, _| {
+        cloud_times.insert(h.log_time);
+        Ok(())
+    })?;
+    if let Some((segment, f)) = stitched
+        .iter()
+        .find(|(_, f)| !cloud_times.contains(&f.log_time))
+    {
+        return Err(Error::InvalidInput(format!(
+            "{}: its frame at log time {} ns is no cloud of {} on {topic} ({} clouds there): was \
+             the segment registered from another log?",
+            segs[*segment].path.display(),
+            f.log_time,
+            log.display(),
+            cloud_times.len()
+        )));
+    }
+    write_frames(&mut out, &ch, &segs[0].world_frame, &stitched)?;
+    let closed = if loops {
+        let seam_pairs = seam_candidates(&segs, &seams, &stitched);
+        Some(close_stitched(
+            log,
+            output,
+            &segs[0],
+            &stitched,
+            &seam_pairs,
+        )?)
+    } else {
+        None
+    };
+    if let Some((estimates, outcome, _)) = &closed {
+        write_loop_outcome(&mut out, &ch, &segs[0].world_frame, estimates, outcome)?;
+    }
+    let mut meta = stitch_metadata(log, command_line, topic, &topics, &segs, &seams);
+    if let Some((_, outcome, config)) = &closed {
+        loop_metadata(&mut meta, &topics, outcome, config);
+    }
+    out.write_metadata("mireg", meta)?;
+    out.finish()?;
+    Ok(StitchSummary {
+        output: output.to_path_buf(),
+        frames: stitched.len(),
+        segments: segs.len(),
+        seams,
+        messages_copied: copied,
+        loops: closed.map(|(_, outcome, _)| outcome.summary),
+    })
+}
+
+/// The cloud topic the segments registered (the same for all), as the log has it.
+fn segments_topic(
+    log: &Path,
+    channels: &[crate::io::mcap::log::ChannelInfo],
+    segs: &[Segment],
+) -> Result<String> {
     let seg_topic = segs[0].meta.get("topic").cloned();
-    for seg in &segs {
+    for seg in segs {
         if seg.meta.get("topic") != seg_topic.as_ref() {
             return Err(Error::InvalidInput(format!(
                 "{} registered {}, {} {}: segments of one stitch register one topic",
@@ -244,12 +318,22 @@ pub fn stitch(
             )));
         }
     }
-    let (topic, _) = choose_topic(log, &channels, seg_topic.as_deref()).map_err(|e| {
+    let (topic, _) = choose_topic(log, channels, seg_topic.as_deref()).map_err(|e| {
         Error::InvalidInput(format!(
             "{e} (the topic {} registered; was it registered from another log?)",
             segs[0].path.display()
         ))
     })?;
+    Ok(topic)
+}
+
+/// The stitched frames, each with the index of the segment it comes from.
+type Stitched = Vec<(usize, SegFrame)>;
+
+/// The stitched frames, each with its segment, and the seams: segment `i` aligned onto the
+/// frames stitched so far by [`alignment`] over the frames they share, its frames after the
+/// anchor (the last shared one) taken.
+fn join_segments(segs: &[Segment]) -> Result<(Stitched, Vec<Seam>)> {
     let mut stitched: Vec<(usize, SegFrame)> =
         segs[0].frames.iter().cloned().map(|f| (0, f)).collect();
     let mut seams = Vec::new();
@@ -302,40 +386,17 @@ pub fn stitch(
                 }),
         );
     }
+    Ok((stitched, seams))
+}
 
-    let topics = Topics::for_input(&channels);
-    let profile = match segs[0].kind {
-        CloudKind::Ros1 => "ros1",
-        _ => "ros2",
-    };
-    let mut out = OutputLog::create(output, force, profile)?;
-    out.declare_input(log, &catalog)?;
-    let ch = Outputs::create(&mut out, segs[0].kind, &topics, loops, None)?;
-    // Every stitched frame must be a cloud of the log: segments of another log are refused
-    // (the output, not finished, is never committed).
-    let cloud_ids: std::collections::BTreeSet<u16> = channels
-        .iter()
-        .filter(|c| c.topic == topic)
-        .map(|c| c.id)
-        .collect();
-    let mut cloud_times = std::collections::BTreeSet::new();
-    let copied = input_log.pass_through(&mut out, &cloud_ids, None, |_, h, _| {
-        cloud_times.insert(h.log_time);
-        Ok(())
-    })?;
-    if let Some((segment, f)) = stitched
-        .iter()
-        .find(|(_, f)| !cloud_times.contains(&f.log_time))
-    {
-        return Err(Error::InvalidInput(format!(
-            "{}: its frame at log time {} ns is no cloud of {} on {topic} ({} clouds there): was \
-             the segment registered from another log?",
-            segs[*segment].path.display(),
-            f.log_time,
-            log.display(),
-            cloud_times.len()
-        )));
-    }
+/// Writes each stitched frame's pose, transform and statistics (`frame` renumbered over the
+/// log, `segment` added).
+fn write_frames(
+    out: &mut OutputLog,
+    ch: &Outputs,
+    world_frame: &str,
+    stitched: &[(usize, SegFrame)],
+) -> Result<()> {
     for (k, (segment, f)) in stitched.iter().enumerate() {
         let mut stats = f.stats.clone();
         if let Some(o) = stats.as_object_mut() {
@@ -351,23 +412,20 @@ pub fn stitch(
             publish_time: f.publish_time,
         };
         let bytes = serde_json::to_vec(&stats).expect("JSON");
-        write_pose(&mut out, &ch, &segs[0].world_frame, &pose, &bytes)?;
+        write_pose(out, ch, world_frame, &pose, &bytes)?;
     }
-    let closed = if loops {
-        let seam_pairs = seam_candidates(&segs, &seams, &stitched);
-        Some(close_stitched(
-            log,
-            output,
-            &segs[0],
-            &stitched,
-            &seam_pairs,
-        )?)
-    } else {
-        None
-    };
-    if let Some((estimates, outcome, _)) = &closed {
-        write_loop_outcome(&mut out, &ch, &segs[0].world_frame, estimates, outcome)?;
-    }
+    Ok(())
+}
+
+/// The stitched output's `mireg` metadata record (before loop closure's keys).
+fn stitch_metadata(
+    log: &Path,
+    command_line: &str,
+    topic: String,
+    topics: &Topics,
+    segs: &[Segment],
+    seams: &[Seam],
+) -> BTreeMap<String, String> {
     let mut meta = BTreeMap::from([
         ("version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
         ("command_line".to_string(), command_line.to_string()),
@@ -388,26 +446,14 @@ pub fn stitch(
         ),
         (
             "seams".to_string(),
-            serde_json::to_string(&seams).expect("JSON"),
+            serde_json::to_string(seams).expect("JSON"),
         ),
     ]);
     // The voxel the segments registered with: `mireg map` sizes its map by it.
     if let Some(v) = segs[0].meta.get("voxel_m") {
         meta.insert("voxel_m".to_string(), v.clone());
     }
-    if let Some((_, outcome, config)) = &closed {
-        loop_metadata(&mut meta, &topics, outcome, config);
-    }
-    out.write_metadata("mireg", meta)?;
-    out.finish()?;
-    Ok(StitchSummary {
-        output: output.to_path_buf(),
-        frames: stitched.len(),
-        segments: segs.len(),
-        seams,
-        messages_copied: copied,
-        loops: closed.map(|(_, outcome, _)| outcome.summary),
-    })
+    meta
 }
 
 /// The transform that brings a segment's poses into the stitched world, from the frames it shares
