@@ -210,15 +210,10 @@ pub fn refine_prepared(
     Ok(())
 }
 
-fn register_prepared_with(
-    source: &PreparedFrame,
-    target: &PreparedFrame,
-    config: &PairConfig,
-    refined: bool,
-) -> Result<PairResult> {
-    let c = config.resolved()?;
-    let start = Instant::now();
-    let mut out = PairResult {
+/// A result with nothing registered yet: identity poses, zero counts, the two frames' point
+/// counts and preparation timings.
+fn fresh_result(source: &PreparedFrame, target: &PreparedFrame) -> PairResult {
+    PairResult {
         target_from_source: Isometry3::identity(),
         ransac_target_from_source: Isometry3::identity(),
         failure: None,
@@ -241,17 +236,18 @@ fn register_prepared_with(
             features: source.timings.features + target.timings.features,
             ..Default::default()
         },
-    };
-    let finish = |mut out: PairResult| {
-        let t = &mut out.timings_s;
-        t.total = t.downsample + t.normals + t.features + start.elapsed().as_secs_f64();
-        out
-    };
-    if source.points.len() < 3 || target.points.len() < 3 {
-        out.failure = Some(FailureReason::TooFewPoints);
-        return Ok(finish(out));
     }
+}
 
+/// Feature matching of `source` against `target` (and its seconds), beside it (one
+/// [`rayon::join`]) the ICP stages' sources, targets and correspondence grids built once per
+/// frame when `refined`: single passes that fill the gaps of the matching's parallel loops.
+fn match_and_prepare(
+    source: &PreparedFrame,
+    target: &PreparedFrame,
+    c: &PairConfig,
+    refined: bool,
+) -> Result<(crate::correspondence::matching::Matches, f64)> {
     let count_radius = match c.ranking {
         RankingConfig::NeighbourCount { radius, .. } => Some(radius),
         _ => None,
@@ -296,8 +292,30 @@ fn register_prepared_with(
         },
         prepare_targets,
     );
-    let (matches, matching_s) = matched;
     prepared?;
+    Ok(matched)
+}
+
+fn register_prepared_with(
+    source: &PreparedFrame,
+    target: &PreparedFrame,
+    config: &PairConfig,
+    refined: bool,
+) -> Result<PairResult> {
+    let c = config.resolved()?;
+    let start = Instant::now();
+    let mut out = fresh_result(source, target);
+    let finish = |mut out: PairResult| {
+        let t = &mut out.timings_s;
+        t.total = t.downsample + t.normals + t.features + start.elapsed().as_secs_f64();
+        out
+    };
+    if source.points.len() < 3 || target.points.len() < 3 {
+        out.failure = Some(FailureReason::TooFewPoints);
+        return Ok(finish(out));
+    }
+
+    let (matches, matching_s) = match_and_prepare(source, target, &c, refined)?;
     out.timings_s.matching = matching_s;
     out.num_correspondences = matches.len();
     if matches.len() < 3 {
