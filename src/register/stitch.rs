@@ -88,9 +88,16 @@ pub struct StitchSummary {
     pub loops: Option<super::closure::LoopSummary>,
 }
 
-/// Reads a `register` output back: its metadata, message family, odometry poses (sorted by
-/// stamp), their frames, log times and statistics.
-pub(crate) fn read_segment(path: &Path) -> Result<Segment> {
+/// A run's `mireg` metadata (the last record), channels (id → topic, schema id, encoding) and
+/// schema names by id.
+type Catalog = (
+    BTreeMap<String, String>,
+    BTreeMap<u16, (String, u16, String)>,
+    BTreeMap<u16, String>,
+);
+
+/// The [`Catalog`] of the MCAP at `path`, in one pass over its records.
+fn read_catalog(path: &Path) -> Result<Catalog> {
     let mut meta = BTreeMap::new();
     let mut topics = BTreeMap::new();
     let mut schemas = BTreeMap::new();
@@ -107,6 +114,13 @@ pub(crate) fn read_segment(path: &Path) -> Result<Segment> {
         }
         Ok(())
     })?;
+    Ok((meta, topics, schemas))
+}
+
+/// Reads a `register` output back: its metadata, message family, odometry poses (sorted by
+/// stamp), their frames, log times and statistics.
+pub(crate) fn read_segment(path: &Path) -> Result<Segment> {
+    let (meta, topics, schemas) = read_catalog(path)?;
     let get = |k: &str| {
         meta.get(k).cloned().ok_or_else(|| {
             format_err(
