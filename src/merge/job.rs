@@ -11,7 +11,7 @@ use super::links::{
     AgreementConfig, LinkSource, SessionLink, Track, agreeing_links, appearance_candidates,
     place_candidates,
 };
-use super::session::{Session, merge_pair_config};
+use super::session::{Session, prepare_sessions};
 use super::write::{LinkRecord, Verdict, write_report, write_session};
 use super::{Join, MergeConfig, graph::solve_group, group_sessions};
 use crate::io::atomic_file::{check_target, same_file};
@@ -128,34 +128,14 @@ pub fn merge(opts: &MergeOptions) -> Result<MergeSummary> {
         .iter()
         .map(|p| Session::read(p))
         .collect::<Result<Vec<_>>>()?;
-    let loops = LoopConfig {
-        memory_budget_bytes: opts.config.keyframe_memory_bytes,
-        ..LoopConfig::for_voxel(sessions[0].voxel_m)
-    };
-    let pair = merge_pair_config(&sessions[0], &loops, opts.seed);
-    for s in &mut sessions {
-        s.prepare_keyframes(&loops, &pair)?;
-    }
-    let agreement = AgreementConfig::for_voxel(sessions[0].voxel_m);
-    let tracks: Vec<Track<'_>> = sessions
-        .iter()
-        .map(|s| Track {
-            poses: &s.poses,
-            travelled_m: &s.travelled_m,
-        })
-        .collect();
+    let (loops, pair) =
+        prepare_sessions(&mut sessions, opts.config.keyframe_memory_bytes, opts.seed)?;
+    let tracks: Vec<Track<'_>> = sessions.iter().map(Session::track).collect();
     let mut attempts: Vec<Attempt> = Vec::new();
     let mut joins = Vec::new();
     let mut pairs = Vec::new();
     let mut kept: BTreeSet<usize> = BTreeSet::new();
-    let linker = Linker {
-        sessions: &sessions,
-        tracks: &tracks,
-        pair: &pair,
-        loops: &loops,
-        agreement: &agreement,
-        config: &opts.config,
-    };
+    let linker = Linker::new(&sessions, &tracks, &pair, &loops, &opts.config);
     for b in 1..sessions.len() {
         for a in 0..b {
             let outcome = linker.link_pair((a, b), &mut attempts)?;
@@ -346,7 +326,7 @@ pub(super) struct Linker<'s> {
     pub(super) tracks: &'s [Track<'s>],
     pub(super) pair: &'s PairConfig,
     pub(super) loops: &'s LoopConfig,
-    pub(super) agreement: &'s AgreementConfig,
+    pub(super) agreement: AgreementConfig,
     pub(super) config: &'s MergeConfig,
 }
 
@@ -357,7 +337,26 @@ pub(super) struct PairOutcome {
     pub(super) join: Option<(Join, Vec<usize>)>,
 }
 
-impl Linker<'_> {
+impl<'s> Linker<'s> {
+    /// Linking by `config` with `loops`' search and acceptance settings and `pair`'s
+    /// registration; links agree by the first session's voxel ([`AgreementConfig::for_voxel`]).
+    pub(super) fn new(
+        sessions: &'s [Session],
+        tracks: &'s [Track<'s>],
+        pair: &'s PairConfig,
+        loops: &'s LoopConfig,
+        config: &'s MergeConfig,
+    ) -> Self {
+        Self {
+            sessions,
+            tracks,
+            pair,
+            loops,
+            agreement: AgreementConfig::for_voxel(sessions[0].voxel_m),
+            config,
+        }
+    }
+
     /// Verifies candidates between sessions `a` and `b` (by appearance; then, once aligned, by
     /// place), appending every attempt to `attempts`.
     pub(super) fn link_pair(
@@ -459,7 +458,7 @@ impl Linker<'_> {
             .filter(|&k| attempts[k].verified)
             .collect();
         let links: Vec<SessionLink> = index.iter().map(|&k| attempts[k].link).collect();
-        agreeing_links(&links, ends, self.tracks, self.agreement)
+        agreeing_links(&links, ends, self.tracks, &self.agreement)
             .into_iter()
             .map(|i| index[i])
             .collect()

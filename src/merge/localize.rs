@@ -30,8 +30,8 @@ use serde_json::json;
 use super::MergeConfig;
 use super::graph::{Fix, solve_in_prior};
 use super::job::{Attempt, Linker};
-use super::links::{AgreementConfig, Track};
-use super::session::{Session, merge_pair_config};
+use super::links::Track;
+use super::session::{Session, prepare_sessions};
 use crate::io::atomic_file::{check_target, same_file};
 use crate::io::codec::Time;
 use crate::io::input_log::InputLog;
@@ -137,7 +137,7 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
         }
     }
     check_target(&opts.output, opts.force)?;
-    let mut prior = Session::read(&opts.prior)?;
+    let prior = Session::read(&opts.prior)?;
     // The log's own trajectory, in a temporary folder beside the output (removed on return).
     let dir = opts.output.parent().filter(|p| !p.as_os_str().is_empty());
     let tmp = tempfile::Builder::new()
@@ -150,30 +150,12 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
     ropts.topic.clone_from(&opts.topic);
     ropts.config.pair.seed = opts.seed;
     register_log(&ropts)?;
-    let mut log = Session::read(&registered)?;
-    let loops = LoopConfig {
-        memory_budget_bytes: opts.config.keyframe_memory_bytes,
-        ..LoopConfig::for_voxel(prior.voxel_m)
-    };
-    let pair = merge_pair_config(&prior, &loops, opts.seed);
-    prior.prepare_keyframes(&loops, &pair)?;
-    log.prepare_keyframes(&loops, &pair)?;
-    let sessions = [prior, log];
-    let tracks: Vec<Track<'_>> = sessions
-        .iter()
-        .map(|s| Track {
-            poses: &s.poses,
-            travelled_m: &s.travelled_m,
-        })
-        .collect();
-    let linker = Linker {
-        sessions: &sessions,
-        tracks: &tracks,
-        pair: &pair,
-        loops: &loops,
-        agreement: &AgreementConfig::for_voxel(sessions[0].voxel_m),
-        config: &opts.config,
-    };
+    let log = Session::read(&registered)?;
+    let mut sessions = [prior, log];
+    let (loops, pair) =
+        prepare_sessions(&mut sessions, opts.config.keyframe_memory_bytes, opts.seed)?;
+    let tracks: Vec<Track<'_>> = sessions.iter().map(Session::track).collect();
+    let linker = Linker::new(&sessions, &tracks, &pair, &loops, &opts.config);
     let mut attempts = Vec::new();
     let outcome = linker.link_pair((0, 1), &mut attempts)?;
     let placed = place(&sessions, &attempts, outcome.join.as_ref(), &loops)?;

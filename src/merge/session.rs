@@ -6,6 +6,7 @@ use std::path::Path;
 
 use nalgebra::Isometry3;
 
+use super::links::Track;
 use crate::evaluate::path_distances;
 use crate::io::format_err;
 use crate::io::mcap::log::list_channels;
@@ -42,6 +43,14 @@ pub(super) struct Session {
 }
 
 impl Session {
+    /// Its trajectory as links see it.
+    pub(super) fn track(&self) -> Track<'_> {
+        Track {
+            poses: &self.poses,
+            travelled_m: &self.travelled_m,
+        }
+    }
+
     /// Reads `path`'s trajectory and metadata (not its clouds).
     pub(super) fn read(path: &Path) -> Result<Self> {
         let output = read_segment(path).map_err(|e| match e {
@@ -186,9 +195,28 @@ impl Session {
     }
 }
 
+/// The loop settings (at the first session's voxel, keyframes kept within `keyframe_memory_bytes`)
+/// and the registration settings of a merge or localisation, with every session's keyframes
+/// prepared by them.
+pub(super) fn prepare_sessions(
+    sessions: &mut [Session],
+    keyframe_memory_bytes: usize,
+    seed: u64,
+) -> Result<(LoopConfig, PairConfig)> {
+    let loops = LoopConfig {
+        memory_budget_bytes: keyframe_memory_bytes,
+        ..LoopConfig::for_voxel(sessions[0].voxel_m)
+    };
+    let pair = merge_pair_config(&sessions[0], &loops, seed);
+    for s in sessions.iter_mut() {
+        s.prepare_keyframes(&loops, &pair)?;
+    }
+    Ok((loops, pair))
+}
+
 /// The registration settings of a merge: a loop verification's at `session`'s voxels, with
 /// `seed`.
-pub(super) fn merge_pair_config(session: &Session, loops: &LoopConfig, seed: u64) -> PairConfig {
+fn merge_pair_config(session: &Session, loops: &LoopConfig, seed: u64) -> PairConfig {
     let mut pair = OdometryConfig::default().pair;
     pair.voxel_size_m = session.voxel_m;
     pair.seed = seed;
