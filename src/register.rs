@@ -35,7 +35,9 @@ pub use options::{
     QUEUE_CAPACITY, REORDER_WINDOW, REORDER_WINDOW_BYTES, RegisterOptions, default_output,
 };
 use output::Outputs;
-pub(crate) use output::{StampedPose, encode_pose, pose_channels};
+pub(crate) use output::{
+    StampedPose, encode_pose, pose_channels, relative_pose_json, relative_pose_schema,
+};
 pub use output::{loops_json_schema, stats_json_schema};
 use plan::Plan;
 use prepare::Prepare;

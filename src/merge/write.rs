@@ -16,7 +16,9 @@ use crate::io::atomic_file::PendingFile;
 use crate::io::codec::Time;
 use crate::io::input_log::InputLog;
 use crate::io::mcap::log::OutputLog;
-use crate::register::{CloudKind, StampedPose, encode_pose, pose_channels};
+use crate::register::{
+    CloudKind, StampedPose, encode_pose, pose_channels, relative_pose_json, relative_pose_schema,
+};
 use crate::{Error, Result};
 
 /// A link's verdict on `…/session_links`.
@@ -71,7 +73,7 @@ impl LinkRecord {
             found_by: l.found_by,
             verdict,
             reason,
-            a_from_b: t.registered.then(|| pose_json(&l.a_from_b)),
+            a_from_b: t.registered.then(|| relative_pose_json(&l.a_from_b)),
             inliers: l.inliers,
             fitness: if t.fitness.is_finite() {
                 t.fitness
@@ -82,11 +84,6 @@ impl LinkRecord {
             ends: (l.a, l.b),
         }
     }
-}
-
-fn pose_json(p: &Isometry3<f64>) -> serde_json::Value {
-    let (t, q) = (p.translation.vector, p.rotation.coords);
-    json!({"translation": [t.x, t.y, t.z], "rotation_xyzw": [q.x, q.y, q.z, q.w]})
 }
 
 /// The JSON schema of `…/session_links`.
@@ -106,15 +103,9 @@ pub fn session_links_json_schema() -> serde_json::Value {
             "found_by": {"type": "string", "enum": ["appearance", "place"]},
             "verdict": {"type": "string", "enum": ["accepted", "rejected"]},
             "reason": text,
-            "a_from_b": {
-                "description": "Session b's sensor pose in session a's sensor frame (p_a = T p_b); null when the registration failed",
-                "type": ["object", "null"],
-                "properties": {
-                    "translation": {"type": "array", "items": num, "minItems": 3, "maxItems": 3},
-                    "rotation_xyzw": {"type": "array", "items": num, "minItems": 4, "maxItems": 4}
-                },
-                "required": ["translation", "rotation_xyzw"]
-            },
+            "a_from_b": relative_pose_schema(
+                "Session b's sensor pose in session a's sensor frame (p_a = T p_b); null when the registration failed"
+            ),
             "inliers": int, "fitness": num,
             "weight": {"description": "The link's robust weight at the optimum; 0 when not in the graph", "type": "number"}
         },

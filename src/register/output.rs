@@ -498,6 +498,27 @@ fn json_names<T: serde::Serialize>(values: &[T]) -> Vec<serde_json::Value> {
         .collect()
 }
 
+/// A relative pose as the JSON topics (`/mireg/loops`, `/mireg/session_links`) carry it:
+/// `{"translation": [x, y, z], "rotation_xyzw": [qx, qy, qz, qw]}` (metres, unit quaternion).
+pub(crate) fn relative_pose_json(p: &nalgebra::Isometry3<f64>) -> serde_json::Value {
+    let (t, q) = (p.translation.vector, p.rotation.coords);
+    json!({"translation": [t.x, t.y, t.z], "rotation_xyzw": [q.x, q.y, q.z, q.w]})
+}
+
+/// The JSON schema of [`relative_pose_json`], nullable, with `description`.
+pub(crate) fn relative_pose_schema(description: &str) -> serde_json::Value {
+    let num = json!({"type": "number"});
+    json!({
+        "description": description,
+        "type": ["object", "null"],
+        "properties": {
+            "translation": {"type": "array", "items": num, "minItems": 3, "maxItems": 3},
+            "rotation_xyzw": {"type": "array", "items": num, "minItems": 4, "maxItems": 4}
+        },
+        "required": ["translation", "rotation_xyzw"]
+    })
+}
+
 /// JSON Schema of the `/mireg/loops` messages: one per loop candidate tried.
 pub fn loops_json_schema() -> serde_json::Value {
     let num = json!({"type": "number"});
@@ -514,15 +535,9 @@ pub fn loops_json_schema() -> serde_json::Value {
             "descriptor_distance": nullable_num, "odometry_distance_m": num, "path_between_m": num,
             "verdict": {"type": "string", "enum": json_names(&Verdict::ALL)},
             "reason": {"type": "string"},
-            "match_from_query": {
-                "description": "The query sensor's pose in the match sensor's frame (p_match = T p_query); null when the registration failed",
-                "type": ["object", "null"],
-                "properties": {
-                    "translation": {"type": "array", "items": num, "minItems": 3, "maxItems": 3},
-                    "rotation_xyzw": {"type": "array", "items": num, "minItems": 4, "maxItems": 4}
-                },
-                "required": ["translation", "rotation_xyzw"]
-            },
+            "match_from_query": relative_pose_schema(
+                "The query sensor's pose in the match sensor's frame (p_match = T p_query); null when the registration failed"
+            ),
             "inliers": int, "correspondences": int, "fitness": num, "inlier_rmse_m": num,
             "icp_iterations": int,
             "odometry_disagreement_m": nullable_num, "odometry_disagreement_deg": nullable_num,

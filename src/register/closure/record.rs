@@ -1,11 +1,11 @@
 //! The `/mireg/loops` record of each loop candidate tried, and an accepted loop's information
 //! as its graph edge carries it.
 
-use nalgebra::{Isometry3, Matrix6};
+use nalgebra::Matrix6;
 use serde::Serialize;
 
 use super::super::frames::Estimate;
-use super::super::output::{FoundBy, Verdict};
+use super::super::output::{FoundBy, Verdict, relative_pose_json};
 use crate::loops::{Candidate, LOOP_INFORMATION_SCALE, LoopDecision, Verification};
 use crate::odometry::uncertainty::{PoseUncertainty, registration_information};
 
@@ -112,13 +112,6 @@ pub(super) fn record(
         .filter(|(v, _)| v.accepted)
         .and_then(|(v, _)| loop_information(v))
         .map(|omega| PoseUncertainty::new(Some(&omega), prior));
-    let pose_json = |t: &Isometry3<f64>| {
-        let q = t.rotation.coords;
-        serde_json::json!({
-            "translation": [t.translation.x, t.translation.y, t.translation.z],
-            "rotation_xyzw": [q.x, q.y, q.z, q.w],
-        })
-    };
     let (verdict, reason) = match verified {
         Some((v, _)) if v.accepted => decided(decision, round),
         Some((v, _)) => (Verdict::Rejected, v.reason.clone()),
@@ -138,7 +131,8 @@ pub(super) fn record(
         path_between_m: travelled[c.query] - travelled[c.matched],
         verdict,
         reason,
-        match_from_query: verified.and_then(|(v, _)| v.match_from_query.as_ref().map(pose_json)),
+        match_from_query: verified
+            .and_then(|(v, _)| v.match_from_query.as_ref().map(relative_pose_json)),
         inliers: verified.map_or(0, |(v, _)| v.pair.num_inliers),
         correspondences: verified.map_or(0, |(v, _)| v.pair.num_correspondences),
         fitness: verified.map_or(0.0, |(v, _)| v.pair.fitness),
