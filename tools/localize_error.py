@@ -22,7 +22,7 @@ from collections import Counter
 import numpy as np
 from mcap.reader import make_reader
 
-from merge_ate import align, ate, read_poses
+from merge_ate import align, angle_deg, ate, read_poses
 
 
 def main(argv):
@@ -51,7 +51,7 @@ def main(argv):
         truth = origin @ ref[s]
         d = np.linalg.inv(truth) @ est[s]
         errs.append(np.linalg.norm(d[:3, 3]))
-        rots.append(np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1))))
+        rots.append(angle_deg(d))
     own = prior["/mireg/pose_optimized"] or prior["/mireg/pose"]
     common = sorted(set(own) & set(pref))
     e = np.array([own[s][:3, 3] for s in common])

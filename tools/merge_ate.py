@@ -62,6 +62,11 @@ def matrix(q, t):
     return m
 
 
+def angle_deg(m):
+    """The rotation angle of the 4x4 transform ``m`` [deg]."""
+    return float(np.degrees(np.arccos(np.clip((np.trace(m[:3, :3]) - 1) / 2, -1, 1))))
+
+
 def align(est, ref):
     """Rigid transform (4x4) taking the points est (N×3) onto ref (Umeyama without scale)."""
     me, mr = est.mean(0), ref.mean(0)
@@ -96,8 +101,7 @@ def link_errors(report, reference_topic):
             t, q = link["a_from_b"]["translation"], link["a_from_b"]["rotation_xyzw"]
             est = matrix(np.array([q[3], q[0], q[1], q[2]]), t)
             d = np.linalg.inv(np.linalg.inv(ra) @ rb) @ est
-            angle = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1)))
-            errors.append((float(np.linalg.norm(d[:3, 3])), float(angle)))
+            errors.append((float(np.linalg.norm(d[:3, 3])), angle_deg(d)))
     wrong = sum(1 for m, deg in errors if m > 0.5 or deg > 2.0)
     return {"accepted": len(errors), "wrong": wrong,
             "max_error_m": max((m for m, _ in errors), default=0.0),
@@ -144,9 +148,8 @@ def main(argv):
                 truth = np.linalg.inv(root["ref"][0]) @ s["ref"][0]
                 est0 = np.linalg.inv(root["est"][0]) @ s["est"][0]
                 d = np.linalg.inv(truth) @ est0
-                angle = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1)))
                 entry["first_pose_error_m"] = float(np.linalg.norm(d[:3, 3]))
-                entry["first_pose_error_deg"] = float(angle)
+                entry["first_pose_error_deg"] = angle_deg(d)
             result["sessions"][s["name"]] = entry
     if args.json:
         print(json.dumps(result, indent=2))

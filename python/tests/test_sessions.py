@@ -7,24 +7,13 @@ Needs the package installed and the CLI built (``MIREG_BIN``); tests skip withou
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
+from test_mireg import FIXTURES, cli
 
 import mireg
-
-REPO = Path(__file__).resolve().parents[2]
-FIXTURES = REPO / "fixtures"
-
-
-def cli() -> Path:
-    b = Path(os.environ.get("MIREG_BIN", REPO / "target/release/mireg"))
-    if not b.is_file():
-        pytest.skip(f"no mireg binary at {b} (set MIREG_BIN)")
-    return b
 
 
 def messages(path, topic):
