@@ -40,6 +40,14 @@ fn ok(args: &[&str]) {
     );
 }
 
+/// `mireg merge RUNS... -o dir`, which must succeed.
+fn merge_into(dir: &Path, runs: &[&str]) {
+    let mut args = vec!["merge"];
+    args.extend_from_slice(runs);
+    args.extend(["-o", dir.to_str().unwrap()]);
+    ok(&args);
+}
+
 /// The fixture registered in segments `[start, end)` (clouds), each into its own file, and as a
 /// whole; made once for every test of this file.
 struct Sessions {
@@ -161,13 +169,7 @@ fn apart(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
 fn two_halves_join_where_the_reference_puts_them() {
     let out = tempfile::tempdir().unwrap();
     let dir = out.path().join("merged");
-    ok(&[
-        "merge",
-        &session("a"),
-        &session("b"),
-        "-o",
-        dir.to_str().unwrap(),
-    ]);
+    merge_into(&dir, &[&session("a"), &session("b")]);
     let r = report(&dir);
     assert_eq!(r["groups"], 1, "{r:#}");
     assert_eq!(r["pairs"][0]["joined"], true, "{r:#}");
@@ -219,14 +221,7 @@ fn two_halves_join_where_the_reference_puts_them() {
 fn three_sessions_join_in_one_frame() {
     let out = tempfile::tempdir().unwrap();
     let dir = out.path().join("merged");
-    ok(&[
-        "merge",
-        &session("a"),
-        &session("t1"),
-        &session("t2"),
-        "-o",
-        dir.to_str().unwrap(),
-    ]);
+    merge_into(&dir, &[&session("a"), &session("t1"), &session("t2")]);
     let r = report(&dir);
     assert_eq!(r["groups"], 1, "{r:#}");
     let ra = reference(&dir.join("a.mcap"));
@@ -254,13 +249,7 @@ fn a_session_of_another_place_stays_apart() {
         "--quiet",
     ]);
     let dir = out.path().join("merged");
-    ok(&[
-        "merge",
-        &session("a"),
-        ouster.to_str().unwrap(),
-        "-o",
-        dir.to_str().unwrap(),
-    ]);
+    merge_into(&dir, &[&session("a"), ouster.to_str().unwrap()]);
     let r = report(&dir);
     assert_eq!(r["groups"], 2, "{r:#}");
     assert_eq!(r["links_accepted"], 0, "{r:#}");
@@ -326,13 +315,7 @@ fn wrong_inputs_are_named_and_nothing_is_written() {
 fn one_map_of_the_merged_sessions() {
     let out = tempfile::tempdir().unwrap();
     let dir = out.path().join("merged");
-    ok(&[
-        "merge",
-        &session("a"),
-        &session("b"),
-        "-o",
-        dir.to_str().unwrap(),
-    ]);
+    merge_into(&dir, &[&session("a"), &session("b")]);
     let runs = [dir.join("a.mcap"), dir.join("b.mcap")];
     let opts = MapOptions::default();
     let (merged, summary) = build_map_of_runs(&runs, &opts).unwrap();
@@ -353,13 +336,7 @@ fn one_map_of_the_merged_sessions() {
     assert!(e.contains("pose_merged"), "{e}");
     // Runs of two different merges are not one frame.
     let other = out.path().join("other");
-    ok(&[
-        "merge",
-        &session("a"),
-        &session("t2"),
-        "-o",
-        other.to_str().unwrap(),
-    ]);
+    merge_into(&other, &[&session("a"), &session("t2")]);
     let mixed = [dir.join("a.mcap"), other.join("t2.mcap")];
     let e = build_map_of_runs(&mixed, &opts).unwrap_err().to_string();
     assert!(e.contains("one merge group"), "{e}");
