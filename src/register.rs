@@ -43,7 +43,7 @@ use plan::Plan;
 use prepare::Prepare;
 pub use settings::RegisterSettings;
 pub use stitch::{Seam, StitchSummary, stitch};
-pub(crate) use stitch::{Segment, read_segment};
+pub(crate) use stitch::{SegFrame, Segment, read_segment};
 pub use summary::{
     DOMINANT_MIN_STEPS, DOMINANT_SHARE, DominantStep, FLAGGED_FRAMES_LISTED, Flag, FlaggedFrame,
     ReferenceErrors, RegisterSummary, StepError,

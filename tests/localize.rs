@@ -2,7 +2,8 @@
 //! it (`register --start … --copy-window`: each prior's world is its own first frame, so the log
 //! starts metres and tens of degrees from the prior's origin), checked unaligned against where
 //! the reference puts each frame in the prior's world; a map of another place refused (every
-//! frame lost, no pose written); the same poses on one and two threads.
+//! frame lost, no pose written); the same poses on one and two threads. The same with the prior
+//! as a map file (`mireg map`'s `.ply` / `.pcd`), cut into tiles.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -54,6 +55,16 @@ fn prior(dir: &Path, start: usize) -> PathBuf {
     out
 }
 
+/// A map file of `run` (`mireg map`), at `name` in `dir`.
+fn map_file(dir: &Path, run: &Path, name: &str) -> PathBuf {
+    let out = dir.join(name);
+    mireg(
+        &["map", run.to_str().unwrap(), "-o", out.to_str().unwrap()],
+        None,
+    );
+    out
+}
+
 fn localize(log: &Path, prior: &Path, out: &Path, threads: Option<&str>) {
     mireg(
         &[
@@ -98,40 +109,117 @@ fn the_log_localizes_in_priors_that_start_elsewhere() {
         let prior = prior(dir.path(), start);
         let out = dir.path().join(format!("loc_{start}.mcap"));
         localize(&fixture(), &prior, &out, None);
-        let status = statuses(&out);
-        assert_eq!(status.len(), 71);
-        assert!(status.iter().all(|s| s != "lost"), "{status:?}");
-        assert!(
-            status.iter().filter(|s| *s == "localized").count() >= 5,
-            "{status:?}"
-        );
-        // Where the reference puts each frame in the prior's world (its first frame).
-        let origin = reference(&prior).poses[0];
-        let placed = read_mcap_pose_topic(&out, "/mireg/pose").unwrap();
-        assert_eq!(placed.stamps_ns, reference_log.stamps_ns);
-        // The log starts far from the prior's origin: no alignment could hide a failure.
-        let start_offset = (origin.inverse() * reference_log.poses[0])
-            .translation
-            .vector
-            .norm();
-        assert!(start_offset > 0.3, "{start_offset}");
-        let errors: Vec<f64> = placed
-            .poses
-            .iter()
-            .zip(&reference_log.poses)
-            .map(|(p, r)| {
-                let truth: Isometry3<f64> = origin.inverse() * r;
-                (truth.translation.vector - p.translation.vector).norm()
-            })
-            .collect();
-        let rmse = (errors.iter().map(|e| e * e).sum::<f64>() / errors.len() as f64).sqrt();
-        let max = errors.iter().copied().fold(0.0, f64::max);
+        let (rmse, max) = placed_error(&out, &prior, &reference_log);
         // Measured with the prior from 30: RMSE 1.7 cm, max 3.2 cm.
         assert!(
             rmse < 0.035 && max < 0.07,
             "prior from {start}: RMSE {rmse:.4} m, max {max:.4} m"
         );
     }
+}
+
+/// Every frame of the fixture placed in `out`, and the RMSE and largest distance \[m\] of the
+/// placed positions from where the reference puts them in `prior`'s world (its first frame),
+/// unaligned.
+fn placed_error(out: &Path, prior: &Path, reference_log: &Trajectory) -> (f64, f64) {
+    let status = statuses(out);
+    assert_eq!(status.len(), 71);
+    assert!(status.iter().all(|s| s != "lost"), "{status:?}");
+    assert!(
+        status.iter().filter(|s| *s == "localized").count() >= 5,
+        "{status:?}"
+    );
+    let origin = reference(prior).poses[0];
+    let placed = read_mcap_pose_topic(out, "/mireg/pose").unwrap();
+    assert_eq!(placed.stamps_ns, reference_log.stamps_ns);
+    // The log starts far from the prior's origin: no alignment could hide a failure.
+    let start_offset = (origin.inverse() * reference_log.poses[0])
+        .translation
+        .vector
+        .norm();
+    assert!(start_offset > 0.3, "{start_offset}");
+    let errors: Vec<f64> = placed
+        .poses
+        .iter()
+        .zip(&reference_log.poses)
+        .map(|(p, r)| {
+            let truth: Isometry3<f64> = origin.inverse() * r;
+            (truth.translation.vector - p.translation.vector).norm()
+        })
+        .collect();
+    let rmse = (errors.iter().map(|e| e * e).sum::<f64>() / errors.len() as f64).sqrt();
+    (rmse, errors.iter().copied().fold(0.0, f64::max))
+}
+
+#[test]
+fn the_log_localizes_in_a_map_file() {
+    // The map of the prior from 30 (`mireg map`, in that run's world), cut into tiles: no
+    // keyframe, trajectory or metadata of the run reaches localize.
+    let dir = tempfile::tempdir().unwrap();
+    let run = prior(dir.path(), 30);
+    let map = map_file(dir.path(), &run, "prior_30.ply");
+    let out = dir.path().join("loc_map.mcap");
+    localize(&fixture(), &map, &out, None);
+    let (rmse, max) = placed_error(&out, &run, &reference(&fixture()));
+    // Measured: RMSE 1.7 cm, max 3.2 cm (the run itself as the prior: 1.7 / 3.2 cm).
+    assert!(
+        rmse < 0.035 && max < 0.07,
+        "RMSE {rmse:.4} m, max {max:.4} m"
+    );
+}
+
+#[test]
+fn a_map_file_of_another_place_localizes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = prior(dir.path(), 30);
+    let map = map_file(dir.path(), &run, "prior_30.pcd");
+    let ouster = root().join("fixtures/ouster_os1_ros1.mcap");
+    let out = dir.path().join("loc.mcap");
+    localize(&ouster, &map, &out, None);
+    let status = statuses(&out);
+    assert!(
+        !status.is_empty() && status.iter().all(|s| s == "lost"),
+        "{status:?}"
+    );
+    assert!(
+        read_mcap_pose_topic(&out, "/mireg/pose")
+            .unwrap()
+            .poses
+            .is_empty()
+    );
+}
+
+#[test]
+fn a_map_file_too_small_is_refused_before_the_log_is_registered() {
+    let dir = tempfile::tempdir().unwrap();
+    // An .npy of 10 points (float64, 10 × 3).
+    let map = dir.path().join("tiny.npy");
+    let header = "{'descr': '<f8', 'fortran_order': False, 'shape': (10, 3), }";
+    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+    let pad = 64 - (10 + header.len() + 1) % 64;
+    let header = format!("{header}{}\n", " ".repeat(pad));
+    bytes.extend((header.len() as u16).to_le_bytes());
+    bytes.extend(header.as_bytes());
+    for k in 0..30 {
+        bytes.extend((k as f64).to_le_bytes());
+    }
+    std::fs::write(&map, bytes).unwrap();
+    let out = dir.path().join("loc.mcap");
+    let fixture = fixture();
+    let run = Command::new(env!("CARGO_BIN_EXE_mireg"))
+        .args(["localize", fixture.to_str().unwrap(), "--map"])
+        .arg(&map)
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_eq!(run.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        err.contains("tiny.npy") && err.contains("10 points") && err.contains("mireg map"),
+        "{err}"
+    );
+    assert!(!out.exists());
 }
 
 #[test]

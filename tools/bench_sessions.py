@@ -8,7 +8,8 @@ comparison. Then
 * `mireg merge A B`, scored by tools/merge_ate.py: the joint ATE (one alignment for both) against
   the whole log's loop-closed ATE, and the accepted links against the reference;
 * `mireg localize LOG --map B` (the whole raw log in a prior map of its second half), scored by
-  tools/localize_error.py: unaligned position error in the prior's world;
+  tools/localize_error.py: unaligned position error in the prior's world; and the same with the
+  prior as a map file (`mireg map B -o B.ply`, cut into tiles by localize);
 * a foreign pair (the first log's first half with the last log's second half) must stay apart.
 
 Timings are wall-clock seconds of each command on this machine. Logs: the ICL fixture and, when
@@ -81,12 +82,17 @@ def main(argv):
         loc = args.work / f"{name}_localized.mcap"
         t_loc, _ = run([m, "localize", log, "--map", b, "-o", loc, "--force"])
         lr = json_of(localize_error, [str(loc), str(b)])
+        ply = args.work / f"{name}_b.ply"
+        run([m, "map", b, "-o", ply, "--force"])
+        loc_map = args.work / f"{name}_localized_in_map.mcap"
+        t_loc_map, _ = run([m, "localize", log, "--map", ply, "-o", loc_map, "--force"])
+        lm = json_of(localize_error, [str(loc_map), str(b)])
         g = mr["groups"]
         rows.append({
             "log": name, "clouds": n, "groups": len(g),
             "joint_ate_m": g[min(g)]["joint_ate_m"], "whole_ate_m": whole_ate,
             "links": mr["links"], "merge_s": t_merge, "register_s": t_reg,
-            "localize": lr, "localize_s": t_loc,
+            "localize": lr, "localize_s": t_loc, "localize_map": lm, "localize_map_s": t_loc_map,
         })
         halves.append((a, b))
     foreign = None
@@ -107,6 +113,13 @@ def main(argv):
               f"{r['links']['accepted']} ({r['links']['wrong']}) | {r['merge_s']:.2f} | "
               f"{lr['placed']} ({lr['statuses'].get('localized', 0)}) | {100 * lr['rmse_m']:.2f} cm | "
               f"{100 * lr['prior_unaligned_rmse_m']:.2f} cm | {r['localize_s']:.2f} | {r['register_s']:.2f} |")
+    print("\nThe prior as a map file (`mireg map B -o B.ply`):\n")
+    print("| log | placed (localized) | unaligned RMSE | localize s |")
+    print("|---|---|---|---|")
+    for r in rows:
+        lm = r["localize_map"]
+        print(f"| {r['log']} | {lm['placed']} ({lm['statuses'].get('localized', 0)}) | "
+              f"{100 * lm['rmse_m']:.2f} cm | {r['localize_map_s']:.2f} |")
     if foreign:
         print(f"\nforeign pair {foreign['pair']}: {foreign['groups']} groups, "
               f"{foreign['links_accepted']} links accepted")

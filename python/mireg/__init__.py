@@ -167,7 +167,8 @@ def merge(runs: list, output_dir: PathLike, force: bool = False, seed: int = 0,
 def localize(log: PathLike, map: PathLike, output: Optional[PathLike] = None,
              force: bool = False, seed: int = 0, min_links: int = 2,
              topic: Optional[str] = None) -> dict:
-    """``mireg localize LOG --map MAP``: the log placed in a prior map (a ``register`` output),
+    """``mireg localize LOG --map MAP``: the log placed in a prior map (a ``register`` or
+    ``merge`` output, or a ``.ply``/``.pcd``/``.npy`` map file as ``mireg map`` writes it),
     wherever it starts, the map held fixed (docs/SESSIONS.md). The output (default
     ``LOG.localized.mcap`` beside the log) keeps the log's messages and adds ``/mireg/pose``,
     ``/tf`` and ``/mireg/localization`` (per frame: localized, tracking, outside_map, lost).

@@ -11,8 +11,10 @@ use crate::merge::{LocalizeOptions, MergeConfig};
 pub struct LocalizeArgs {
     /// The log to localise (MCAP, ROS 1 bag or ROS 2 bag directory).
     pub log: PathBuf,
-    /// The prior map: an output of `mireg register` (its clouds and best trajectory).
-    #[arg(long, value_name = "RUN")]
+    /// The prior map: an output of `mireg register` or `mireg merge` (its clouds and best
+    /// trajectory), or a map file as `mireg map` writes it (`.ply`, `.pcd`, `.npy`: cut into
+    /// tiles as wide as the log's scans reach; the output's transforms then have the parent `map`).
+    #[arg(long, value_name = "RUN|MAP")]
     pub map: PathBuf,
     /// Output MCAP [default: LOG's name with `.localized.mcap`, beside it].
     #[arg(short, long)]

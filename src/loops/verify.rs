@@ -9,7 +9,7 @@
 //! - its ICP fitness (the fraction of the query's ICP cloud within the ICP distance of the match
 //!   frame: their overlap) is at least [`VerifyConfig::min_fitness`];
 //! - the overlap holds both ways: the match frame's ICP cloud, moved by the inverse pose, lies on
-//!   the query's surfaces as well (fitness at least [`VerifyConfig::min_fitness`]);
+//!   the query's surfaces as well (fitness at least [`VerifyConfig::min_reverse_fitness`]);
 //! - its ICP pins every direction down: the registration's information
 //!   ([`crate::odometry::uncertainty`]) has a smallest over largest eigenvalue of at least
 //!   [`LOOP_MIN_DEGENERACY`] in translation and rotation (a corridor or
@@ -49,6 +49,12 @@ pub struct VerifyConfig {
     pub min_inliers: usize,
     /// ICP fitness (overlap) needed, in `[0, 1]`. Default [`DEFAULT_MIN_LOOP_FITNESS`] (0.5).
     pub min_fitness: f64,
+    /// Fitness the other way (the match frame's ICP cloud on the query's surfaces) needed, in
+    /// `[0, 1]`. Default [`DEFAULT_MIN_LOOP_FITNESS`] (0.5), as [`VerifyConfig::min_fitness`]:
+    /// two scans of one place overlap alike both ways. A tile of a prior map holds what many
+    /// scans saw, more than one scan can: `mireg localize` asks less of it
+    /// (`crate::merge::MAP_MIN_REVERSE_FITNESS`).
+    pub min_reverse_fitness: f64,
     /// Largest rotation between the loop's relative pose and the odometry's, where the
     /// agreement test applies \[deg\]. Default 10.
     pub max_rotation_disagreement_deg: f64,
@@ -67,6 +73,7 @@ impl Default for VerifyConfig {
         Self {
             min_inliers: DEFAULT_MIN_LOOP_INLIERS,
             min_fitness: DEFAULT_MIN_LOOP_FITNESS,
+            min_reverse_fitness: DEFAULT_MIN_LOOP_FITNESS,
             max_rotation_disagreement_deg: 10.0,
         }
     }
@@ -123,11 +130,11 @@ pub fn verify(
             result.fitness, config.min_fitness
         )
     } else if let Some(reverse) = reverse_fitness(query, matched, &estimate, pair)?
-        && (reverse.is_nan() || reverse < config.min_fitness)
+        && (reverse.is_nan() || reverse < config.min_reverse_fitness)
     {
         format!(
             "fitness the other way (match onto query) {reverse:.3}, below {}",
-            config.min_fitness
+            config.min_reverse_fitness
         )
     } else if let Some((t, r)) = result
         .icp_hessian

@@ -16,9 +16,12 @@
 //! the prior: the map does not cover it), or `lost` (the log never localised: no pose is written,
 //! none is guessed).
 //!
+//! The prior is a `register` (or `merge`) output, read whole, or a map file (PLY, PCD, npy) cut
+//! into tiles that play its keyframes ([`super::map_prior`]); the output's transforms then have
+//! the parent `map`.
+//!
 //! NOTE: offline, not a tracker at the sensor's rate: the whole log is registered, then placed.
-//! The prior is a `register` (or `merge`) output, read whole; a tiled map and map files (PLY,
-//! PCD, npy) as priors are not done yet.
+//! Every keyframe (or tile) of the prior is prepared up front: memory grows with the prior.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -31,6 +34,7 @@ use super::MergeConfig;
 use super::graph::{Fix, solve_in_prior};
 use super::job::{Attempt, Linker};
 use super::links::Track;
+use super::map_prior::{MAP_MIN_REVERSE_FITNESS, is_map_file, map_session, read_map, tiling_for};
 use super::session::{Session, prepare_sessions};
 use crate::io::atomic_file::{check_target, same_file};
 use crate::io::codec::Time;
@@ -38,6 +42,7 @@ use crate::io::input_log::InputLog;
 use crate::io::mcap::log::OutputLog;
 use crate::loops::LoopConfig;
 use crate::odometry::OdometryConfig;
+use crate::pipeline::PairConfig;
 use crate::register::{
     CloudKind, RegisterOptions, StampedPose, encode_pose, pose_channels, register_log,
 };
@@ -48,7 +53,9 @@ use crate::{Error, Result};
 pub struct LocalizeOptions {
     /// The log to localise (MCAP, ROS 1 bag or ROS 2 bag directory, as `register` reads).
     pub log: PathBuf,
-    /// The prior: a `mireg register` output (its clouds and best trajectory).
+    /// The prior: a `mireg register` (or `merge`) output (its clouds and best trajectory), or a
+    /// map file (`.ply`, `.pcd`, `.npy`, as `mireg map` writes them; told by extension), cut
+    /// into tiles ([`super::map_prior`]).
     pub prior: PathBuf,
     /// The output MCAP: the log's messages, its poses in the prior's world, the status per frame.
     pub output: PathBuf,
@@ -137,7 +144,12 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
         }
     }
     check_target(&opts.output, opts.force)?;
-    let prior = Session::read(&opts.prior)?;
+    // The prior first, so that a bad one fails before the log is registered.
+    let prior = if is_map_file(&opts.prior) {
+        Prior::Map(read_map(&opts.prior)?)
+    } else {
+        Prior::Run(Box::new(Session::read(&opts.prior)?))
+    };
     // The log's own trajectory, in a temporary folder beside the output (removed on return).
     let dir = opts.output.parent().filter(|p| !p.as_os_str().is_empty());
     let tmp = tempfile::Builder::new()
@@ -151,9 +163,7 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
     ropts.config.pair.seed = opts.seed;
     register_log(&ropts)?;
     let log = Session::read(&registered)?;
-    let mut sessions = [prior, log];
-    let (loops, pair) =
-        prepare_sessions(&mut sessions, opts.config.keyframe_memory_bytes, opts.seed)?;
+    let (sessions, loops, pair) = prior.with_log(log, opts)?;
     let tracks: Vec<Track<'_>> = sessions.iter().map(Session::track).collect();
     let linker = Linker::new(&sessions, &tracks, &pair, &loops, &opts.config);
     let mut attempts = Vec::new();
@@ -179,6 +189,43 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
         localization_topic: topics[2].clone(),
         elapsed_s: t0.elapsed().as_secs_f64(),
     })
+}
+
+/// What `--map` named, read.
+enum Prior {
+    /// A `register` (or `merge`) output.
+    Run(Box<Session>),
+    /// The points of a map file.
+    Map(Vec<Point3<f64>>),
+}
+
+impl Prior {
+    /// The prior and the log as the two sessions to link, prepared, with the loop and
+    /// registration settings: a run's voxel sets them as in a merge; a map file is tiled to the
+    /// log's reach and prepared at the log's voxel ([`super::map_prior`]).
+    fn with_log(
+        self,
+        log: Session,
+        opts: &LocalizeOptions,
+    ) -> Result<([Session; 2], LoopConfig, PairConfig)> {
+        let budget = opts.config.keyframe_memory_bytes;
+        match self {
+            Prior::Run(prior) => {
+                let mut sessions = [*prior, log];
+                let (loops, pair) = prepare_sessions(&mut sessions, budget, opts.seed)?;
+                Ok((sessions, loops, pair))
+            }
+            Prior::Map(points) => {
+                let mut only = [log];
+                let (mut loops, pair) = prepare_sessions(&mut only, budget, opts.seed)?;
+                loops.verify.min_reverse_fitness = MAP_MIN_REVERSE_FITNESS;
+                let [log] = only;
+                let voxels = (log.voxel_m, log.feature_voxel_m);
+                let map = map_session(&opts.prior, &points, tiling_for(&log)?, voxels, &pair)?;
+                Ok(([map, log], loops, pair))
+            }
+        }
+    }
 }
 
 /// Each frame of the log (`sessions[1]`) placed in the prior's world (`sessions[0]`) by the

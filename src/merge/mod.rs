@@ -28,6 +28,7 @@ pub mod graph;
 mod job;
 pub mod links;
 mod localize;
+mod map_prior;
 mod session;
 mod write;
 
@@ -36,6 +37,7 @@ pub use links::{AgreementConfig, LinkSource, SessionLink};
 pub use localize::{
     FrameStatus, LocalizeOptions, LocalizeSummary, localization_json_schema, localize,
 };
+pub use map_prior::{MAP_MIN_REVERSE_FITNESS, MAX_TILES, MIN_TILE_POINTS};
 
 /// Default [`MergeConfig::min_links`]: 2.
 pub const DEFAULT_MIN_LINKS: usize = 2;
