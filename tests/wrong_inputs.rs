@@ -206,3 +206,55 @@ fn register_help_says_the_true_defaults() {
     let pair = help_of(&String::from_utf8_lossy(&run.stdout), "--voxel");
     assert!(pair.contains("0.05"), "{pair}");
 }
+
+/// A reader that stops reading (`mireg export RUN --format tum | head -1`) ends the process by
+/// SIGPIPE, as any Unix filter ends, not by a panic or an error in the printing: 3,000 poses are
+/// more than a pipe buffers, so `mireg` is still writing when the reader goes.
+#[cfg(unix)]
+#[test]
+fn a_reader_that_stops_ends_the_process_quietly() {
+    use mireg::io::codec::{Header, Time, cdr};
+    use mireg::io::mcap::log::OutputLog;
+    use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+    use std::io::Read;
+    use std::os::unix::process::ExitStatusExt;
+    use std::process::{Command, Stdio};
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("poses.mcap");
+    let mut out = OutputLog::create(&log, false, "ros2").unwrap();
+    let channel = out.add_cdr_channel("/pose", cdr::POSE_STAMPED).unwrap();
+    for k in 0..3000u64 {
+        let t = 1_700_000_000_000_000_000 + k * 100_000_000;
+        let header = Header {
+            stamp: Time::from_ns(t as i64).unwrap(),
+            frame_id: "map".into(),
+        };
+        let pose = Isometry3::from_parts(
+            Translation3::new(0.1 * k as f64, 0.0, 0.0),
+            UnitQuaternion::identity(),
+        );
+        out.write(channel, t, t, &cdr::encode_pose_stamped(&header, &pose))
+            .unwrap();
+    }
+    out.finish().unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_mireg"))
+        .args(["export", log.to_str().unwrap(), "--format", "tum"])
+        .args(["--topic", "/pose"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut first = [0u8; 64];
+    let mut stdout = child.stdout.take().unwrap();
+    stdout.read_exact(&mut first).unwrap();
+    drop(stdout);
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.is_empty(), "{err}");
+    assert_eq!(
+        out.status.signal(),
+        Some(libc::SIGPIPE),
+        "{:?}",
+        out.status
+    );
+}
