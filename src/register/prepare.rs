@@ -13,7 +13,7 @@ use crate::io::codec::MAX_COORDINATE_M;
 use crate::io::point_time::POINT_TIME_BOUND_S;
 use crate::loops::Descriptor;
 use crate::odometry::stream::{self, Deskewed, deskew_cloud, deskew_for};
-use crate::pipeline::{FailureReason, PrepareScratch, PreparedFrame, prepare_frame};
+use crate::pipeline::{FailureReason, PrepareScratch, prepare_frame};
 use crate::{Error, Result};
 
 use super::frames::{CloudInfo, CloudMsg, Dropped, PreparedMsg};
@@ -171,7 +171,7 @@ impl Prepare<'_> {
         let decode_s = t.elapsed().as_secs_f64();
         let mut times = CloudTimes::default();
         let (header, prepared) = match self.usable(decoded, msg.log_time, &carry.last_frame_id) {
-            Err(flagged) => flagged,
+            Err((header, invalid)) => (header, Err(invalid)),
             Ok(mut cloud) => {
                 times = self.deskew(
                     frame_index,
@@ -233,14 +233,14 @@ impl Prepare<'_> {
         decoded: Decoded,
         log_time: u64,
         last_frame_id: &str,
-    ) -> std::result::Result<codec::PointCloud, (codec::Header, Prepared)> {
+    ) -> std::result::Result<codec::PointCloud, (codec::Header, Invalid)> {
         let (topic, max_points) = (self.plan.topic.as_str(), self.max_points);
         match decoded {
             Err((header, n)) => {
                 let detail = format!(
                     "declares {n} points, more than the bound of {max_points} (--max-points)"
                 );
-                Err((header, Err((FailureReason::TooManyPoints, detail))))
+                Err((header, (FailureReason::TooManyPoints, detail)))
             }
             Ok(Err(e)) => {
                 let detail = decode_detail(topic, log_time, &e);
@@ -248,14 +248,14 @@ impl Prepare<'_> {
                     stamp: stamp_of_log_time(log_time),
                     frame_id: last_frame_id.to_string(),
                 };
-                Err((header, Err((FailureReason::InvalidCloud, detail))))
+                Err((header, (FailureReason::InvalidCloud, detail)))
             }
             Ok(Ok(cloud)) if cloud.points.len() > max_points => {
                 let detail = format!(
                     "{} points, more than the bound of {max_points} (--max-points)",
                     cloud.points.len()
                 );
-                Err((cloud.header, Err((FailureReason::TooManyPoints, detail))))
+                Err((cloud.header, (FailureReason::TooManyPoints, detail)))
             }
             Ok(Ok(cloud)) => Ok(cloud),
         }
@@ -315,10 +315,6 @@ type Decoded = std::result::Result<
     std::result::Result<codec::PointCloud, codec::DecodeError>,
     (codec::Header, u64),
 >;
-
-/// One cloud prepared for registration (with why the pipeline could not take it, if it could
-/// not), or why the cloud could not be used.
-type Prepared = std::result::Result<(PreparedFrame, Option<Invalid>), Invalid>;
 
 /// Why a frame is flagged invalid, and the detail.
 type Invalid = (FailureReason, String);
