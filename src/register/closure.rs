@@ -15,6 +15,7 @@
 //! within the budget too, but for those of the candidates verified at once (one per thread).
 
 use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::path::Path;
 use std::time::Instant;
 
 use nalgebra::Isometry3;
@@ -26,6 +27,7 @@ use crate::loops::{
     Candidate, Descriptor, KeyframeSelector, LoopConfig, LoopDecision, LoopEdge, Rounds, Source,
     Step, Verification, close_in_rounds, edge_prior, verify,
 };
+use crate::odometry::OdometryConfig;
 use crate::pipeline::{PairConfig, PreparedFrame, refine};
 
 mod passes;
@@ -331,14 +333,44 @@ fn outcome(
     }
 }
 
+/// Loop closure over a trajectory of `log` that this run did not register (the stitched
+/// segments of `mireg stitch`; `output` is named in the run's options but not written here): the
+/// plan rebuilt from `log`, its cloud `topic` and `config` (the odometry settings the trajectory
+/// was registered with, their voxels sized), each frame's descriptor computed from the log read
+/// again ([`describe`]), then [`close_loops`] with [`LoopConfig::for_voxel`] of `voxel_m`
+/// (metres) and the extra candidate pairs `seams` (query, match). Returns the outcome and the
+/// loop settings it ran with.
+pub(super) fn close_loops_of_log(
+    log: &Path,
+    output: &Path,
+    topic: Option<String>,
+    config: OdometryConfig,
+    voxel_m: f64,
+    estimates: &mut [Estimate],
+    seams: &[(usize, usize)],
+) -> Result<(LoopOutcome, LoopConfig)> {
+    let opts = RegisterOptions {
+        topic,
+        ..RegisterOptions::new(log, output, config)
+    };
+    let plan = Plan::new(&opts)?;
+    describe(&plan, &opts, estimates)?;
+    let loop_config = LoopConfig::for_voxel(voxel_m);
+    let outcome = close_loops(
+        &plan,
+        &opts,
+        estimates,
+        &loop_config,
+        Default::default(),
+        seams,
+    )?;
+    Ok((outcome, loop_config))
+}
+
 /// Computes each frame's descriptor by reading the input again (for a trajectory that did not
 /// come with them: the stitched segments of `mireg stitch`); a frame that no longer decodes keeps
 /// none and is no keyframe.
-pub(super) fn describe(
-    plan: &Plan,
-    opts: &RegisterOptions,
-    estimates: &mut [Estimate],
-) -> Result<()> {
+fn describe(plan: &Plan, opts: &RegisterOptions, estimates: &mut [Estimate]) -> Result<()> {
     let needed: BTreeSet<usize> = (0..estimates.len()).collect();
     let pair = loop_pair_config(&plan.config.pair, &LoopConfig::for_voxel(plan.voxel_m));
     let mut descriptors = vec![None; estimates.len()];
