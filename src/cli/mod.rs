@@ -19,7 +19,7 @@ mod stitch;
 mod sweep;
 
 pub use evaluate::{EVALUATE_CSV_HEADER, EvaluateArgs, TrajectoryFormatArg};
-pub use export::{ExportArgs, ExportFormat};
+pub use export::{ExportArgs, ExportFormatArg};
 pub use flags::{
     DeskewArg, LivoxTagsArg, OutputMessagesArg, RankingArg, RegistrationFlags, SamplerArg,
     VerificationArg,
