@@ -251,13 +251,8 @@ pub fn stitch(
     };
     let mut out = OutputLog::create(output, force, profile)?;
     out.declare_input(log, &catalog)?;
-    let ch = PoseWriter::create(
-        &mut out,
-        &channels,
-        segs[0].kind,
-        loops,
-        &segs[0].world_frame,
-    )?;
+    let first = &segs[0];
+    let ch = PoseWriter::create(&mut out, &channels, first.kind, loops, &first.world_frame)?;
     // Every stitched frame must be a cloud of the log: segments of another log are refused
     // (the output, not finished, is never committed).
     let cloud_ids: std::collections::BTreeSet<u16> = channels
