@@ -1,11 +1,13 @@
 //! Trajectory error metrics (Sturm et al. 2012, "A Benchmark for the Evaluation of RGB-D SLAM
 //! Systems"): absolute trajectory error after alignment and relative pose error. Pure functions;
-//! the `evaluate` job that reads a `register` output and its reference is `job.rs`, the check
-//! of its input `inputs.rs`.
+//! the `evaluate` job that reads a `register` output and its reference is `job.rs`, the `export`
+//! job that writes its trajectory as text `export.rs`, the check of their input `inputs.rs`.
 
+mod export;
 mod inputs;
 mod job;
 
+pub use export::{ExportFormat, ExportOptions, read_export, write_export, write_trajectory};
 pub use inputs::registered_log;
 pub use job::{
     EvaluateOptions, EvaluateSummary, LogEvaluation, TrajectoryFormat, evaluate_log, evaluate_run,

@@ -21,6 +21,7 @@ pub mod io;
 pub mod loops;
 pub mod map;
 pub mod merge;
+pub mod pair;
 pub mod ransac;
 pub mod refine;
 pub mod settings;

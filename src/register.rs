@@ -40,7 +40,7 @@ pub(crate) use output::{
 };
 pub use output::{loops_json_schema, stats_json_schema};
 use plan::Plan;
-use prepare::Prepare;
+use prepare::{Prepare, TimeTally};
 pub use settings::RegisterSettings;
 pub use stitch::{Seam, StitchSummary, stitch};
 pub(crate) use stitch::{SegFrame, Segment, read_segment};
@@ -75,6 +75,32 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     check_target(&opts.output, opts.force)?;
     let plan = Plan::new(opts)?;
     let mut odometry = Odometry::new(plan.config.clone())?;
+    let (mut log, mut writer) = open_output(opts, &plan)?;
+    let loop_config = loop_config(opts, plan.voxel_m);
+    let (copied, cached, times) = run_stages(
+        opts,
+        &plan,
+        &mut odometry,
+        &mut log,
+        &mut writer,
+        &loop_config,
+    )?;
+    let loops = if opts.loops {
+        let cached = cached.map(KeyframeCache::into_frames).unwrap_or_default();
+        close_loops(&plan, opts, &writer.estimates, loop_config, cached)
+    } else {
+        None
+    };
+    let topic = plan.topic.clone();
+    let summary = writer.finish(log, plan, opts, copied, start, loops)?;
+    // On stderr, even with --quiet or --json: points were dropped or clouds left skewed.
+    times.warn(&opts.input, &topic);
+    Ok(summary)
+}
+
+/// The output log, created (unnamed until complete) with the input's schemas and channels and
+/// this run's, and the writer of this run's messages.
+fn open_output<'a>(opts: &'a RegisterOptions, plan: &Plan) -> Result<(OutputLog, Writer<'a>)> {
     let mut log = OutputLog::create(&opts.output, opts.force, plan.kind.profile())?;
     // The input's schemas and channels keep their ids (its chunks are copied as they are); ours
     // get ids above them.
@@ -94,21 +120,41 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     )?;
     let mut writer = Writer::new(outputs, &opts.world_frame, opts.progress, plan.total_frames);
     writer.on_frame = opts.on_frame.clone();
+    Ok((log, writer))
+}
+
+/// Loop closure's settings: [`RegisterOptions::loop_config`], else those for the run's voxel
+/// (`voxel_m`, metres), with [`RegisterOptions::loop_memory_bytes`] as the memory budget.
+fn loop_config(opts: &RegisterOptions, voxel_m: f64) -> LoopConfig {
+    let mut loop_config = opts
+        .loop_config
+        .unwrap_or_else(|| LoopConfig::for_voxel(voxel_m));
+    if let Some(bytes) = opts.loop_memory_bytes {
+        loop_config.memory_budget_bytes = bytes;
+    }
+    loop_config
+}
+
+/// The streaming stages: the reader and the writer on the calling thread, prepare and register
+/// on a thread each, bounded queues between them. Returns the input records copied, the
+/// keyframes the odometry kept for loop closure (when it keeps them) and the clouds whose point
+/// times were unusable.
+fn run_stages(
+    opts: &RegisterOptions,
+    plan: &Plan,
+    odometry: &mut Odometry,
+    log: &mut OutputLog,
+    writer: &mut Writer,
+    loop_config: &LoopConfig,
+) -> Result<(u64, Option<KeyframeCache>, TimeTally)> {
     let prepare = Prepare {
-        plan: &plan,
+        plan,
         input: &opts.input,
         max_points: opts.max_points_per_cloud,
         deskew_mode: opts.deskew,
         descriptors: opts.loops,
     };
-
-    let mut loop_config = opts
-        .loop_config
-        .unwrap_or_else(|| LoopConfig::for_voxel(plan.voxel_m));
-    if let Some(bytes) = opts.loop_memory_bytes {
-        loop_config.memory_budget_bytes = bytes;
-    }
-    let (copied, cached, times) = std::thread::scope(|scope| -> Result<_> {
+    std::thread::scope(|scope| -> Result<_> {
         let (cloud_tx, cloud_rx) = sync_channel(QUEUE_CAPACITY);
         let (prep_tx, prep_rx) = sync_channel(QUEUE_CAPACITY);
         // Unbounded: results are small (no point data), and the reading thread, which drains them,
@@ -121,21 +167,12 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         let (recycle_tx, recycle_rx) = std::sync::mpsc::channel();
         let prepare = &prepare;
         let preparing = scope.spawn(move || prepare.run(cloud_rx, prep_tx, motion_rx, recycle_tx));
-        let odometry = &mut odometry;
         let cache = (opts.loops && loop_config.keep_odometry_frames)
-            .then(|| KeyframeCache::new(&loop_config));
+            .then(|| KeyframeCache::new(loop_config));
         let registrar =
             scope.spawn(move || registrar::run(odometry, prep_rx, out_tx, motion_tx, cache));
-        let read = reader::read(
-            &plan,
-            opts,
-            &mut log,
-            &mut writer,
-            cloud_tx,
-            recycle_rx,
-            &out_rx,
-        );
-        let copied = writer.drain(&mut log, out_rx, read)?;
+        let read = reader::read(plan, opts, log, writer, cloud_tx, recycle_rx, &out_rx);
+        let copied = writer.drain(log, out_rx, read)?;
         let cached = registrar
             .join()
             .expect("the registering thread does not panic");
@@ -143,27 +180,27 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
             .join()
             .expect("the preparing thread does not panic");
         Ok((copied, cached, times))
-    })?;
-    let loops = if opts.loops {
-        let config = loop_config;
-        let cached = cached.map(KeyframeCache::into_frames).unwrap_or_default();
-        // The odometry is written: a loop closure that fails costs the loops, not the run.
-        match closure::close_loops(&plan, opts, &writer.estimates, &config, cached, &[]) {
-            Ok(outcome) => Some((outcome, config)),
-            Err(e) => {
-                eprintln!(
-                    "mireg: warning: loop closure failed ({e}); {} has the odometry only",
-                    opts.output.display()
-                );
-                None
-            }
+    })
+}
+
+/// Loop closure over the written odometry (`estimates`), with the frames the odometry kept
+/// (`cached`); a loop closure that fails costs the loops, not the run (a warning, `None`).
+fn close_loops(
+    plan: &Plan,
+    opts: &RegisterOptions,
+    estimates: &[frames::Estimate],
+    config: LoopConfig,
+    cached: std::collections::BTreeMap<usize, crate::pipeline::PreparedFrame>,
+) -> Option<(closure::LoopOutcome, LoopConfig)> {
+    // The odometry is written: a loop closure that fails costs the loops, not the run.
+    match closure::close_loops(plan, opts, estimates, &config, cached, &[]) {
+        Ok(outcome) => Some((outcome, config)),
+        Err(e) => {
+            eprintln!(
+                "mireg: warning: loop closure failed ({e}); {} has the odometry only",
+                opts.output.display()
+            );
+            None
         }
-    } else {
-        None
-    };
-    let topic = plan.topic.clone();
-    let summary = writer.finish(log, plan, opts, copied, start, loops)?;
-    // On stderr, even with --quiet or --json: points were dropped or clouds left skewed.
-    times.warn(&opts.input, &topic);
-    Ok(summary)
+    }
 }

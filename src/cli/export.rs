@@ -1,24 +1,33 @@
-//! `mireg export`: the estimated trajectory of a `register` output as TUM or KITTI text.
+//! `mireg export`: clap arguments → [`crate::evaluate::ExportOptions`], the trajectory read
+//! ([`crate::evaluate::read_export`]) and written to the output file or stdout.
 
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 
-use crate::evaluate::{registered_log, run_topics};
-use crate::io::atomic_file::{PendingFile, check_target, same_file};
-use crate::trajectory::{self, Trajectory};
+use crate::evaluate::{ExportFormat, ExportOptions, read_export, write_export, write_trajectory};
+use crate::io::atomic_file::{check_target, same_file};
 
 use super::evaluate::ignore_broken_pipe;
 
-/// Output format of `mireg export`.
+/// Output format of `mireg export` ([`ExportFormat`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum ExportFormat {
+pub enum ExportFormatArg {
     /// TUM (`evo_ape tum`): stamps in seconds with nine decimals.
     Tum,
     /// KITTI (`evo_ape kitti`): 12 numbers per line, no stamps.
     Kitti,
+}
+
+impl From<ExportFormatArg> for ExportFormat {
+    fn from(a: ExportFormatArg) -> Self {
+        match a {
+            ExportFormatArg::Tum => ExportFormat::Tum,
+            ExportFormatArg::Kitti => ExportFormat::Kitti,
+        }
+    }
 }
 
 /// Arguments of `mireg export`.
@@ -28,7 +37,7 @@ pub struct ExportArgs {
     pub input: PathBuf,
     /// Output format.
     #[arg(long, value_enum)]
-    pub format: ExportFormat,
+    pub format: ExportFormatArg,
     /// Output file (replaced if it exists) [default: stdout].
     #[arg(short, long, value_name = "FILE")]
     pub output: Option<PathBuf>,
@@ -43,64 +52,43 @@ pub struct ExportArgs {
     pub odometry: bool,
 }
 
-fn write_trajectory(t: &Trajectory, format: ExportFormat, out: &mut impl Write) -> Result<()> {
-    match format {
-        ExportFormat::Tum => trajectory::write_tum(t, out)?,
-        ExportFormat::Kitti => trajectory::write_kitti(t, out)?,
+impl ExportArgs {
+    /// The flags as the job's options.
+    pub fn options(&self) -> ExportOptions {
+        ExportOptions {
+            input: self.input.clone(),
+            format: self.format.into(),
+            output: self.output.clone(),
+            topic: self.topic.clone(),
+            odometry: self.odometry,
+        }
     }
-    Ok(())
 }
 
 /// Runs `mireg export`.
 pub(super) fn run_export(args: &ExportArgs) -> Result<()> {
-    if let Some(path) = &args.output {
+    let opts = args.options();
+    if let Some(path) = &opts.output {
         // Before the log is read: an output in a missing folder fails at once.
         check_target(path, true)?;
     }
-    let channels = registered_log(&args.input, "export", args.topic.is_some())?;
-    let (topic, _) = run_topics(&channels, args.topic.as_deref(), args.odometry);
-    let t = crate::io::poses::read_mcap_pose_topic(&args.input, &topic)?;
-    if t.is_empty() {
-        bail!("{}: topic {topic} has no messages", args.input.display());
-    }
-    match &args.output {
+    let (_, t) = read_export(&opts)?;
+    match &opts.output {
         Some(path) => {
-            if same_file(&args.input, path) {
+            if same_file(&opts.input, path) {
                 bail!(
                     "output {} is the input; mireg never writes over its input",
                     path.display()
                 );
             }
-            // Written beside the target and moved into place when complete: a full disk or an
-            // interruption never leaves a truncated file there.
-            let (file, pending) = PendingFile::create(path, true)?;
-            let mut w = std::io::BufWriter::new(file);
-            let named = |e: crate::Error| match e {
-                crate::Error::Io { path: p, source }
-                    if p == Path::new(trajectory::OUTPUT_STREAM) =>
-                {
-                    crate::Error::Io {
-                        path: path.clone(),
-                        source,
-                    }
-                }
-                e => e,
-            };
-            write_trajectory(&t, args.format, &mut w).map_err(|e| match e.downcast() {
-                Ok(e) => anyhow::Error::from(named(e)),
-                Err(e) => e,
-            })?;
-            let file = w.into_inner().map_err(|e| crate::Error::Io {
-                path: path.clone(),
-                source: e.into_error(),
-            })?;
-            pending.commit(file)?;
+            write_export(&t, opts.format, path)?;
         }
         None => {
             let stdout = std::io::stdout();
             let mut w = std::io::BufWriter::new(stdout.lock());
             ignore_broken_pipe(
-                write_trajectory(&t, args.format, &mut w)
+                write_trajectory(&t, opts.format, &mut w)
+                    .map_err(anyhow::Error::from)
                     .and_then(|()| w.flush().context("writing stdout")),
             )?;
         }

@@ -1,18 +1,18 @@
-//! `mireg map`: the voxel-downsampled world map of a `register` output ([`crate::map`]) as
-//! `.ply`, `.pcd` or `.npy`.
+//! `mireg map`: clap arguments → [`crate::map::MapOptions`]; the voxel-downsampled world map of a
+//! `register` output ([`crate::map::build_map_of_runs`]) written as `.ply`, `.pcd` or `.npy`
+//! ([`crate::map::write_map`]), its summary printed.
 
-use std::io::Write;
 use std::path::PathBuf;
 
 use anyhow::{Result, bail};
 use clap::{Args, ValueEnum};
 
 use crate::evaluate::registered_log;
-use crate::io::atomic_file::{PendingFile, check_target, same_file};
+use crate::io::atomic_file::{check_target, same_file};
 use crate::io::cloud_file::CloudFileFormat;
-use crate::map::{MapOptions, TrajectoryChoice, build_map_of_runs};
+use crate::map::{MapOptions, TrajectoryChoice, build_map_of_runs, write_map};
 
-/// `--trajectory` of `mireg map`.
+/// `--trajectory` of `mireg map` ([`TrajectoryChoice`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum TrajectoryArg {
     /// `/mireg/pose`: register's odometry.
@@ -23,6 +23,17 @@ pub enum TrajectoryArg {
     Merged,
     /// `/mireg/pose_merged`, else `/mireg/pose_optimized`, else `/mireg/pose`: the first present.
     Auto,
+}
+
+impl From<TrajectoryArg> for TrajectoryChoice {
+    fn from(a: TrajectoryArg) -> Self {
+        match a {
+            TrajectoryArg::Odometry => TrajectoryChoice::Odometry,
+            TrajectoryArg::Optimized => TrajectoryChoice::Optimized,
+            TrajectoryArg::Merged => TrajectoryChoice::Merged,
+            TrajectoryArg::Auto => TrajectoryChoice::Auto,
+        }
+    }
 }
 
 /// Arguments of `mireg map`.
@@ -55,6 +66,17 @@ pub struct MapArgs {
     pub json: bool,
 }
 
+impl MapArgs {
+    /// The flags as the job's options.
+    pub fn options(&self) -> MapOptions {
+        MapOptions {
+            voxel_m: self.voxel,
+            trajectory: self.trajectory.into(),
+            topic: self.topic.clone(),
+        }
+    }
+}
+
 /// Runs `mireg map`.
 pub(super) fn run_map(args: &MapArgs) -> Result<()> {
     let out = &args.output;
@@ -70,17 +92,7 @@ pub(super) fn run_map(args: &MapArgs) -> Result<()> {
     for input in &args.inputs {
         registered_log(input, "map", false)?;
     }
-    let opts = MapOptions {
-        voxel_m: args.voxel,
-        trajectory: match args.trajectory {
-            TrajectoryArg::Odometry => TrajectoryChoice::Odometry,
-            TrajectoryArg::Optimized => TrajectoryChoice::Optimized,
-            TrajectoryArg::Merged => TrajectoryChoice::Merged,
-            TrajectoryArg::Auto => TrajectoryChoice::Auto,
-        },
-        topic: args.topic.clone(),
-    };
-    let (map, summary) = build_map_of_runs(&args.inputs, &opts)?;
+    let (map, summary) = build_map_of_runs(&args.inputs, &args.options())?;
     let input = args
         .inputs
         .iter()
@@ -106,20 +118,8 @@ pub(super) fn run_map(args: &MapArgs) -> Result<()> {
             summary.clouds_without_pose
         );
     }
-    let cols = if summary.intensity { 4 } else { 3 };
-    let rows = map.to_rows(summary.intensity);
-    drop(map);
     // Written beside the target and moved into place when complete.
-    let (file, pending) = PendingFile::create(out, args.force)?;
-    let io = |e: std::io::Error| crate::Error::Io {
-        path: out.clone(),
-        source: e,
-    };
-    let mut w = std::io::BufWriter::new(file);
-    format.write(&rows, cols, &mut w).map_err(io)?;
-    w.flush().map_err(io)?;
-    let file = w.into_inner().map_err(|e| io(e.into_error()))?;
-    pending.commit(file)?;
+    write_map(map, summary.intensity, format, out, args.force)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else {

@@ -19,7 +19,7 @@ mod stitch;
 mod sweep;
 
 pub use evaluate::{EVALUATE_CSV_HEADER, EvaluateArgs, TrajectoryFormatArg};
-pub use export::{ExportArgs, ExportFormat};
+pub use export::{ExportArgs, ExportFormatArg};
 pub use flags::{
     DeskewArg, LivoxTagsArg, OutputMessagesArg, RankingArg, RegistrationFlags, SamplerArg,
     VerificationArg,
@@ -28,7 +28,7 @@ pub use info::InfoArgs;
 pub use localize::LocalizeArgs;
 pub use map::MapArgs;
 pub use merge::MergeArgs;
-pub use pair::{GtFormat, PairArgs, RegistrationFailed, pair_json};
+pub use pair::{GtFormatArg, PairArgs, RegistrationFailed, pair_json};
 pub use process::error_text;
 pub use register::{DEFAULT_FIXTURE, RegisterArgs, register_options};
 pub use simulate::SimulateArgs;

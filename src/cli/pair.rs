@@ -1,22 +1,20 @@
-//! `mireg pair`: register two cloud files, print the pose (text or JSON).
+//! `mireg pair`: clap arguments → [`crate::pair::PairOptions`], the job
+//! ([`crate::pair::pair_clouds`]), the pose printed (text or JSON).
 
 use std::io::Write;
+use std::path::PathBuf;
 
-use super::flags::RegistrationFlags;
-use anyhow::{Context, Result};
-use clap::Args;
-
-use std::path::{Path, PathBuf};
-
-use clap::ValueEnum;
+use anyhow::{Result, bail};
+use clap::{Args, ValueEnum};
 use nalgebra::Isometry3;
 
-use crate::io::{cloud_file, pose_file};
-use crate::pipeline::{PairResult, pose_error, register_pair};
+use super::flags::RegistrationFlags;
+use crate::pair::{GroundTruth, GtFormat, PairOptions, PairOutcome, pair_clouds};
+use crate::pipeline::PairResult;
 
-/// Ground-truth file formats for `--gt`.
+/// Ground-truth file formats for `--gt` ([`GtFormat`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum GtFormat {
+pub enum GtFormatArg {
     /// 16 numbers: the 4×4 target_from_source, row-major.
     Matrix,
     /// 3DMatch `gt.log`: the record `TARGET SOURCE n` (needs --gt-pair).
@@ -25,6 +23,17 @@ pub enum GtFormat {
     Trajectory,
     /// Stanford `bun.conf`: scans looked up by the SRC and TGT file names.
     Bunny,
+}
+
+impl From<GtFormatArg> for GtFormat {
+    fn from(a: GtFormatArg) -> Self {
+        match a {
+            GtFormatArg::Matrix => GtFormat::Matrix,
+            GtFormatArg::GtLog => GtFormat::GtLog,
+            GtFormatArg::Trajectory => GtFormat::Trajectory,
+            GtFormatArg::Bunny => GtFormat::Bunny,
+        }
+    }
 }
 
 /// Arguments of `mireg pair`.
@@ -41,8 +50,8 @@ pub struct PairArgs {
     #[arg(long)]
     pub gt: Option<PathBuf>,
     /// Format of --gt.
-    #[arg(long, value_enum, default_value_t = GtFormat::Matrix)]
-    pub gt_format: GtFormat,
+    #[arg(long, value_enum, default_value_t = GtFormatArg::Matrix)]
+    pub gt_format: GtFormatArg,
     /// For gt-log / trajectory: the TARGET,SOURCE record or frame indices.
     #[arg(long, value_parser = parse_pair, value_name = "TARGET,SOURCE")]
     pub gt_pair: Option<(usize, usize)>,
@@ -59,61 +68,37 @@ fn parse_pair(s: &str) -> std::result::Result<(usize, usize), String> {
     Ok((p(a)?, p(b)?))
 }
 
-fn load_gt(args: &PairArgs, path: &Path) -> Result<Isometry3<f64>> {
-    let need_pair = || {
-        args.gt_pair.with_context(|| {
-            format!(
+impl PairArgs {
+    /// The flags as the job's options: the registration settings resolved and checked, the
+    /// ground truth if given. An error for a `--gt-format` that needs `--gt-pair` without it.
+    pub fn options(&self) -> Result<PairOptions> {
+        let config = self.flags.config()?;
+        let gt = self.gt.as_ref().map(|path| GroundTruth {
+            path: path.clone(),
+            format: self.gt_format.into(),
+            pair: self.gt_pair,
+        });
+        if let Some(gt) = &gt
+            && gt.format.needs_pair()
+            && gt.pair.is_none()
+        {
+            bail!(
                 "--gt-format {:?} needs --gt-pair TARGET,SOURCE",
-                args.gt_format
-            )
+                self.gt_format
+            );
+        }
+        Ok(PairOptions {
+            source: self.source.clone(),
+            target: self.target.clone(),
+            config,
+            gt,
         })
-    };
-    Ok(match args.gt_format {
-        GtFormat::Matrix => pose_file::read_matrix4(path)?,
-        GtFormat::GtLog => {
-            let (t, s) = need_pair()?;
-            let records = pose_file::read_log(path)?;
-            pose_file::find_log_pair(&records, t, s)
-                .with_context(|| format!("{}: no record for pair {t} {s}", path.display()))?
-                .pose
-        }
-        GtFormat::Trajectory => {
-            let (t, s) = need_pair()?;
-            let records = pose_file::read_log(path)?;
-            let frame = |k: usize| {
-                records
-                    .iter()
-                    .find(|r| r.i == k)
-                    .map(|r| r.pose)
-                    .with_context(|| format!("{}: no pose for frame {k}", path.display()))
-            };
-            frame(t)?.inverse() * frame(s)?
-        }
-        GtFormat::Bunny => {
-            let text = crate::io::read_text(path)?;
-            let name = |p: &Path| {
-                p.file_name()
-                    .map(|n| n.to_string_lossy().into_owned())
-                    .unwrap_or_default()
-            };
-            let world_from_src = pose_file::bunny_pose(&text, &name(&args.source))?;
-            let world_from_tgt = pose_file::bunny_pose(&text, &name(&args.target))?;
-            world_from_tgt.inverse() * world_from_src
-        }
-    })
+    }
 }
 
 pub(super) fn run_pair(args: &PairArgs) -> Result<()> {
     crate::heap::keep_freed_memory();
-    let config = args.flags.config()?;
-    let gt = args.gt.as_deref().map(|p| load_gt(args, p)).transpose()?;
-    let (source, target) = rayon::join(
-        || cloud_file::read_points(&args.source),
-        || cloud_file::read_points(&args.target),
-    );
-    let (source, target) = (source?, target?);
-    let result = register_pair(&source, &target, &config)?;
-    let errors = gt.map(|gt| pose_error(&gt, &result.target_from_source));
+    let PairOutcome { result, errors } = pair_clouds(&args.options()?)?;
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
     if args.json {

@@ -258,7 +258,8 @@ fn pair_bins(
 }
 
 /// The (θ, α, φ) bins of the pairs (`p1`, `n1`)–(`p2[l]`, `n2[l]`) for 4 lanes `l`: exactly
-/// [`pair_bins`], lane by lane.
+/// [`pair_bins`], lane by lane: the features ([`pair_features_x4`]), then their bins
+/// ([`theta_bins_x4`], [`unit_bins_x4`]).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 fn pair_bins_x4(
@@ -268,6 +269,24 @@ fn pair_bins_x4(
     n2: [&Vector3<f64>; 4],
     edges: &[(f64, f64); BINS_PER_FEATURE - 1],
 ) -> [[usize; 3]; 4] {
+    let [theta_y, theta_x, alpha, phi] = pair_features_x4(p1, n1, p2, n2);
+    let theta = theta_bins_x4(theta_y, theta_x, edges);
+    let (alpha, phi) = (unit_bins_x4(alpha), unit_bins_x4(phi));
+    std::array::from_fn(|l| [theta[l], alpha[l] as usize, phi[l] as usize])
+}
+
+/// The (θ_y, θ_x, α, φ) features of [`pair_features`] (θ as the y and x of its `atan2`) of the
+/// pairs (`p1`, `n1`)–(`p2[l]`, `n2[l]`), lane `l` of each vector: exactly nalgebra's
+/// arithmetic, operation by operation.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[inline]
+fn pair_features_x4(
+    p1: &Point3<f64>,
+    n1: &Vector3<f64>,
+    p2: [&Point3<f64>; 4],
+    n2: [&Vector3<f64>; 4],
+) -> [std::arch::x86_64::__m256d; 4] {
     use std::arch::x86_64::*;
     // Lane l of a vector is element l of the array.
     let lanes = |f: &dyn Fn(usize) -> f64| _mm256_setr_pd(f(0), f(1), f(2), f(3));
@@ -325,20 +344,43 @@ fn pair_bins_x4(
     let theta_x = keep(mul(dot(ns, nt), v_norm));
     let alpha = keep(div(dot(v, nt), v_norm));
     let phi = keep(phi);
+    [theta_y, theta_x, alpha, phi]
+}
 
+/// [`unit_bin`] of each lane of `x`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[inline]
+fn unit_bins_x4(x: std::arch::x86_64::__m256d) -> [i32; 4] {
+    use std::arch::x86_64::*;
+    let (add, mul, splat) = (_mm256_add_pd, _mm256_mul_pd, _mm256_set1_pd);
+    let zero = _mm256_setzero_pd();
     // unit_bin: truncation of 11·(x + 1)·0.5 clamped to [0, 10]; clamping before truncating
     // gives the same bin for every input (max returns 0 for NaN, which truncates to 0 as well).
-    let unit = |x: __m256d| {
-        let b = mul(
-            mul(splat(BINS_PER_FEATURE as f64), add(x, splat(1.0))),
-            splat(0.5),
-        );
-        let b = _mm256_min_pd(_mm256_max_pd(b, zero), splat((BINS_PER_FEATURE - 1) as f64));
-        let mut out = [0i32; 4];
-        // SAFETY: `out` is 16 writable bytes; the store is unaligned.
-        unsafe { _mm_storeu_si128(out.as_mut_ptr().cast(), _mm256_cvttpd_epi32(b)) };
-        out
-    };
+    let b = mul(
+        mul(splat(BINS_PER_FEATURE as f64), add(x, splat(1.0))),
+        splat(0.5),
+    );
+    let b = _mm256_min_pd(_mm256_max_pd(b, zero), splat((BINS_PER_FEATURE - 1) as f64));
+    let mut out = [0i32; 4];
+    // SAFETY: `out` is 16 writable bytes; the store is unaligned.
+    unsafe { _mm_storeu_si128(out.as_mut_ptr().cast(), _mm256_cvttpd_epi32(b)) };
+    out
+}
+
+/// [`theta_bin`] of each lane of (`theta_y`, `theta_x`).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[inline]
+fn theta_bins_x4(
+    theta_y: std::arch::x86_64::__m256d,
+    theta_x: std::arch::x86_64::__m256d,
+    edges: &[(f64, f64); BINS_PER_FEATURE - 1],
+) -> [usize; 4] {
+    use std::arch::x86_64::*;
+    let (add, sub, mul, splat) = (_mm256_add_pd, _mm256_sub_pd, _mm256_mul_pd, _mm256_set1_pd);
+    let select = |mask: __m256d, yes: __m256d, no: __m256d| _mm256_blendv_pd(no, yes, mask);
+    let zero = _mm256_setzero_pd();
     // theta_bin: edges passed in the half-plane of the sign of y.
     let lower = theta_y; // blendv selects on the sign bit, as is_sign_negative.
     let mut count = select(lower, zero, splat(5.0));
@@ -358,15 +400,13 @@ fn pair_bins_x4(
         _mm256_storeu_pd(ty.as_mut_ptr(), theta_y);
         _mm256_storeu_pd(tx.as_mut_ptr(), theta_x);
     }
-    let (alpha, phi) = (unit(alpha), unit(phi));
     std::array::from_fn(|l| {
-        let theta = if ty[l] == 0.0 && tx[l] == 0.0 {
+        if ty[l] == 0.0 && tx[l] == 0.0 {
             // atan2's signed-zero conventions.
             theta_bin(ty[l], tx[l], edges)
         } else {
             theta[l] as usize
-        };
-        [theta, alpha[l] as usize, phi[l] as usize]
+        }
     })
 }
 

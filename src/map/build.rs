@@ -5,12 +5,15 @@
 //! accumulator. Clouds are used as stored in the log (not deskewed, whatever `register` did).
 
 use std::collections::BTreeMap;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use mcap::records::Record;
 use nalgebra::Isometry3;
 
 use super::VoxelMap;
+use crate::io::atomic_file::PendingFile;
+use crate::io::cloud_file::CloudFileFormat;
 use crate::io::codec::PoseStampedDecoder;
 use crate::io::mcap::log::{ChannelInfo, for_each_record, list_channels};
 use crate::io::poses::check_pose_topic;
@@ -18,8 +21,9 @@ use crate::register::for_each_cloud;
 use crate::trajectory;
 use crate::{Error, Result};
 
-/// Which trajectory places the clouds.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+/// Which trajectory places the clouds ([`MapOptions::trajectory`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum TrajectoryChoice {
     /// `…/pose`: the odometry of `mireg register`.
     Odometry,
@@ -33,16 +37,19 @@ pub enum TrajectoryChoice {
     Auto,
 }
 
-/// What [`build_map`] needs besides the log.
-#[derive(Debug, Clone, Default)]
+/// How the map of a run is made: what [`build_map`] needs besides the log (`mireg map` maps its
+/// flags onto it; [`write_map`] writes the result).
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct MapOptions {
-    /// Voxel edge \[m\]; `None`: the `voxel_m` that `register` used, from the run's `mireg`
-    /// metadata.
+    /// Voxel edge of the map \[m\]: one point (centroid, mean intensity) per occupied voxel.
+    /// Default `None`: the `voxel_m` that `register` used, from the run's `mireg` metadata.
     pub voxel_m: Option<f64>,
-    /// Trajectory to use.
+    /// Trajectory placing the clouds (the newest run's topics). Default
+    /// [`TrajectoryChoice::Auto`].
     pub trajectory: TrajectoryChoice,
-    /// Point cloud topic; `None`: the one `register` read (its metadata), else the log's only
-    /// cloud topic.
+    /// Point cloud topic. Default `None`: the one `register` read (its metadata), else the log's
+    /// only cloud topic.
     pub topic: Option<String>,
 }
 
@@ -303,4 +310,30 @@ fn add_run(
         intensity: used > 0 && all_intensity,
     };
     Ok((map, summary, frame))
+}
+
+/// Writes `map` to `path` in `format` ([`CloudFileFormat::from_path`] of it): one row per
+/// occupied voxel, x y z (float32, metres, the world frame of the trajectory used) and, when
+/// `intensity`, the mean intensity. Written beside the target and moved into place when
+/// complete; an existing file is replaced only when `force`. Errors name `path`.
+pub fn write_map(
+    map: VoxelMap,
+    intensity: bool,
+    format: CloudFileFormat,
+    path: &Path,
+    force: bool,
+) -> Result<()> {
+    let cols = if intensity { 4 } else { 3 };
+    let rows = map.to_rows(intensity);
+    drop(map);
+    let (file, pending) = PendingFile::create(path, force)?;
+    let io = |e: std::io::Error| Error::Io {
+        path: path.to_path_buf(),
+        source: e,
+    };
+    let mut w = std::io::BufWriter::new(file);
+    format.write(&rows, cols, &mut w).map_err(io)?;
+    w.flush().map_err(io)?;
+    let file = w.into_inner().map_err(|e| io(e.into_error()))?;
+    pending.commit(file)
 }

@@ -9,7 +9,7 @@
 //! occupied voxel; no allocation per point.
 //!
 //! `build.rs` ([`build_map`]) drives it over a `mireg register` output (the trajectory chosen, clouds streamed
-//! from the log).
+//! from the log), and writes the map ([`write_map`]).
 
 use std::collections::HashMap;
 
@@ -19,7 +19,9 @@ use crate::hash::FastHash;
 
 mod build;
 
-pub use build::{MapOptions, MapSummary, TrajectoryChoice, build_map, build_map_of_runs};
+pub use build::{
+    MapOptions, MapSummary, TrajectoryChoice, build_map, build_map_of_runs, write_map,
+};
 
 /// One occupied voxel's running sums.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]

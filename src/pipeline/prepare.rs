@@ -3,7 +3,7 @@
 
 use std::time::Instant;
 
-use nalgebra::Point3;
+use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use super::PairConfig;
@@ -329,6 +329,40 @@ fn describe(
 ) -> Result<Described> {
     let icp_voxel = c.icp_voxel_size_m.unwrap();
     let mut icp_ids = None;
+    let (normals, features, tree) = normals_and_features(down, c, origin, scratch, timings)?;
+    let icp = if !c.icp {
+        None
+    } else if icp_voxel == 0.0 || (icp_voxel > 0.0 && icp_voxel != c.voxel_size_m) {
+        let (icp, ids) = separate_icp_target(points, finer_icp_cloud, c, origin, timings)?;
+        icp_ids = ids;
+        Some(icp)
+    } else if let Some(tree) = tree {
+        Some(IcpTarget::with_tree(down, &normals, tree)?)
+    } else {
+        Some(IcpTarget::new(down, &normals)?)
+    };
+    Ok(Described {
+        features,
+        icp,
+        icp_voxels: icp_ids,
+    })
+}
+
+/// The normals, FPFH and kd-tree (if a search built one) of a feature cloud
+/// ([`normals_and_features`]).
+type NormalsAndFeatures = (Vec<Vector3<f64>>, Vec<Fpfh>, Option<KdTree>);
+
+/// The normals and FPFH of the feature cloud `down`, and the kd-tree built on it if a search
+/// needed one: through one neighbourhood pass for both when the FPFH neighbourhoods contain the
+/// normals' (the radius grid's, or the kd-tree's where the grid declines), else through a
+/// kd-tree.
+fn normals_and_features(
+    down: &[Point3<f64>],
+    c: &PairConfig,
+    origin: Option<Point3<f64>>,
+    scratch: &mut PrepareScratch,
+    timings: &mut FrameTimings,
+) -> Result<NormalsAndFeatures> {
     let t = Instant::now();
     // NOTE: the kd-tree is built only where a search needs it: the grid answers the
     // neighbourhoods of most clouds, and ICP builds its own tree on first use. Building it for
@@ -369,56 +403,55 @@ fn describe(
             timings.features = t.elapsed().as_secs_f64();
             (normals, features)
         };
+    Ok((normals, features, tree))
+}
 
-    let icp = if !c.icp {
-        None
-    } else if icp_voxel == 0.0 || (icp_voxel > 0.0 && icp_voxel != c.voxel_size_m) {
-        // A separate ICP cloud: the finite input points (0) or another voxel grid, with normals
-        // over the same neighbourhood scaled to its resolution.
-        let t = Instant::now();
-        let (cloud, radius) = if icp_voxel == 0.0 {
-            let finite = points
-                .iter()
-                .copied()
-                .filter(|p| p.coords.iter().all(|x| x.is_finite()));
-            (finite.collect::<Vec<_>>(), normal_radius)
-        } else {
-            let cloud = match finer_icp_cloud {
-                Some(cloud) => cloud,
-                None => {
-                    let (cloud, ids) = downsample(points, icp_voxel, c.icp_fine)?;
-                    icp_ids = ids;
-                    cloud
-                }
-            };
-            (cloud, normal_radius * icp_voxel / c.voxel_size_m)
-        };
-        timings.downsample += t.elapsed().as_secs_f64();
-        // NOTE: the normals are estimated when first needed, and only where: all of them when
-        // the frame is an ICP target (`mireg pair`'s target, a fallback to frame-to-frame ICP),
-        // for a few points when `mireg register` adds the frame to its local map (only those
-        // landing in voxels not yet full: 6 % of the ICP points on the KITTI replay log, 69 % on
-        // the KAIST03 keyframes), never for a source. Through a radius grid streamed point by
-        // point, not the stored neighbourhoods the features use (on the KAIST03 and KITTI ICP
-        // clouds, 0.37 m / 0.5 m voxels, 16k / 11k points, those took 29–35 / 21–22 ms a frame
-        // against the kd-tree's 18 / 17–19 ms), nor the kd-tree (a quarter of a KAIST03 run's
-        // instructions): the same normals, bit for bit, for a fraction of the work
-        // (docs/BENCHMARKS.md).
-        let estimate = NormalEstimate::new(
-            radius,
-            c.normal_max_nn,
-            origin,
-            default_max_columns(cloud.len()),
-        )?;
-        Some(IcpTarget::with_deferred_normals(cloud, estimate)?)
-    } else if let Some(tree) = tree {
-        Some(IcpTarget::with_tree(down, &normals, tree)?)
+/// An ICP target on a cloud of its own: the finite input points (ICP voxel 0) or another voxel
+/// grid (`finer_icp_cloud` if given, else `points` downsampled, with each point's voxel when
+/// the fine stage draws), with normals over the same neighbourhood scaled to its resolution.
+fn separate_icp_target(
+    points: &[Point3<f64>],
+    finer_icp_cloud: Option<Vec<Point3<f64>>>,
+    c: &PairConfig,
+    origin: Option<Point3<f64>>,
+    timings: &mut FrameTimings,
+) -> Result<(IcpTarget, Option<Vec<u32>>)> {
+    let (icp_voxel, normal_radius) = (c.icp_voxel_size_m.unwrap(), c.normal_radius_m.unwrap());
+    let mut icp_ids = None;
+    let t = Instant::now();
+    let (cloud, radius) = if icp_voxel == 0.0 {
+        let finite = points
+            .iter()
+            .copied()
+            .filter(|p| p.coords.iter().all(|x| x.is_finite()));
+        (finite.collect::<Vec<_>>(), normal_radius)
     } else {
-        Some(IcpTarget::new(down, &normals)?)
+        let cloud = match finer_icp_cloud {
+            Some(cloud) => cloud,
+            None => {
+                let (cloud, ids) = downsample(points, icp_voxel, c.icp_fine)?;
+                icp_ids = ids;
+                cloud
+            }
+        };
+        (cloud, normal_radius * icp_voxel / c.voxel_size_m)
     };
-    Ok(Described {
-        features,
-        icp,
-        icp_voxels: icp_ids,
-    })
+    timings.downsample += t.elapsed().as_secs_f64();
+    // NOTE: the normals are estimated when first needed, and only where: all of them when
+    // the frame is an ICP target (`mireg pair`'s target, a fallback to frame-to-frame ICP),
+    // for a few points when `mireg register` adds the frame to its local map (only those
+    // landing in voxels not yet full: 6 % of the ICP points on the KITTI replay log, 69 % on
+    // the KAIST03 keyframes), never for a source. Through a radius grid streamed point by
+    // point, not the stored neighbourhoods the features use (on the KAIST03 and KITTI ICP
+    // clouds, 0.37 m / 0.5 m voxels, 16k / 11k points, those took 29–35 / 21–22 ms a frame
+    // against the kd-tree's 18 / 17–19 ms), nor the kd-tree (a quarter of a KAIST03 run's
+    // instructions): the same normals, bit for bit, for a fraction of the work
+    // (docs/BENCHMARKS.md).
+    let estimate = NormalEstimate::new(
+        radius,
+        c.normal_max_nn,
+        origin,
+        default_max_columns(cloud.len()),
+    )?;
+    Ok((IcpTarget::with_deferred_normals(cloud, estimate)?, icp_ids))
 }

@@ -15,25 +15,26 @@
 //! within the budget too, but for those of the candidates verified at once (one per thread).
 
 use std::collections::{BTreeMap, BTreeSet, HashMap};
-use std::ops::ControlFlow;
+use std::path::Path;
 use std::time::Instant;
 
 use nalgebra::Isometry3;
-use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::Result;
 use crate::evaluate::path_distances;
-use crate::geometry::deskew::deskew;
 use crate::loops::{
     Candidate, Descriptor, KeyframeSelector, LoopConfig, LoopDecision, LoopEdge, Rounds, Source,
     Step, Verification, close_in_rounds, edge_prior, verify,
 };
-use crate::pipeline::{PairConfig, PreparedFrame, prepare_frame, refine};
+use crate::odometry::OdometryConfig;
+use crate::pipeline::{PairConfig, PreparedFrame, refine};
 
+mod passes;
 mod record;
 mod search;
 
+use passes::{for_each_needed_frame, verify_all};
 pub(super) use record::LoopRecord;
 use record::record;
 use search::{accepted_loops, first_candidates, keyframes_of};
@@ -332,14 +333,44 @@ fn outcome(
     }
 }
 
+/// Loop closure over a trajectory of `log` that this run did not register (the stitched
+/// segments of `mireg stitch`; `output` is named in the run's options but not written here): the
+/// plan rebuilt from `log`, its cloud `topic` and `config` (the odometry settings the trajectory
+/// was registered with, their voxels sized), each frame's descriptor computed from the log read
+/// again ([`describe`]), then [`close_loops`] with [`LoopConfig::for_voxel`] of `voxel_m`
+/// (metres) and the extra candidate pairs `seams` (query, match). Returns the outcome and the
+/// loop settings it ran with.
+pub(super) fn close_loops_of_log(
+    log: &Path,
+    output: &Path,
+    topic: Option<String>,
+    config: OdometryConfig,
+    voxel_m: f64,
+    estimates: &mut [Estimate],
+    seams: &[(usize, usize)],
+) -> Result<(LoopOutcome, LoopConfig)> {
+    let opts = RegisterOptions {
+        topic,
+        ..RegisterOptions::new(log, output, config)
+    };
+    let plan = Plan::new(&opts)?;
+    describe(&plan, &opts, estimates)?;
+    let loop_config = LoopConfig::for_voxel(voxel_m);
+    let outcome = close_loops(
+        &plan,
+        &opts,
+        estimates,
+        &loop_config,
+        Default::default(),
+        seams,
+    )?;
+    Ok((outcome, loop_config))
+}
+
 /// Computes each frame's descriptor by reading the input again (for a trajectory that did not
 /// come with them: the stitched segments of `mireg stitch`); a frame that no longer decodes keeps
 /// none and is no keyframe.
-pub(super) fn describe(
-    plan: &Plan,
-    opts: &RegisterOptions,
-    estimates: &mut [Estimate],
-) -> Result<()> {
+fn describe(plan: &Plan, opts: &RegisterOptions, estimates: &mut [Estimate]) -> Result<()> {
     let needed: BTreeSet<usize> = (0..estimates.len()).collect();
     let pair = loop_pair_config(&plan.config.pair, &LoopConfig::for_voxel(plan.voxel_m));
     let mut descriptors = vec![None; estimates.len()];
@@ -454,249 +485,6 @@ impl Verifier<'_> {
         )?;
         Ok((v, t.elapsed().as_secs_f64()))
     }
-}
-
-/// Verifies every candidate, reading the input again as often as needed (the passes, returned):
-/// in each pass the frames stream by in file order; a frame some candidate still needs is
-/// prepared (or taken from `cached`), its candidates whose other frame is held are verified at
-/// once (in parallel), and it is held while it has candidates left and there is room
-/// ([`LoopConfig::frames_in_memory`]); a frame is released when its last candidate is done.
-/// Candidates whose two frames were never held together wait for the next pass. Each pass
-/// verifies at least the candidates of the first frame it holds, so the passes end; a log that
-/// revisits a few places often needs few. A pass whose frames are all in `cached` visits them in
-/// index order without reading the input, and is not counted. Loops in `accepted_before` (an
-/// earlier round's) make candidates redundant as the ones accepted here do.
-fn verify_all(
-    plan: &Plan,
-    opts: &RegisterOptions,
-    estimates: &[Estimate],
-    candidates: &[Candidate],
-    verifier: &Verifier,
-    mut cached: BTreeMap<usize, PreparedFrame>,
-    accepted_before: &[(usize, usize)],
-) -> Result<VerifyOutcome> {
-    // Sized by the first frame prepared (frames of one log are of a size).
-    let mut capacity: Option<usize> = None;
-    let mut verified = Verified::new();
-    let mut accepted: Vec<(usize, usize)> = accepted_before.to_vec();
-    let mut skipped: BTreeSet<(usize, usize)> = BTreeSet::new();
-    // Candidates that could not be read (a frame that no longer decodes) are left out.
-    let mut remaining: Vec<Candidate> = candidates.to_vec();
-    let mut passes = 0;
-    while !remaining.is_empty() {
-        // Each frame's candidates (indices into `remaining`, in its order) and how many are left.
-        let mut of_frame: HashMap<usize, Vec<usize>> = HashMap::new();
-        for (i, c) in remaining.iter().enumerate() {
-            of_frame.entry(c.query).or_default().push(i);
-            of_frame.entry(c.matched).or_default().push(i);
-        }
-        let mut uses: HashMap<usize, usize> =
-            of_frame.iter().map(|(&f, cs)| (f, cs.len())).collect();
-        let needed: BTreeSet<usize> = uses.keys().copied().collect();
-        cached.retain(|k, _| needed.contains(k));
-        let all_cached = needed.iter().all(|k| cached.contains_key(k));
-        let mut held: BTreeMap<usize, PreparedFrame> = BTreeMap::new();
-        let mut done: BTreeSet<(usize, usize)> = BTreeSet::new();
-        let mut visit =
-            |k: usize, prepare: &mut dyn FnMut() -> Option<PreparedFrame>| -> Result<bool> {
-                // This frame's candidates that an accepted loop makes redundant: not tried.
-                let mine = || of_frame[&k].iter().map(|&i| &remaining[i]);
-                let redundant: Vec<(usize, usize)> = mine()
-                    .filter(|c| !done.contains(&(c.query, c.matched)))
-                    .filter(|c| verifier.redundant(c, &accepted))
-                    .map(|c| (c.query, c.matched))
-                    .collect();
-                for key in redundant {
-                    skipped.insert(key);
-                    release(&mut done, &mut uses, &mut held, key);
-                }
-                let from_cache = cached.remove(&k);
-                if uses[&k] == 0 {
-                    return Ok(false);
-                }
-                let was_cached = from_cache.is_some();
-                let Some(mut frame) = from_cache.or_else(prepare) else {
-                    return Ok(false);
-                };
-                // This frame's candidates whose other frame is held.
-                let ready: Vec<&Candidate> = mine()
-                    .filter(|c| !done.contains(&(c.query, c.matched)))
-                    .filter(|c| {
-                        (c.query == k && held.contains_key(&c.matched))
-                            || (c.matched == k && held.contains_key(&c.query))
-                    })
-                    .collect();
-                let cap = *capacity.get_or_insert_with(|| {
-                    let fit = verifier.config.memory_budget_bytes / frame.idle_bytes().max(1);
-                    fit.clamp(2, verifier.config.frames_in_memory.max(2))
-                });
-                // As many at once as there are threads: each builds search structures on its
-                // target (a matching target and an ICP grid, for a LiDAR scan twenty times the
-                // idle frame), kept for the frame's next candidates while the frames in memory
-                // fit the budget, dropped when they do not.
-                let budget = verifier.config.memory_budget_bytes;
-                for (round, batch) in verifier.leaders_first(ready).into_iter().enumerate() {
-                    let batch = if round == 0 {
-                        batch
-                    } else {
-                        // Followers of an accepted leader would join the same places again.
-                        let (skip, keep): (Vec<&Candidate>, Vec<&Candidate>) = batch
-                            .into_iter()
-                            .partition(|c| verifier.redundant(c, &accepted));
-                        for c in skip {
-                            skipped.insert((c.query, c.matched));
-                            release(&mut done, &mut uses, &mut held, (c.query, c.matched));
-                        }
-                        keep
-                    };
-                    let mut results: Vec<(&Candidate, (Verification, f64))> = Vec::new();
-                    for chunk in batch.chunks(rayon::current_num_threads().max(1)) {
-                        let verified_chunk: Vec<_> = chunk
-                            .par_iter()
-                            .map(|c| {
-                                let (q, m) = if c.query == k {
-                                    (&frame, &held[&c.matched])
-                                } else {
-                                    (&held[&c.query], &frame)
-                                };
-                                verifier.verify(c, q, m).map(|v| (*c, v))
-                            })
-                            .collect::<Result<_>>()?;
-                        results.extend(verified_chunk);
-                        fit_budget(budget, &mut frame, &mut held, &cached);
-                    }
-                    for (c, v) in results {
-                        let key = (c.query, c.matched);
-                        // Seam pairs are no loops: an accepted one makes no candidate redundant.
-                        if v.0.accepted && c.by != Source::Seam {
-                            accepted.push(key);
-                        }
-                        verified.insert(key, v);
-                        release(&mut done, &mut uses, &mut held, key);
-                    }
-                }
-                // A kept frame was in memory already; a new one needs room beside the kept ones.
-                if uses[&k] > 0 && (was_cached || held.len() + cached.len() < cap) {
-                    held.insert(k, frame);
-                }
-                Ok(true)
-            };
-        let seen = if all_cached {
-            let mut seen = BTreeSet::new();
-            for &k in &needed {
-                if visit(k, &mut || None)? {
-                    seen.insert(k);
-                }
-            }
-            seen
-        } else {
-            passes += 1;
-            for_each_needed_frame(plan, opts, estimates, &needed, verifier.pair, visit)?
-        };
-        let before = remaining.len();
-        // Candidates with a frame that could not be read again: no verification, rejected.
-        remaining.retain(|c| {
-            !done.contains(&(c.query, c.matched))
-                && seen.contains(&c.query)
-                && seen.contains(&c.matched)
-        });
-        if remaining.len() == before {
-            break; // nothing could be verified: the frames are gone
-        }
-    }
-    Ok((verified, skipped, passes))
-}
-
-/// Drops the search structures of the `held` frames, then of `frame`, while the frames in
-/// memory (those and the `cached` ones, which are idle) hold more than `budget` bytes.
-fn fit_budget(
-    budget: usize,
-    frame: &mut PreparedFrame,
-    held: &mut BTreeMap<usize, PreparedFrame>,
-    cached: &BTreeMap<usize, PreparedFrame>,
-) {
-    let idle: usize = cached.values().map(PreparedFrame::heap_bytes).sum();
-    let mut total =
-        idle + frame.heap_bytes() + held.values().map(PreparedFrame::heap_bytes).sum::<usize>();
-    for f in held.values_mut().chain(std::iter::once(frame)) {
-        if total <= budget {
-            return;
-        }
-        let before = f.heap_bytes();
-        f.drop_search_structures();
-        total -= before - f.heap_bytes();
-    }
-}
-
-/// Marks candidate `key` done and releases its frames whose last candidate it was.
-fn release(
-    done: &mut BTreeSet<(usize, usize)>,
-    uses: &mut HashMap<usize, usize>,
-    held: &mut BTreeMap<usize, PreparedFrame>,
-    key: (usize, usize),
-) {
-    done.insert(key);
-    for f in [key.0, key.1] {
-        let u = uses.get_mut(&f).expect("counted");
-        *u -= 1;
-        if *u == 0 {
-            held.remove(&f);
-        }
-    }
-}
-
-/// Streams the input's clouds once, calling `f(k, prepare)` for each frame `k` in `needed`;
-/// `prepare()` decodes the cloud and prepares it for verification (deskewed as the odometry
-/// deskewed it), `None` for a cloud that no longer decodes or is over the point bound, and `f`
-/// says whether it was prepared. Returns the frames that were: frames registered in log-time order
-/// are found by their log time (the n-th cloud of a log time is the n-th frame of it).
-fn for_each_needed_frame(
-    plan: &Plan,
-    opts: &RegisterOptions,
-    estimates: &[Estimate],
-    needed: &BTreeSet<usize>,
-    pair: &PairConfig,
-    mut f: impl FnMut(usize, &mut dyn FnMut() -> Option<PreparedFrame>) -> Result<bool>,
-) -> Result<BTreeSet<usize>> {
-    let times: BTreeSet<u64> = needed.iter().map(|&k| estimates[k].log_time).collect();
-    let mut by_time: HashMap<u64, (Vec<usize>, usize)> = HashMap::new();
-    for (k, e) in estimates.iter().enumerate() {
-        if times.contains(&e.log_time) {
-            by_time.entry(e.log_time).or_default().0.push(k);
-        }
-    }
-    let mut seen = BTreeSet::new();
-    plan.input_log.for_each_message_until(|header, data| {
-        if !plan.cloud_channels.contains(&header.channel_id)
-            || !plan.segment.contains(header.log_time)
-        {
-            return Ok(ControlFlow::Continue(()));
-        }
-        let Some((indices, count)) = by_time.get_mut(&header.log_time) else {
-            return Ok(ControlFlow::Continue(()));
-        };
-        let k = indices.get(*count).copied();
-        *count += 1;
-        if let Some(k) = k.filter(|k| needed.contains(k)) {
-            let mut prepare = || {
-                let mut cloud = plan.kind.decode(data).ok()?;
-                if cloud.points.len() > opts.max_points_per_cloud {
-                    return None;
-                }
-                if let (Some((motion, dt)), Some(times)) =
-                    (&estimates[k].deskew_motion, &cloud.times)
-                {
-                    deskew(&mut cloud.points, &times.seconds, motion, *dt);
-                }
-                prepare_frame(&cloud.points, pair).ok()
-            };
-            if f(k, &mut prepare)? {
-                seen.insert(k);
-            }
-        }
-        Ok(ControlFlow::Continue(()))
-    })?;
-    Ok(seen)
 }
 
 #[cfg(test)]

@@ -12,7 +12,7 @@ use crate::io::codec;
 use crate::io::codec::MAX_COORDINATE_M;
 use crate::io::point_time::POINT_TIME_BOUND_S;
 use crate::loops::Descriptor;
-use crate::odometry::stream::{self, deskew_cloud, deskew_for};
+use crate::odometry::stream::{self, Deskewed, deskew_cloud, deskew_for};
 use crate::pipeline::{FailureReason, PrepareScratch, prepare_frame};
 use crate::{Error, Result};
 
@@ -58,6 +58,26 @@ impl TimeTally {
     fn field(&mut self, field: &str) {
         if self.field.is_empty() {
             self.field = field.to_string();
+        }
+    }
+
+    /// Counts the points the decoder dropped from one cloud (`decoded`, logged at `log_time`):
+    /// far ones, and time glitches with the cloud's time field.
+    fn count_dropped(&mut self, dropped: &Dropped, decoded: &Decoded, log_time: u64) {
+        if dropped.far > 0 {
+            self.far_points += dropped.far;
+            self.far_clouds += 1;
+            self.first_far.get_or_insert(log_time);
+        }
+        if dropped.time > 0 {
+            if let Ok(Ok(c)) = decoded
+                && let Some(times) = &c.times
+            {
+                self.field(&times.field);
+            }
+            self.dropped_points += dropped.time;
+            self.dropped_clouds += 1;
+            self.first_dropped.get_or_insert(log_time);
         }
     }
 
@@ -141,119 +161,31 @@ impl Prepare<'_> {
         motions: &mut Motions,
         recycle: &Sender<Vec<u8>>,
     ) -> Result<PreparedMsg> {
-        let (kind, config, topic) = (self.plan.kind, &self.plan.config, self.plan.topic.as_str());
+        let config = &self.plan.config;
         let t = Instant::now();
-        let max_points = self.max_points;
-        // A PointCloud2 declaring more points than --max-points is flagged without being
-        // decoded: a cloud of hostile size (a decompression bomb of zeros) is never held twice.
-        let declared = kind
-            .declared_points(&msg.data)
-            .filter(|&(_, n)| n > max_points as u64);
-        let decoded = match declared {
-            Some((header, n)) => Err((header, n)),
-            None => Ok(kind.decode_reusing(&msg.data, std::mem::take(&mut carry.spare_points))),
-        };
-        let (mut time_field, mut deskewed, mut fatal) = (None, None, None);
-        let dropped =
-            decoded
-                .as_ref()
-                .ok()
-                .and_then(|d| d.as_ref().ok())
-                .map_or(Dropped::default(), |c| Dropped {
-                    non_finite: c.num_dropped_non_finite,
-                    far: c.num_dropped_far,
-                    zero: c.num_dropped_zero,
-                    tag: c.num_dropped_tag,
-                    time: c.num_dropped_time,
-                });
-        if dropped.far > 0 {
-            let tally = &mut carry.times;
-            tally.far_points += dropped.far;
-            tally.far_clouds += 1;
-            tally.first_far.get_or_insert(msg.log_time);
-        }
-        if dropped.time > 0 {
-            let tally = &mut carry.times;
-            if let Ok(Ok(c)) = &decoded
-                && let Some(times) = &c.times
-            {
-                tally.field(&times.field);
-            }
-            tally.dropped_points += dropped.time;
-            tally.dropped_clouds += 1;
-            tally.first_dropped.get_or_insert(msg.log_time);
-        }
+        let decoded = self.decode(&msg.data, &mut carry.spare_points);
+        let dropped = dropped_of(&decoded);
+        carry.times.count_dropped(&dropped, &decoded, msg.log_time);
         // The message bytes are not needed past decoding: don't hold them through prepare.
         let _ = recycle.send(msg.data);
         let decode_s = t.elapsed().as_secs_f64();
-        // A cloud that cannot be decoded, is too large, or that the pipeline cannot take (e.g. a
-        // glitch at 1e38 m) is one bad frame: flag it, keep going.
-        let (header, prepared) = match decoded {
-            Err((header, n)) => {
-                let detail = format!(
-                    "declares {n} points, more than the bound of {max_points} (--max-points)"
+        let mut times = CloudTimes::default();
+        let (header, prepared) = match self.usable(decoded, msg.log_time, &carry.last_frame_id) {
+            Err((header, invalid)) => (header, Err(invalid)),
+            Ok(mut cloud) => {
+                times = self.deskew(
+                    frame_index,
+                    &mut cloud,
+                    motions,
+                    &mut carry.times,
+                    msg.log_time,
                 );
-                (header, Err((FailureReason::TooManyPoints, detail)))
-            }
-            Ok(Err(e)) => {
-                let detail = decode_detail(topic, msg.log_time, &e);
-                let header = codec::Header {
-                    stamp: stamp_of_log_time(msg.log_time),
-                    frame_id: carry.last_frame_id.clone(),
-                };
-                (header, Err((FailureReason::InvalidCloud, detail)))
-            }
-            Ok(Ok(cloud)) if cloud.points.len() > max_points => {
-                let detail = format!(
-                    "{} points, more than the bound of {max_points} (--max-points)",
-                    cloud.points.len()
-                );
-                (cloud.header, Err((FailureReason::TooManyPoints, detail)))
-            }
-            Ok(Ok(mut cloud)) => {
-                if let Some(times) = &cloud.times {
-                    time_field = Some(times.field.clone());
-                    if self.deskew_mode != DeskewMode::Off
-                        && let Some((motion, dt)) = motions.of(deskew_for(frame_index))
-                    {
-                        // Times within the bound of the stamp and a finite motion: every point
-                        // moves by a finite fraction of a finite motion, and so does the pose
-                        // referred back to the stamp. One time for every point (a Livox
-                        // `offset_time` of 0 throughout) measures no sweep: nothing to deskew,
-                        // and the statistics must not say `deskewed`.
-                        if times.deskewable() {
-                            if times.varies() {
-                                deskewed = Some(deskew_cloud(
-                                    &mut cloud.points,
-                                    &times.seconds,
-                                    motion,
-                                    dt,
-                                ));
-                            }
-                        } else {
-                            let tally = &mut carry.times;
-                            tally.field(&times.field);
-                            tally.undeskewed_clouds += 1;
-                            tally.first_undeskewed.get_or_insert(msg.log_time);
-                        }
-                    }
-                } else if self.deskew_mode == DeskewMode::On {
-                    let detail = format!(
-                        "--deskew on: no per-point time field (one of {})",
-                        crate::io::point_time::TIME_FIELDS.join(", ")
-                    );
-                    fatal = Some(Error::InvalidInput(format!(
-                        "{}: cloud on {topic} at log time {} ns: {detail}",
-                        self.input.display(),
-                        msg.log_time
-                    )));
-                }
                 let prepared = stream::prepare(&cloud.points, config, &mut carry.scratch)?;
                 carry.spare_points = cloud.points;
                 (cloud.header, Ok(prepared))
             }
         };
-        if let Some(e) = fatal {
+        if let Some(e) = times.fatal {
             return Err(e);
         }
         carry.last_frame_id.clone_from(&header.frame_id);
@@ -266,8 +198,8 @@ impl Prepare<'_> {
                 descriptor: (self.descriptors && invalid.is_none() && !frame.features.is_empty())
                     .then(|| Descriptor::from_prepared(&frame)),
                 invalid,
-                time_field,
-                deskewed,
+                time_field: times.field,
+                deskewed: times.deskewed,
                 dropped,
                 log_time: msg.log_time,
                 publish_time: msg.publish_time,
@@ -277,6 +209,140 @@ impl Prepare<'_> {
             frame,
         })
     }
+
+    /// Decodes one cloud message into `spare_points`' buffer. A PointCloud2 declaring more
+    /// points than --max-points is not decoded (`Err`: its header and declared count): a cloud
+    /// of hostile size (a decompression bomb of zeros) is never held twice.
+    fn decode(&self, data: &[u8], spare_points: &mut Vec<Point3<f64>>) -> Decoded {
+        let kind = self.plan.kind;
+        let declared = kind
+            .declared_points(data)
+            .filter(|&(_, n)| n > self.max_points as u64);
+        match declared {
+            Some((header, n)) => Err((header, n)),
+            None => Ok(kind.decode_reusing(data, std::mem::take(spare_points))),
+        }
+    }
+
+    /// The decoded cloud, if it can be registered; else the flagged frame's header and why not.
+    /// A cloud that cannot be decoded, is too large, or that the pipeline cannot take (e.g. a
+    /// glitch at 1e38 m) is one bad frame: flag it, keep going. A cloud that cannot be decoded
+    /// is stamped with its log time and takes the previous cloud's `last_frame_id`.
+    fn usable(
+        &self,
+        decoded: Decoded,
+        log_time: u64,
+        last_frame_id: &str,
+    ) -> std::result::Result<codec::PointCloud, (codec::Header, Invalid)> {
+        let (topic, max_points) = (self.plan.topic.as_str(), self.max_points);
+        match decoded {
+            Err((header, n)) => {
+                let detail = format!(
+                    "declares {n} points, more than the bound of {max_points} (--max-points)"
+                );
+                Err((header, (FailureReason::TooManyPoints, detail)))
+            }
+            Ok(Err(e)) => {
+                let detail = decode_detail(topic, log_time, &e);
+                let header = codec::Header {
+                    stamp: stamp_of_log_time(log_time),
+                    frame_id: last_frame_id.to_string(),
+                };
+                Err((header, (FailureReason::InvalidCloud, detail)))
+            }
+            Ok(Ok(cloud)) if cloud.points.len() > max_points => {
+                let detail = format!(
+                    "{} points, more than the bound of {max_points} (--max-points)",
+                    cloud.points.len()
+                );
+                Err((cloud.header, (FailureReason::TooManyPoints, detail)))
+            }
+            Ok(Ok(cloud)) => Ok(cloud),
+        }
+    }
+
+    /// Deskews `cloud` by the motion of the frame [`deskew_for`] names, when `--deskew` allows,
+    /// the cloud has per-point times that vary, and that motion is known; a cloud whose times
+    /// are out of bounds is left as it is and counted in `tally`.
+    fn deskew(
+        &self,
+        frame_index: usize,
+        cloud: &mut codec::PointCloud,
+        motions: &mut Motions,
+        tally: &mut TimeTally,
+        log_time: u64,
+    ) -> CloudTimes {
+        let mut out = CloudTimes::default();
+        if let Some(times) = &cloud.times {
+            out.field = Some(times.field.clone());
+            if self.deskew_mode != DeskewMode::Off
+                && let Some((motion, dt)) = motions.of(deskew_for(frame_index))
+            {
+                // Times within the bound of the stamp and a finite motion: every point moves by
+                // a finite fraction of a finite motion, and so does the pose referred back to
+                // the stamp. One time for every point (a Livox `offset_time` of 0 throughout)
+                // measures no sweep: nothing to deskew, and the statistics must not say
+                // `deskewed`.
+                if times.deskewable() {
+                    if times.varies() {
+                        out.deskewed =
+                            Some(deskew_cloud(&mut cloud.points, &times.seconds, motion, dt));
+                    }
+                } else {
+                    tally.field(&times.field);
+                    tally.undeskewed_clouds += 1;
+                    tally.first_undeskewed.get_or_insert(log_time);
+                }
+            }
+        } else if self.deskew_mode == DeskewMode::On {
+            let detail = format!(
+                "--deskew on: no per-point time field (one of {})",
+                crate::io::point_time::TIME_FIELDS.join(", ")
+            );
+            out.fatal = Some(Error::InvalidInput(format!(
+                "{}: cloud on {} at log time {log_time} ns: {detail}",
+                self.input.display(),
+                self.plan.topic
+            )));
+        }
+        out
+    }
+}
+
+/// A cloud message decoded (or why not), or the header and declared point count of a
+/// PointCloud2 over `--max-points`, never decoded ([`Prepare::decode`]).
+type Decoded = std::result::Result<
+    std::result::Result<codec::PointCloud, codec::DecodeError>,
+    (codec::Header, u64),
+>;
+
+/// Why a frame is flagged invalid, and the detail.
+type Invalid = (FailureReason, String);
+
+/// What the per-point times of one cloud gave ([`Prepare::deskew`]).
+#[derive(Default)]
+struct CloudTimes {
+    /// The cloud's time field.
+    field: Option<String>,
+    /// The motion it was deskewed by ([`CloudInfo::deskewed`]).
+    deskewed: Deskewed,
+    /// `--deskew on` and no time field: stops the run, once the cloud is prepared.
+    fatal: Option<Error>,
+}
+
+/// The points the decoder dropped from `decoded` (none if it was not decoded).
+fn dropped_of(decoded: &Decoded) -> Dropped {
+    decoded
+        .as_ref()
+        .ok()
+        .and_then(|d| d.as_ref().ok())
+        .map_or(Dropped::default(), |c| Dropped {
+            non_finite: c.num_dropped_non_finite,
+            far: c.num_dropped_far,
+            zero: c.num_dropped_zero,
+            tag: c.num_dropped_tag,
+            time: c.num_dropped_time,
+        })
 }
 
 /// Why a cloud message could not be decoded, naming topic, log time and field.

@@ -19,13 +19,11 @@ use std::path::{Path, PathBuf};
 use mcap::records::Record;
 use nalgebra::Isometry3;
 
-use super::closure::{LoopOutcome, close_loops, describe};
+use super::closure::{LoopOutcome, close_loops_of_log};
 use super::clouds::{CloudKind, choose_topic};
 use super::frames::Estimate;
-use super::options::RegisterOptions;
-use super::output::{Outputs, StampedPose, Topics, write_pose};
-use super::plan::Plan;
-use super::writer::{loop_metadata, write_loop_outcome};
+use super::output::{StampedPose, Topics};
+use super::writer::PoseWriter;
 use crate::io::atomic_file::{check_target, same_file};
 use crate::io::codec::{Time, cdr, pose_stamped_decoder, ros1};
 use crate::io::format_err;
@@ -247,14 +245,14 @@ pub fn stitch(
     let topic = segments_topic(log, &channels, &segs)?;
     let (stitched, seams) = join_segments(&segs)?;
 
-    let topics = Topics::for_input(&channels);
     let profile = match segs[0].kind {
         CloudKind::Ros1 => "ros1",
         _ => "ros2",
     };
     let mut out = OutputLog::create(output, force, profile)?;
     out.declare_input(log, &catalog)?;
-    let ch = Outputs::create(&mut out, segs[0].kind, &topics, loops, None)?;
+    let first = &segs[0];
+    let ch = PoseWriter::create(&mut out, &channels, first.kind, loops, &first.world_frame)?;
     // Every stitched frame must be a cloud of the log: segments of another log are refused
     // (the output, not finished, is never committed).
     let cloud_ids: std::collections::BTreeSet<u16> = channels
@@ -280,7 +278,7 @@ pub fn stitch(
             cloud_times.len()
         )));
     }
-    write_frames(&mut out, &ch, &segs[0].world_frame, &stitched)?;
+    write_frames(&mut out, &ch, &stitched)?;
     let closed = if loops {
         let seam_pairs = seam_candidates(&segs, &seams, &stitched);
         Some(close_stitched(
@@ -294,11 +292,11 @@ pub fn stitch(
         None
     };
     if let Some((estimates, outcome, _)) = &closed {
-        write_loop_outcome(&mut out, &ch, &segs[0].world_frame, estimates, outcome)?;
+        ch.write_loop_outcome(&mut out, estimates, outcome)?;
     }
-    let mut meta = stitch_metadata(log, command_line, topic, &topics, &segs, &seams);
+    let mut meta = stitch_metadata(log, command_line, topic, &ch.topics, &segs, &seams);
     if let Some((_, outcome, config)) = &closed {
-        loop_metadata(&mut meta, &topics, outcome, config);
+        ch.loop_metadata(&mut meta, outcome, config);
     }
     out.write_metadata("mireg", meta)?;
     out.finish()?;
@@ -407,8 +405,7 @@ fn join_segments(segs: &[Segment]) -> Result<(Stitched, Vec<Seam>)> {
 /// log, `segment` added).
 fn write_frames(
     out: &mut OutputLog,
-    ch: &Outputs,
-    world_frame: &str,
+    ch: &PoseWriter,
     stitched: &[(usize, SegFrame)],
 ) -> Result<()> {
     for (k, (segment, f)) in stitched.iter().enumerate() {
@@ -426,7 +423,7 @@ fn write_frames(
             publish_time: f.publish_time,
         };
         let bytes = serde_json::to_vec(&stats).expect("JSON");
-        write_pose(out, ch, world_frame, &pose, &bytes)?;
+        ch.write_pose(out, &pose, &bytes)?;
     }
     Ok(())
 }
@@ -547,7 +544,7 @@ fn seam_candidates(
 
 /// Loop closure over the stitched trajectory: the run's plan rebuilt from `log` with the first
 /// segment's recorded settings, each frame's estimate from the stitched poses and statistics,
-/// descriptors from the log read again, then [`super::closure::close_loops`].
+/// descriptors from the log read again, then loop closure ([`close_loops_of_log`]).
 ///
 /// NOTE: a frame the segment deskewed is deskewed again by the stitched motion of frame k − 2
 /// (its pose relative to k − 3), which is the segment's own except at a segment's first frames.
@@ -573,11 +570,6 @@ fn close_stitched(
     let voxel: f64 = meta("voxel_m")?
         .parse()
         .map_err(|e| format_err(&first.path, format!("mireg metadata voxel_m: {e}")))?;
-    let opts = RegisterOptions {
-        topic: first.meta.get("topic").cloned(),
-        ..RegisterOptions::new(log, output, config)
-    };
-    let plan = Plan::new(&opts)?;
     let frames: Vec<&SegFrame> = stitched.iter().map(|(_, f)| f).collect();
     let mut estimates: Vec<Estimate> = frames
         .iter()
@@ -610,14 +602,14 @@ fn close_stitched(
             }
         })
         .collect();
-    describe(&plan, &opts, &mut estimates)?;
-    let loop_config = LoopConfig::for_voxel(voxel);
-    let outcome = close_loops(
-        &plan,
-        &opts,
-        &estimates,
-        &loop_config,
-        Default::default(),
+    let topic = first.meta.get("topic").cloned();
+    let (outcome, loop_config) = close_loops_of_log(
+        log,
+        output,
+        topic,
+        config,
+        voxel,
+        &mut estimates,
         seam_pairs,
     )?;
     Ok((estimates, outcome, loop_config))

@@ -8,15 +8,18 @@ use std::time::Instant;
 use nalgebra::Isometry3;
 
 use crate::Result;
-use crate::io::mcap::log::OutputLog;
+use crate::io::mcap::log::{ChannelInfo, OutputLog};
 use crate::loops::LoopConfig;
 use crate::trajectory::{FrameErrors, Trajectory, evaluate};
 
 use super::closure::LoopOutcome;
+use super::clouds::CloudKind;
 use super::frames::Estimate;
 use super::frames::FrameOut;
 use super::options::{OnFrame, RegisterOptions};
-use super::output::{Outputs, StampedPose, write_frame, write_loop, write_optimized_pose};
+use super::output::{
+    Outputs, StampedPose, Topics, write_frame, write_loop, write_optimized_pose, write_pose,
+};
 use super::plan::Plan;
 use super::summary::{
     DOMINANT_MIN_STEPS, DOMINANT_SHARE, DominantStep, FLAGGED_FRAMES_LISTED, Flag, FlaggedFrame,
@@ -238,10 +241,73 @@ impl<'a> Writer<'a> {
     }
 }
 
+/// This run's channels in an output log, for a job that writes poses it did not register itself
+/// (`mireg stitch`) as `register` writes them: each frame's `/tf`, pose and statistics
+/// ([`Self::write_pose`]), loop closure's outcome ([`Self::write_loop_outcome`]) and metadata
+/// keys ([`Self::loop_metadata`]). No pose-with-covariance channel: such a job has no per-frame
+/// information.
+pub(super) struct PoseWriter {
+    /// The topics of this run (the next free `/mireg_N/…` namespace of the input).
+    pub(super) topics: Topics,
+    outputs: Outputs,
+    /// The frame the poses are in.
+    world_frame: String,
+}
+
+impl PoseWriter {
+    /// Adds this run's channels to `log`, whose input has `channels`: poses in `kind`'s message
+    /// family, in `world_frame`; loop closure's channels too when `loops`.
+    pub(super) fn create(
+        log: &mut OutputLog,
+        channels: &[ChannelInfo],
+        kind: CloudKind,
+        loops: bool,
+        world_frame: &str,
+    ) -> Result<Self> {
+        let topics = Topics::for_input(channels);
+        let outputs = Outputs::create(log, kind, &topics, loops, None)?;
+        Ok(Self {
+            topics,
+            outputs,
+            world_frame: world_frame.to_string(),
+        })
+    }
+
+    /// Writes one frame's `/tf`, pose and statistics (`stats`, JSON) messages.
+    pub(super) fn write_pose(
+        &self,
+        log: &mut OutputLog,
+        pose: &StampedPose<'_>,
+        stats: &[u8],
+    ) -> Result<()> {
+        write_pose(log, &self.outputs, &self.world_frame, pose, stats)
+    }
+
+    /// Writes loop closure's outcome for `estimates` ([`write_loop_outcome`]).
+    pub(super) fn write_loop_outcome(
+        &self,
+        log: &mut OutputLog,
+        estimates: &[Estimate],
+        outcome: &LoopOutcome,
+    ) -> Result<()> {
+        write_loop_outcome(log, &self.outputs, &self.world_frame, estimates, outcome)
+    }
+
+    /// Adds loop closure's keys to a `mireg` metadata record ([`loop_metadata`]).
+    pub(super) fn loop_metadata(
+        &self,
+        meta: &mut BTreeMap<String, String>,
+        outcome: &LoopOutcome,
+        config: &LoopConfig,
+    ) {
+        loop_metadata(meta, &self.topics, outcome, config);
+    }
+}
+
 /// Writes loop closure's outcome for `estimates` (one per frame) on `outputs`' loop channels (none
 /// without them): each candidate tried at its query frame's log time, then every frame's
 /// optimised pose and transform at the frame's own log time.
-pub(super) fn write_loop_outcome(
+fn write_loop_outcome(
     log: &mut OutputLog,
     outputs: &Outputs,
     world_frame: &str,
@@ -270,9 +336,9 @@ pub(super) fn write_loop_outcome(
 }
 
 /// The loop-closure keys of a run's `mireg` metadata: the topics, the settings, the counts.
-pub(super) fn loop_metadata(
+fn loop_metadata(
     meta: &mut BTreeMap<String, String>,
-    topics: &super::output::Topics,
+    topics: &Topics,
     outcome: &LoopOutcome,
     config: &LoopConfig,
 ) {
