@@ -79,15 +79,15 @@ fn localize(log: &Path, prior: &Path, out: &Path, threads: Option<&str>) {
     );
 }
 
-fn statuses(path: &Path) -> Vec<String> {
+/// The JSON messages on `topic`, in file order.
+fn json_messages(path: &Path, topic: &str) -> Vec<serde_json::Value> {
     let mut id = None;
     let mut out = Vec::new();
     for_each_record(path, |r| {
         match r {
-            Record::Channel(c) if c.topic == "/mireg/localization" => id = Some(c.id),
+            Record::Channel(c) if c.topic == topic => id = Some(c.id),
             Record::Message { header, data } if Some(header.channel_id) == id => {
-                let v: serde_json::Value = serde_json::from_slice(&data).unwrap();
-                out.push(v["status"].as_str().unwrap().to_string());
+                out.push(serde_json::from_slice(&data).unwrap());
             }
             _ => {}
         }
@@ -95,6 +95,13 @@ fn statuses(path: &Path) -> Vec<String> {
     })
     .unwrap();
     out
+}
+
+fn statuses(path: &Path) -> Vec<String> {
+    json_messages(path, "/mireg/localization")
+        .iter()
+        .map(|v| v["status"].as_str().unwrap().to_string())
+        .collect()
 }
 
 fn reference(path: &Path) -> Trajectory {
@@ -166,6 +173,24 @@ fn the_log_localizes_in_a_map_file() {
         rmse < 0.035 && max < 0.07,
         "RMSE {rmse:.4} m, max {max:.4} m"
     );
+    // Every link tried is on the output, named by the map file and the log; those that hold
+    // frames were accepted with a weight, those rejected say why.
+    let links = json_messages(&out, "/mireg/session_links");
+    let accepted = links.iter().filter(|l| l["verdict"] == "accepted").count();
+    assert!(accepted >= 2, "{} links, {accepted} accepted", links.len());
+    for l in &links {
+        assert_eq!(l["session_a"], "prior_30");
+        assert_eq!(l["session_b"], "icl_livingroom1");
+        let weight = l["weight"].as_f64().unwrap();
+        if l["verdict"] == "accepted" {
+            assert!(weight > 0.0, "{l}");
+        } else {
+            assert!(
+                weight == 0.0 && !l["reason"].as_str().unwrap().is_empty(),
+                "{l}"
+            );
+        }
+    }
 }
 
 #[test]

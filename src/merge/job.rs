@@ -603,7 +603,7 @@ fn joining_alignment(
 }
 
 /// Every attempt as `/mireg/session_links` records it.
-fn link_records(
+pub(super) fn link_records(
     sessions: &[Session],
     attempts: &[Attempt],
     kept: &BTreeSet<usize>,

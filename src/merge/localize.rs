@@ -32,10 +32,11 @@ use serde_json::json;
 
 use super::MergeConfig;
 use super::graph::{Fix, solve_in_prior};
-use super::job::{Attempt, Linker};
+use super::job::{Attempt, Linker, link_records};
 use super::links::Track;
 use super::map_prior::{MAP_MIN_REVERSE_FITNESS, is_map_file, map_session, read_map, tiling_for};
 use super::session::{Session, prepare_sessions};
+use super::write::{LinkRecord, session_links_json_schema};
 use crate::io::atomic_file::{check_target, same_file};
 use crate::io::codec::Time;
 use crate::io::input_log::InputLog;
@@ -114,6 +115,9 @@ pub struct LocalizeSummary {
     pub tf_topic: String,
     /// See [`LocalizeSummary::pose_topic`].
     pub localization_topic: String,
+    /// Every candidate link to the map tried, its verdict and reason (`mireg.SessionLink`, as
+    /// `mireg merge` writes them; the prior is session a).
+    pub session_links_topic: String,
     /// Wall-clock seconds, the log's registration included.
     pub elapsed_s: f64,
 }
@@ -162,16 +166,28 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
     ropts.topic.clone_from(&opts.topic);
     ropts.config.pair.seed = opts.seed;
     register_log(&ropts)?;
-    let log = Session::read(&registered)?;
+    let mut log = Session::read(&registered)?;
+    // Links name the log by its own file, not the temporary one.
+    log.name = opts
+        .log
+        .file_stem()
+        .map_or_else(|| "log".to_string(), |s| s.to_string_lossy().into_owned());
     let (sessions, loops, pair) = prior.with_log(log, opts)?;
     let tracks: Vec<Track<'_>> = sessions.iter().map(Session::track).collect();
     let linker = Linker::new(&sessions, &tracks, &pair, &loops, &opts.config);
     let mut attempts = Vec::new();
     let outcome = linker.link_pair((0, 1), &mut attempts)?;
-    let placed = place(&sessions, &attempts, outcome.join.as_ref(), &loops)?;
+    let (placed, weights) = place(&sessions, &attempts, outcome.join.as_ref(), &loops)?;
+    let kept: BTreeSet<usize> = outcome
+        .join
+        .iter()
+        .flat_map(|(_, kept)| kept.iter().copied())
+        .collect();
+    let joins: Vec<_> = outcome.join.iter().map(|(j, _)| *j).collect();
+    let records = link_records(&sessions, &attempts, &kept, &joins, &weights, &opts.config);
     let [prior, log] = &sessions;
     let map_frame = prior.output.world_frame.clone();
-    let topics = write_output(opts, log, &map_frame, &placed)?;
+    let topics = write_output(opts, log, &map_frame, &placed, &records)?;
     let count = |s: FrameStatus| placed.iter().filter(|p| p.status == s).count();
     Ok(LocalizeSummary {
         output: opts.output.clone(),
@@ -187,6 +203,7 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
         pose_topic: topics[0].clone(),
         tf_topic: topics[1].clone(),
         localization_topic: topics[2].clone(),
+        session_links_topic: topics[3].clone(),
         elapsed_s: t0.elapsed().as_secs_f64(),
     })
 }
@@ -229,16 +246,18 @@ impl Prior {
 }
 
 /// Each frame of the log (`sessions[1]`) placed in the prior's world (`sessions[0]`) by the
-/// agreeing links of `join`, or lost without one.
+/// agreeing links of `join`, or lost without one; and each attempt's robust weight at the
+/// optimum (0 outside the graph).
 fn place(
     sessions: &[Session; 2],
     attempts: &[Attempt],
     join: Option<&(super::Join, Vec<usize>)>,
     loops: &LoopConfig,
-) -> Result<Vec<Placed>> {
+) -> Result<(Vec<Placed>, Vec<f64>)> {
     let [prior, log] = sessions;
+    let mut weights = vec![0.0; attempts.len()];
     let Some((join, kept)) = join else {
-        return Ok(log
+        let lost = log
             .poses
             .iter()
             .map(|_| Placed {
@@ -247,7 +266,8 @@ fn place(
                 fix: None,
                 distance_to_map_m: None,
             })
-            .collect());
+            .collect();
+        return Ok((lost, weights));
     };
     let fixes: Vec<Fix> = kept
         .iter()
@@ -263,6 +283,7 @@ fn place(
     let solution = solve_in_prior(&log.poses, &join.a_from_b, &fixes, loops)?;
     let mut held: BTreeMap<usize, (usize, f64, f64)> = BTreeMap::new();
     for ((&k, f), w) in kept.iter().zip(&fixes).zip(&solution.link_weights) {
+        weights[k] = *w;
         let t = &attempts[k];
         if *w >= 0.5 && held.get(&f.frame).is_none_or(|h| t.link.inliers > h.0) {
             held.insert(f.frame, (t.link.inliers, t.fitness, *w));
@@ -274,7 +295,7 @@ fn place(
         .map(|&k| prior.poses[k] * Point3::origin())
         .collect();
     let reach = loops.candidates.max_place_radius_m;
-    Ok(solution.poses[0]
+    let placed = solution.poses[0]
         .iter()
         .enumerate()
         .map(|(k, p)| {
@@ -297,7 +318,8 @@ fn place(
                 distance_to_map_m: d.is_finite().then_some(d),
             }
         })
-        .collect())
+        .collect();
+    Ok((placed, weights))
 }
 
 /// The JSON schema of `…/localization`.
@@ -329,7 +351,8 @@ fn write_output(
     log: &Session,
     map_frame: &str,
     placed: &[Placed],
-) -> Result<[String; 3]> {
+    records: &[LinkRecord],
+) -> Result<[String; 4]> {
     let (input, catalog) = InputLog::open(&opts.log)?;
     let channels = catalog.channel_infos();
     let ns = crate::trajectory::free_mireg_namespace(channels.iter().map(|c| c.topic.as_str()));
@@ -338,7 +361,12 @@ fn write_output(
     } else {
         "/tf".to_string()
     };
-    let topics = [format!("{ns}/pose"), tf_topic, format!("{ns}/localization")];
+    let topics = [
+        format!("{ns}/pose"),
+        tf_topic,
+        format!("{ns}/localization"),
+        format!("{ns}/session_links"),
+    ];
     let kind = log.output.kind;
     let profile = match kind {
         CloudKind::Ros1 | CloudKind::LivoxRos1(_) => "ros1",
@@ -355,7 +383,24 @@ fn write_output(
         schema.as_bytes(),
         "json",
     )?;
+    let links_schema = serde_json::to_string(&session_links_json_schema()).expect("schema JSON");
+    let links = out.add_channel(
+        &topics[3],
+        "mireg.SessionLink",
+        "jsonschema",
+        links_schema.as_bytes(),
+        "json",
+    )?;
     input.pass_through(&mut out, &BTreeSet::new(), None, |_, _, _| Ok(()))?;
+    // Each link at the log time of its frame of the log, in time order.
+    let mut timed: Vec<(u64, &LinkRecord)> = records
+        .iter()
+        .map(|r| (log.output.frames[r.frame_b()].log_time, r))
+        .collect();
+    timed.sort_by_key(|(t, _)| *t);
+    for (t, r) in timed {
+        out.write(links, t, t, &serde_json::to_vec(r).expect("JSON"))?;
+    }
     for (k, (f, p)) in log.output.frames.iter().zip(placed).enumerate() {
         if let Some(world_from_sensor) = p.pose {
             let stamped = StampedPose {
@@ -397,6 +442,7 @@ fn write_output(
         ("pose_topic".to_string(), topics[0].clone()),
         ("tf_topic".to_string(), topics[1].clone()),
         ("localization_topic".to_string(), topics[2].clone()),
+        ("session_links_topic".to_string(), topics[3].clone()),
         ("voxel_m".to_string(), log.voxel_m.to_string()),
     ]);
     out.write_metadata("mireg_localize", meta)?;

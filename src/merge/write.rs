@@ -84,6 +84,11 @@ impl LinkRecord {
             ends: (l.a, l.b),
         }
     }
+
+    /// Its frame in session b.
+    pub(super) fn frame_b(&self) -> usize {
+        self.frame_b
+    }
 }
 
 /// The JSON schema of `…/session_links`.
@@ -95,7 +100,7 @@ pub fn session_links_json_schema() -> serde_json::Value {
     json!({
         "$schema": "https://json-schema.org/draft/2020-12/schema",
         "title": "mireg.SessionLink",
-        "description": "A candidate link between two sessions tried by mireg merge: the two frames (0-based indices of each run's clouds, header stamps), how it was found, the MI-RANSAC + ICP registration of session b's frame against session a's, the verdict and why, and the link's robust weight in the merged pose graph",
+        "description": "A candidate link between two sessions tried by mireg merge (or between a prior map, session a, and a log by mireg localize): the two frames (0-based indices of each run's clouds, header stamps), how it was found, the MI-RANSAC + ICP registration of session b's frame against session a's, the verdict and why, and the link's robust weight in the merged pose graph",
         "type": "object",
         "properties": {
             "session_a": text, "frame_a": int, "stamp_a_ns": int,
