@@ -1,4 +1,4 @@
-//! Criterion benchmarks of the MI-RANSAC core. Figures and machine: docs/BENCHMARKS.md.
+//! Criterion benchmarks of the MI-RANSAC core. Figures and machine: docs/BENCHMARKS_ARCHIVE.md.
 //!
 //! `cargo bench --bench core`; single-threaded figures with `RAYON_NUM_THREADS=1`.
 

@@ -1,4 +1,4 @@
-//! Builds LiDAR-size MCAP logs for the `register` benchmarks (docs/BENCHMARKS.md).
+//! Builds LiDAR-size MCAP logs for the `register` benchmarks (docs/BENCHMARKS_ARCHIVE.md).
 //!
 //! `cargo run --release --example make_lidar_mcap -- FRAMES OUT.mcap [PASSTHROUGH_MB]`
 //!

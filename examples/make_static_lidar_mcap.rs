@@ -1,7 +1,7 @@
 //! A parked car: FRAMES copies of KITTI scan 000000 (`../shared/data/kitti_pair`, HDL-64) with
 //! independent Gaussian noise of NOISE_M metres per coordinate (default 0.01), 0.1 s apart, as ROS 2
 //! PointCloud2 on `/velodyne_points`. The true trajectory is the identity: the last pose of
-//! `mireg register` is its drift (docs/BENCHMARKS.md).
+//! `mireg register` is its drift (docs/BENCHMARKS_ARCHIVE.md).
 //!
 //! `cargo run --release --example make_static_lidar_mcap -- FRAMES OUT.mcap [NOISE_M]`
 

@@ -11,7 +11,7 @@
 //! rayon workers' arenas 12.5 and 13.1 MB for under 40 kB in use (`malloc_stats`), and the peak
 //! RSS grew from 79 MB over 20 frames to 90 MB over 200 while the live heap stayed flat
 //! (heaptrack). A fixed threshold stops that growth, at the cost of page faults on every frame's
-//! large buffers. Measured (docs/BENCHMARKS.md, idle, 20 → 200 KITTI-size frames, two runs each):
+//! large buffers. Measured (docs/BENCHMARKS_ARCHIVE.md, idle, 20 → 200 KITTI-size frames, two runs each):
 //! at glibc's 128 KiB default, 48.6–49.2 → 51.3–51.7 MB peak RSS at 9.5–10.2 frames/s (system
 //! time 3.8–4.5 s per 200 frames); at 1 MiB, which leaves the sub-megabyte per-frame buffers in
 //! the arenas, 53.1–53.2 → 57.2–57.8 MB at 10.2–10.5 frames/s (3.3–3.5 s). 1 MiB is used: both
@@ -23,7 +23,7 @@
 //! faulted in once per frame. `mireg register` already returns every arena's free memory
 //! every few frames ([`trim`]), which is what bounds the RSS of a long log; between two such
 //! returns the arenas now keep what they freed ([`TRIM_THRESHOLD_BYTES`]). Measured with the
-//! cloud buffers reused (docs/BENCHMARKS.md): on the KITTI replay log (100 frames, 0.5 m voxel)
+//! cloud buffers reused (docs/BENCHMARKS_ARCHIVE.md): on the KITTI replay log (100 frames, 0.5 m voxel)
 //! 157k → 28k page faults and 0.50 → 0.20 s of system time; peak RSS 20 → 200 frames
 //! 45.5–47.1 → 48.1–48.9 MB (+3.8–5.7 % per round, against +3.9–10 % before).
 

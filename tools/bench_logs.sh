@@ -2,7 +2,7 @@
 # For each log: `mireg register` wall time [s] and peak RSS [MB] (GNU time), and the md5 of the
 # odometry and loop-closed poses it gives (`mireg export ... --format tum`), one row per log. For
 # comparing the same frames in different containers (e.g. a bag and its compressed versions:
-# docs/BENCHMARKS.md, "Compressed ROS 2 bags").
+# docs/BENCHMARKS_ARCHIVE.md, "Compressed ROS 2 bags").
 #
 # Usage: tools/bench_logs.sh path/to/mireg LOG [LOG...]   (extra register flags in $MIREG_FLAGS)
 set -euo pipefail

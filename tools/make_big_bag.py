@@ -1,4 +1,4 @@
-"""A large ROS 1 bag for the pass-through benchmark (docs/BENCHMARKS.md, "Bags"): the 4 clouds
+"""A large ROS 1 bag for the pass-through benchmark (docs/BENCHMARKS_ARCHIVE.md, "Bags"): the 4 clouds
 and poses of fixtures/bags/icl4_none.bag plus BALLAST incompressible messages of MB megabytes
 (std_msgs/UInt8MultiArray with random bytes) on /ballast, interleaved with the clouds, written by
 rosbags with uncompressed chunks (rosbag record's default).

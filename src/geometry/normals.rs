@@ -106,7 +106,7 @@ fn tree_normals(
 /// NOTE: on the LiDAR ICP clouds of `mireg register` (KAIST03: 16k points, 0.74 m radius) the
 /// tree's bounded-heap search was a quarter of all instructions of a run; a cell scan of the
 /// 3 × 3 × 3 block, then a sort of the few dozen hits, needs a fraction of that
-/// (docs/BENCHMARKS.md).
+/// (docs/BENCHMARKS_ARCHIVE.md).
 ///
 /// Errors: as [`estimate_normals`].
 pub fn estimate_normals_with_grid(

@@ -245,7 +245,7 @@ impl PairConfig {
         r.inlier_threshold_m.get_or_insert(1.5 * v);
         // NOTE: measured, not Open3D's habit of refining on a denser cloud: on the fixture log the
         // feature cloud gives ATE 1.66 cm vs 2.60 cm at voxel / 2 and 78 vs 52 frames/s (KITTI-size:
-        // 7.4 vs 5.7 frames/s); on the ICL pair 4.8 vs 4.0 mm (docs/BENCHMARKS.md).
+        // 7.4 vs 5.7 frames/s); on the ICL pair 4.8 vs 4.0 mm (docs/BENCHMARKS_ARCHIVE.md).
         r.icp_voxel_size_m.get_or_insert(v);
         let icp_distance = *r.icp_max_distance_m.get_or_insert(v);
         r.icp_fine_distance_m.get_or_insert(0.5 * icp_distance);

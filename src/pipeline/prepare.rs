@@ -446,7 +446,7 @@ fn separate_icp_target(
     // clouds, 0.37 m / 0.5 m voxels, 16k / 11k points, those took 29–35 / 21–22 ms a frame
     // against the kd-tree's 18 / 17–19 ms), nor the kd-tree (a quarter of a KAIST03 run's
     // instructions): the same normals, bit for bit, for a fraction of the work
-    // (docs/BENCHMARKS.md).
+    // (docs/BENCHMARKS_ARCHIVE.md).
     let estimate = NormalEstimate::new(
         radius,
         c.normal_max_nn,

@@ -17,7 +17,7 @@
 //! the hash or the thread count: the same seed gives the same poses.
 //!
 //! NOTE: two earlier layouts, measured on the KAIST03 keyframes (docs/ODOMETRY.md,
-//! docs/BENCHMARKS.md): a [`BTreeMap`](std::collections::BTreeMap) of per-voxel vectors cost
+//! docs/BENCHMARKS_ARCHIVE.md): a [`BTreeMap`](std::collections::BTreeMap) of per-voxel vectors cost
 //! 15–19 ms a frame (a tree search per inserted point, a pointer chase per voxel); a slab of
 //! `max_points_per_voxel` slots per voxel (at 5 per voxel, 21 MB of points and normals for 87k
 //! voxels of 2.5 points on average), bucketed into a grid by a counting sort every frame, spent

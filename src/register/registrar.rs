@@ -15,14 +15,14 @@ use super::frames::{FrameOut, PreparedMsg};
 
 /// Frames between two returns of the allocator's free memory to the system
 /// ([`crate::heap::trim`]), which keeps the peak RSS of a long log within a few percent of a short
-/// one's (docs/BENCHMARKS.md).
+/// one's (docs/BENCHMARKS_ARCHIVE.md).
 const TRIM_EVERY_FRAMES: usize = 8;
 
 /// Runs `f` on a worker of rayon's global pool, the calling thread waiting (`rayon::scope` from
 /// outside the pool). Registering a frame is many short parallel loops (an ICP iteration each);
 /// called from the registering thread, each loop was injected into the pool and woke the caller
 /// when done, where from a worker the loops split among the workers directly. On the KAIST03
-/// keyframes: 1 800–2 100 → 940–1 150 context switches per run (docs/BENCHMARKS.md).
+/// keyframes: 1 800–2 100 → 940–1 150 context switches per run (docs/BENCHMARKS_ARCHIVE.md).
 ///
 /// NOTE: not for preparing frames: on the workers, that stage's buffers shared their malloc
 /// arenas with registration's, and the peak RSS of 200 KITTI-size frames rose to 1.11–1.12 × that
