@@ -194,5 +194,142 @@ fn main() {
             .expect("fixtures/bags metadata");
         put("rosbag2_metadata", &format!("{dir}.yaml"), &text);
     }
+    hostile_seeds();
     println!("corpus written to fuzz/corpus/");
+}
+
+/// The classes of issue 49: decompression bombs in each container and mode, per-point times
+/// that are not finite or absurd, points far beyond any sensor's range.
+fn hostile_seeds() {
+    use mireg::fuzzing::{
+        glitched_times, lz4_zero_chunk, message_mode_file, small_log_with, timed_cloud_cdr,
+        with_first_chunk, zstd_zero_chunk, zstd_zeros,
+    };
+    let zstd_log = small_log(
+        2,
+        mcap::WriteOptions::new().compression(Some(mcap::Compression::Zstd)),
+    );
+    // MCAP chunks: claiming 512 MiB for 1 MiB of zeros (zstd, lz4); claiming 1 MiB for 128 MiB.
+    for (name, chunk) in [
+        (
+            "bomb_zstd_chunk_claims_512mib.mcap",
+            zstd_zero_chunk(1 << 20, 512 << 20),
+        ),
+        (
+            "bomb_lz4_chunk_claims_512mib.mcap",
+            lz4_zero_chunk(1 << 20, 512 << 20),
+        ),
+        (
+            "bomb_zstd_chunk_overruns_claim.mcap",
+            zstd_zero_chunk(128 << 20, 1 << 20),
+        ),
+    ] {
+        let log = with_first_chunk(&zstd_log, &chunk);
+        put("mcap_records", name, &log);
+        put("register_input", name, &log);
+    }
+    // ROS 1 chunks declaring 1 GiB.
+    for (name, c) in [
+        ("bomb_bz2_chunk_claims_1gib.bag", ChunkCompression::Bz2),
+        ("bomb_lz4_chunk_claims_1gib.bag", ChunkCompression::Lz4),
+    ] {
+        put("ros1_bag", name, &small_bag(2, c, Some(1 << 30)));
+    }
+    // rosbag2, zstd: the first byte is the mode (0 file, 1 message), the rest the bag's file.
+    let plain = small_log(2, mcap::WriteOptions::new().compression(None));
+    let seed = |mode: u8, file: &[u8]| [&[mode][..], file].concat();
+    put(
+        "rosbag2_compressed",
+        "file_mode.bin",
+        &seed(0, &zstd::bulk::compress(&plain, 3).expect("in memory")),
+    );
+    put(
+        "rosbag2_compressed",
+        "message_mode.bin",
+        &seed(1, &message_mode_file(&plain, None)),
+    );
+    put(
+        "rosbag2_compressed",
+        "bomb_file_mode_256mib.bin",
+        &seed(0, &zstd_zeros(b"\x89MCAP0\r\n", 256 << 20)),
+    );
+    put(
+        "rosbag2_compressed",
+        "bomb_message_mode_256mib.bin",
+        &seed(
+            1,
+            &message_mode_file(&plain, Some(&zstd_zeros(b"", 256 << 20))),
+        ),
+    );
+    // Per-point times: glitches in every cloud, the second cloud's times all NaN.
+    let timed = small_log_with(
+        2,
+        mcap::WriteOptions::new().compression(Some(mcap::Compression::Zstd)),
+        &|k, header, points| {
+            let stamp = header.stamp.sec as u64 * 1_000_000_000 + header.stamp.nanosec as u64;
+            let times = glitched_times(points.len(), k == 1);
+            let pts: Vec<_> = points.iter().copied().zip(times).collect();
+            timed_cloud_cdr(stamp, &pts)
+        },
+    );
+    put("register_input", "time_glitches.mcap", &timed);
+    let cloud: Vec<_> = [
+        [1.0, 2.0, 3.0],
+        [-1.0, 0.5, 2.0],
+        [0.0, 1.0, 1.0],
+        [2.0, 0.0, 1.0],
+        [1.0, 1.0, 1.0],
+        [0.5, 0.5, 0.5],
+        [3.0, 1.0, 0.0],
+    ]
+    .iter()
+    .map(|&[x, y, z]| Point3::new(x, y, z))
+    .zip(glitched_times(7, false))
+    .collect();
+    put(
+        "point_cloud2",
+        "time_glitches.cdr",
+        &timed_cloud_cdr(1_700_000_000_000_000_000, &cloud),
+    );
+    // Far points: 1e9 m in the first cloud, 3e7 m and exactly the bound in the second.
+    let far = small_log_with(
+        2,
+        mcap::WriteOptions::new().compression(Some(mcap::Compression::Zstd)),
+        &|k, header, points| {
+            let mut pts = points.to_vec();
+            if k == 0 {
+                pts.push(Point3::new(1e9, 0.0, 0.0));
+            } else {
+                pts.extend([Point3::new(3e7, 1.0, 1.0), Point3::new(0.0, -1e6, 0.0)]);
+            }
+            cdr::encode_point_cloud2(header, &pts, None)
+        },
+    );
+    put("register_input", "far_points.mcap", &far);
+    let header = codec::Header {
+        stamp: codec::Time { sec: 1, nanosec: 2 },
+        frame_id: "lidar".into(),
+    };
+    let pts = [
+        Point3::new(1.0, 2.0, 3.0),
+        Point3::new(1e9, 0.0, 0.0),
+        Point3::new(0.0, -1e6, 1.0),
+        Point3::new(0.0, 0.0, 1.0),
+    ];
+    put(
+        "point_cloud2",
+        "far_points.cdr",
+        &cdr::encode_point_cloud2(&header, &pts, None),
+    );
+    let pts32: Vec<Point3<f32>> = pts.iter().map(|p| p.cast()).collect();
+    put(
+        "ros1_messages",
+        "far_points",
+        &ros1::encode_point_cloud2(&header, &pts32, None),
+    );
+    put(
+        "foxglove_point_cloud",
+        "far_points.pb",
+        &mireg::fuzzing::foxglove_seed_cloud_of(&pts),
+    );
 }

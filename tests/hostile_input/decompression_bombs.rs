@@ -7,22 +7,8 @@
 //! SQLite file, and the errors name the input.
 
 use super::*;
-use mireg::fuzzing::{ChunkCompression, small_bag};
+use mireg::fuzzing::{ChunkCompression, small_bag, zstd_zeros};
 use mireg::io::bag::ros1::Bag;
-
-/// `count` zero bytes after `head`, as one zstd stream (streamed: never held whole).
-fn zstd_zeros(head: &[u8], count: u64) -> Vec<u8> {
-    let mut enc = zstd::stream::Encoder::new(Vec::new(), 1).unwrap();
-    std::io::Write::write_all(&mut enc, head).unwrap();
-    let zeros = vec![0u8; 1 << 20];
-    let mut left = count;
-    while left > 0 {
-        let n = left.min(zeros.len() as u64) as usize;
-        std::io::Write::write_all(&mut enc, &zeros[..n]).unwrap();
-        left -= n as u64;
-    }
-    enc.finish().unwrap()
-}
 
 /// A `file`-mode rosbag2 directory of one `bag_0.mcap.zstd` holding `data`.
 fn file_mode_bag(dir: &Path, data: &[u8]) -> PathBuf {
