@@ -108,18 +108,30 @@ pub(super) fn run_pair(args: &PairArgs) -> Result<()> {
     let config = args.flags.config()?;
     let gt = args.gt.as_deref().map(|p| load_gt(args, p)).transpose()?;
     let (source, target) = rayon::join(
-        || cloud_file::read_points(&args.source),
-        || cloud_file::read_points(&args.target),
+        || cloud_file::read_cloud(&args.source),
+        || cloud_file::read_cloud(&args.target),
     );
     let (source, target) = (source?, target?);
-    let result = register_pair(&source, &target, &config)?;
+    let far = [source.num_dropped_far, target.num_dropped_far];
+    let result = register_pair(&source.points, &target.points, &config)?;
     let errors = gt.map(|gt| pose_error(&gt, &result.target_from_source));
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
     if args.json {
-        writeln!(out, "{}", pair_json(&result, errors))?;
+        let mut v = pair_json(&result, errors);
+        v["num_dropped_far"] = serde_json::json!(far);
+        writeln!(out, "{v}")?;
     } else {
         write_pair_text(&mut out, &result, errors)?;
+        if far != [0, 0] {
+            writeln!(
+                out,
+                "far points dropped {} / {} (a coordinate of {} m or more)",
+                far[0],
+                far[1],
+                crate::io::codec::MAX_COORDINATE_M
+            )?;
+        }
     }
     match result.failure {
         None => Ok(()),
