@@ -59,13 +59,18 @@ fn decoded_cloud_is_sound(c: &codec::PointCloud) -> bool {
 /// decoded cloud holds only finite points.
 pub fn point_cloud2(data: &[u8]) {
     use crate::io::codec::livox::{self, LivoxTags};
-    for c in [
-        livox::decode_cdr_reusing(data, Vec::new(), LivoxTags::KeepAll),
-        livox::decode_ros1_reusing(data, Vec::new(), LivoxTags::KeepAll),
-    ]
-    .into_iter()
-    .flatten()
-    {
+    for (c, declared) in [
+        (
+            livox::decode_cdr_reusing(data, Vec::new(), LivoxTags::KeepAll),
+            livox::declared_points_cdr(data),
+        ),
+        (
+            livox::decode_ros1_reusing(data, Vec::new(), LivoxTags::KeepAll),
+            livox::declared_points_ros1(data),
+        ),
+    ] {
+        let Ok(c) = c else { continue };
+        assert_eq!(declared.map(|d| d.1), Some(u64::from(c.width)));
         assert!(decoded_cloud_is_sound(&c));
         assert_eq!(c.times.map(|t| t.seconds.len()), Some(c.points.len()));
     }
@@ -74,10 +79,17 @@ pub fn point_cloud2(data: &[u8]) {
     }
 }
 
-/// `foxglove.PointCloud` (protobuf) decoding.
+/// `foxglove.PointCloud` (protobuf) decoding, and the point count read before decoding.
 pub fn foxglove_point_cloud(data: &[u8]) {
     if let Ok(c) = foxglove::decode_foxglove_point_cloud(data) {
         assert!(decoded_cloud_is_sound(&c));
+        // What `register` checks against --max-points before decoding is what decodes.
+        if c.width > 0 {
+            assert_eq!(
+                foxglove::point_cloud_declared_points(data).map(|d| d.1),
+                Some(u64::from(c.width))
+            );
+        }
     }
 }
 
