@@ -42,10 +42,19 @@ fn main() {
         put("mcap_records", name, bytes);
         put("register_input", name, bytes);
     }
-    // Real messages of the seed log, one of each kind.
+    message_seeds(&logs[2].1);
+    file_seeds();
+    bag_seeds();
+    bomb_seeds();
+    glitch_seeds();
+    println!("corpus written to fuzz/corpus/");
+}
+
+/// Real messages of the seed log `plain` (one of each kind), and small messages of each kind.
+fn message_seeds(plain: &[u8]) {
     let dir = tempfile::tempdir().expect("temporary directory");
     let path = dir.path().join("seed.mcap");
-    std::fs::write(&path, &logs[2].1).expect("seed log");
+    std::fs::write(&path, plain).expect("seed log");
     let mut topics = std::collections::BTreeMap::new();
     let mut seen = std::collections::BTreeSet::new();
     mireg::io::mcap::read::for_each_record(&path, |r| {
@@ -105,7 +114,10 @@ fn main() {
         "pose_in_frame.pb",
         &mireg::io::codec::foxglove::encode_pose_in_frame(5, "world", &pose),
     );
-    // Point cloud files of `mireg pair`.
+}
+
+/// Point cloud files of `mireg pair`, and pose files.
+fn file_seeds() {
     let ply = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n0 0 0\n1 0 0\n0 1 0.5\n";
     put("cloud_files", "tiny.ply", ply.as_bytes());
     let mut bin_ply = b"ply\nformat binary_little_endian 1.0\nelement vertex 2\nproperty double x\nproperty double y\nproperty double z\nend_header\n".to_vec();
@@ -152,8 +164,10 @@ fn main() {
         b"1.5 0 0 0 0 0 0 1\n1.6 0.1 0 0 0 0 0 1\n",
     );
     put("pose_files", "poses.kitti", b"1 0 0 0 0 1 0 0 0 0 1 0\n");
+}
 
-    // ROS 1: bags of each chunk compression, their messages, and rosbag2 metadata.
+/// ROS 1: bags of each chunk compression, their messages, and rosbag2 metadata.
+fn bag_seeds() {
     for (name, c) in [
         ("none.bag", ChunkCompression::None),
         ("bz2.bag", ChunkCompression::Bz2),
@@ -194,16 +208,12 @@ fn main() {
             .expect("fixtures/bags metadata");
         put("rosbag2_metadata", &format!("{dir}.yaml"), &text);
     }
-    hostile_seeds();
-    println!("corpus written to fuzz/corpus/");
 }
 
-/// The classes of issue 49: decompression bombs in each container and mode, per-point times
-/// that are not finite or absurd, points far beyond any sensor's range.
-fn hostile_seeds() {
+/// Decompression bombs (issue 49) in each container and mode.
+fn bomb_seeds() {
     use mireg::fuzzing::{
-        glitched_times, lz4_zero_chunk, message_mode_file, small_log_with, timed_cloud_cdr,
-        with_first_chunk, zstd_zero_chunk, zstd_zeros,
+        lz4_zero_chunk, message_mode_file, with_first_chunk, zstd_zero_chunk, zstd_zeros,
     };
     let zstd_log = small_log(
         2,
@@ -261,6 +271,12 @@ fn hostile_seeds() {
             &message_mode_file(&plain, Some(&zstd_zeros(b"", 256 << 20))),
         ),
     );
+}
+
+/// Per-point times that are not finite or absurd, and points far beyond any sensor's range
+/// (issue 49).
+fn glitch_seeds() {
+    use mireg::fuzzing::{glitched_times, small_log_with, timed_cloud_cdr};
     // Per-point times: glitches in every cloud, the second cloud's times all NaN.
     let timed = small_log_with(
         2,
