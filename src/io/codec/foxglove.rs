@@ -344,29 +344,20 @@ pub fn point_cloud_declared_points(payload: &[u8]) -> Option<(Header, u64)> {
 }
 
 /// The length of the last top-level length-delimited field `tag` of a protobuf message (as
-/// protobuf reads a repeated scalar field: the last one wins); `None` if absent or malformed.
-fn last_length_delimited(mut b: &[u8], tag: u64) -> Option<u64> {
-    use prost::encoding::decode_varint;
+/// protobuf reads a repeated scalar field: the last one wins), the other fields skipped as prost
+/// skips them (groups included); `None` if absent or malformed.
+fn last_length_delimited(mut b: &[u8], tag: u32) -> Option<u64> {
+    use prost::encoding::{DecodeContext, WireType, decode_key, decode_varint, skip_field};
     let mut found = None;
     while !b.is_empty() {
-        let key = decode_varint(&mut b).ok()?;
-        let skip = match key & 7 {
-            0 => {
-                decode_varint(&mut b).ok()?;
-                0
-            }
-            1 => 8,
-            2 => {
-                let len = decode_varint(&mut b).ok()?;
-                if key >> 3 == tag {
-                    found = Some(len);
-                }
-                len
-            }
-            5 => 4,
-            _ => return None,
-        };
-        b = b.get(usize::try_from(skip).ok()?..)?;
+        let (key, wire_type) = decode_key(&mut b).ok()?;
+        if key == tag && wire_type == WireType::LengthDelimited {
+            let len = decode_varint(&mut b).ok()?;
+            b = b.get(usize::try_from(len).ok()?..)?;
+            found = Some(len);
+        } else {
+            skip_field(wire_type, key, &mut b, DecodeContext::default()).ok()?;
+        }
     }
     found
 }
@@ -433,6 +424,15 @@ mod tests {
             assert_eq!((header, n), (decoded.header, u64::from(decoded.width)));
             assert_eq!(n, 3);
         }
+        // A group before the data (fuzz/regressions/foxglove_point_cloud): skipped as prost
+        // skips it.
+        let mut grouped = vec![0x5b, 0x08, 0x0a, 0x5c];
+        grouped.extend(cloud(&pts, None).encode_to_vec());
+        let decoded = decode_foxglove_point_cloud(&grouped).unwrap();
+        assert_eq!(
+            point_cloud_declared_points(&grouped).map(|d| d.1),
+            Some(u64::from(decoded.width))
+        );
         let mut none = cloud(&[], None);
         none.point_stride = 0;
         assert_eq!(point_cloud_declared_points(&none.encode_to_vec()), None);
