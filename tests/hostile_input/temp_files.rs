@@ -114,9 +114,15 @@ fn a_signal_while_a_wal_bag_is_read_through_a_private_copy_leaves_no_temporary()
             .stderr(std::process::Stdio::piped())
             .spawn()
             .unwrap();
-        // The signal goes once the private copy exists (made when the bag is opened, kept
-        // until the run ends: registering the four clouds takes far longer than this wait).
-        while bag_temporaries(&work).is_empty() {
+        // The signal goes once the private copy is being written into its directory (made when
+        // the bag is opened, kept until the run ends: registering the four clouds takes far
+        // longer than this wait).
+        let copying = || {
+            bag_temporaries(&work)
+                .iter()
+                .any(|d| std::fs::read_dir(work.join(d)).is_ok_and(|mut e| e.next().is_some()))
+        };
+        while !copying() {
             assert!(child.try_wait().unwrap().is_none(), "ended before copying");
             std::thread::yield_now();
         }
