@@ -42,10 +42,19 @@ fn main() {
         put("mcap_records", name, bytes);
         put("register_input", name, bytes);
     }
-    // Real messages of the seed log, one of each kind.
+    message_seeds(&logs[2].1);
+    file_seeds();
+    bag_seeds();
+    bomb_seeds();
+    glitch_seeds();
+    println!("corpus written to fuzz/corpus/");
+}
+
+/// Real messages of the seed log `plain` (one of each kind), and small messages of each kind.
+fn message_seeds(plain: &[u8]) {
     let dir = tempfile::tempdir().expect("temporary directory");
     let path = dir.path().join("seed.mcap");
-    std::fs::write(&path, &logs[2].1).expect("seed log");
+    std::fs::write(&path, plain).expect("seed log");
     let mut topics = std::collections::BTreeMap::new();
     let mut seen = std::collections::BTreeSet::new();
     mireg::io::mcap::read::for_each_record(&path, |r| {
@@ -105,7 +114,10 @@ fn main() {
         "pose_in_frame.pb",
         &mireg::io::codec::foxglove::encode_pose_in_frame(5, "world", &pose),
     );
-    // Point cloud files of `mireg pair`.
+}
+
+/// Point cloud files of `mireg pair`, and pose files.
+fn file_seeds() {
     let ply = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n0 0 0\n1 0 0\n0 1 0.5\n";
     put("cloud_files", "tiny.ply", ply.as_bytes());
     let mut bin_ply = b"ply\nformat binary_little_endian 1.0\nelement vertex 2\nproperty double x\nproperty double y\nproperty double z\nend_header\n".to_vec();
@@ -152,8 +164,10 @@ fn main() {
         b"1.5 0 0 0 0 0 0 1\n1.6 0.1 0 0 0 0 0 1\n",
     );
     put("pose_files", "poses.kitti", b"1 0 0 0 0 1 0 0 0 0 1 0\n");
+}
 
-    // ROS 1: bags of each chunk compression, their messages, and rosbag2 metadata.
+/// ROS 1: bags of each chunk compression, their messages, and rosbag2 metadata.
+fn bag_seeds() {
     for (name, c) in [
         ("none.bag", ChunkCompression::None),
         ("bz2.bag", ChunkCompression::Bz2),
@@ -194,5 +208,144 @@ fn main() {
             .expect("fixtures/bags metadata");
         put("rosbag2_metadata", &format!("{dir}.yaml"), &text);
     }
-    println!("corpus written to fuzz/corpus/");
+}
+
+/// Decompression bombs (issue 49) in each container and mode.
+fn bomb_seeds() {
+    use mireg::fuzzing::{
+        lz4_zero_chunk, message_mode_file, with_first_chunk, zstd_zero_chunk, zstd_zeros,
+    };
+    let zstd_log = small_log(
+        2,
+        mcap::WriteOptions::new().compression(Some(mcap::Compression::Zstd)),
+    );
+    // MCAP chunks: claiming 512 MiB for 1 MiB of zeros (zstd, lz4); claiming 1 MiB for 128 MiB.
+    for (name, chunk) in [
+        (
+            "bomb_zstd_chunk_claims_512mib.mcap",
+            zstd_zero_chunk(1 << 20, 512 << 20),
+        ),
+        (
+            "bomb_lz4_chunk_claims_512mib.mcap",
+            lz4_zero_chunk(1 << 20, 512 << 20),
+        ),
+        (
+            "bomb_zstd_chunk_overruns_claim.mcap",
+            zstd_zero_chunk(128 << 20, 1 << 20),
+        ),
+    ] {
+        let log = with_first_chunk(&zstd_log, &chunk);
+        put("mcap_records", name, &log);
+        put("register_input", name, &log);
+    }
+    // ROS 1 chunks declaring 1 GiB.
+    for (name, c) in [
+        ("bomb_bz2_chunk_claims_1gib.bag", ChunkCompression::Bz2),
+        ("bomb_lz4_chunk_claims_1gib.bag", ChunkCompression::Lz4),
+    ] {
+        put("ros1_bag", name, &small_bag(2, c, Some(1 << 30)));
+    }
+    // rosbag2, zstd: the first byte is the mode (0 file, 1 message), the rest the bag's file.
+    let plain = small_log(2, mcap::WriteOptions::new().compression(None));
+    let seed = |mode: u8, file: &[u8]| [&[mode][..], file].concat();
+    put(
+        "rosbag2_compressed",
+        "file_mode.bin",
+        &seed(0, &zstd::bulk::compress(&plain, 3).expect("in memory")),
+    );
+    put(
+        "rosbag2_compressed",
+        "message_mode.bin",
+        &seed(1, &message_mode_file(&plain, None)),
+    );
+    put(
+        "rosbag2_compressed",
+        "bomb_file_mode_256mib.bin",
+        &seed(0, &zstd_zeros(b"\x89MCAP0\r\n", 256 << 20)),
+    );
+    put(
+        "rosbag2_compressed",
+        "bomb_message_mode_256mib.bin",
+        &seed(
+            1,
+            &message_mode_file(&plain, Some(&zstd_zeros(b"", 256 << 20))),
+        ),
+    );
+}
+
+/// Per-point times that are not finite or absurd, and points far beyond any sensor's range
+/// (issue 49).
+fn glitch_seeds() {
+    use mireg::fuzzing::{glitched_times, small_log_with, timed_cloud_cdr};
+    // Per-point times: glitches in every cloud, the second cloud's times all NaN.
+    let timed = small_log_with(
+        2,
+        mcap::WriteOptions::new().compression(Some(mcap::Compression::Zstd)),
+        &|k, header, points| {
+            let stamp = header.stamp.sec as u64 * 1_000_000_000 + header.stamp.nanosec as u64;
+            let times = glitched_times(points.len(), k == 1);
+            let pts: Vec<_> = points.iter().copied().zip(times).collect();
+            timed_cloud_cdr(stamp, &pts)
+        },
+    );
+    put("register_input", "time_glitches.mcap", &timed);
+    let cloud: Vec<_> = [
+        [1.0, 2.0, 3.0],
+        [-1.0, 0.5, 2.0],
+        [0.0, 1.0, 1.0],
+        [2.0, 0.0, 1.0],
+        [1.0, 1.0, 1.0],
+        [0.5, 0.5, 0.5],
+        [3.0, 1.0, 0.0],
+    ]
+    .iter()
+    .map(|&[x, y, z]| Point3::new(x, y, z))
+    .zip(glitched_times(7, false))
+    .collect();
+    put(
+        "point_cloud2",
+        "time_glitches.cdr",
+        &timed_cloud_cdr(1_700_000_000_000_000_000, &cloud),
+    );
+    // Far points: 1e9 m in the first cloud, 3e7 m and exactly the bound in the second.
+    let far = small_log_with(
+        2,
+        mcap::WriteOptions::new().compression(Some(mcap::Compression::Zstd)),
+        &|k, header, points| {
+            let mut pts = points.to_vec();
+            if k == 0 {
+                pts.push(Point3::new(1e9, 0.0, 0.0));
+            } else {
+                pts.extend([Point3::new(3e7, 1.0, 1.0), Point3::new(0.0, -1e6, 0.0)]);
+            }
+            cdr::encode_point_cloud2(header, &pts, None)
+        },
+    );
+    put("register_input", "far_points.mcap", &far);
+    let header = codec::Header {
+        stamp: codec::Time { sec: 1, nanosec: 2 },
+        frame_id: "lidar".into(),
+    };
+    let pts = [
+        Point3::new(1.0, 2.0, 3.0),
+        Point3::new(1e9, 0.0, 0.0),
+        Point3::new(0.0, -1e6, 1.0),
+        Point3::new(0.0, 0.0, 1.0),
+    ];
+    put(
+        "point_cloud2",
+        "far_points.cdr",
+        &cdr::encode_point_cloud2(&header, &pts, None),
+    );
+    let pts32: Vec<Point3<f32>> = pts.iter().map(|p| p.cast()).collect();
+    put(
+        "ros1_messages",
+        "far_points",
+        &ros1::encode_point_cloud2(&header, &pts32, None),
+    );
+    put(
+        "foxglove_point_cloud",
+        "far_points.pb",
+        &mireg::fuzzing::foxglove_seed_cloud_of(&pts),
+    );
 }

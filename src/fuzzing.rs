@@ -13,7 +13,12 @@ use crate::odometry::OdometryConfig;
 use crate::pipeline::PairConfig;
 use crate::register::{RegisterOptions, register_log};
 
+mod hostile;
 mod small_bag;
+pub use hostile::{
+    TIME_GLITCHES, compressed_bag_metadata, glitched_times, lz4_zero_chunk, lz4_zeros,
+    message_mode_file, timed_cloud_cdr, with_first_chunk, zstd_zero_chunk, zstd_zeros,
+};
 pub use small_bag::{ChunkCompression, small_bag};
 
 /// A fuzzed file surface: name (fuzz target and corpus folder) and entry point.
@@ -31,43 +36,60 @@ pub const TARGETS: &[Target] = &[
     ("ros1_messages", ros1_messages),
     ("ros1_bag", ros1_bag),
     ("rosbag2_metadata", rosbag2_metadata),
+    ("rosbag2_compressed", rosbag2_compressed),
 ];
+
+/// Whether `c` holds what a decoder may hand on: finite points within
+/// [`codec::MAX_COORDINATE_M`], and per-point times (one per point) either all finite (the
+/// glitches dropped) or none (a field without a time, which deskews nothing).
+fn decoded_cloud_is_sound(c: &codec::PointCloud) -> bool {
+    let points = c.points.iter().all(|p| {
+        p.coords
+            .iter()
+            .all(|v| v.is_finite() && v.abs() < codec::MAX_COORDINATE_M)
+    });
+    let times = c.times.as_ref().is_none_or(|t| {
+        t.seconds.len() == c.points.len()
+            && (t.seconds.iter().all(|s| s.is_finite()) || t.seconds.iter().all(|s| !s.is_finite()))
+    });
+    points && times
+}
 
 /// `sensor_msgs/msg/PointCloud2` (cdr) decoding, and Livox `CustomMsg` in cdr and ros1; a
 /// decoded cloud holds only finite points.
 pub fn point_cloud2(data: &[u8]) {
     use crate::io::codec::livox::{self, LivoxTags};
-    for c in [
-        livox::decode_cdr_reusing(data, Vec::new(), LivoxTags::KeepAll),
-        livox::decode_ros1_reusing(data, Vec::new(), LivoxTags::KeepAll),
-    ]
-    .into_iter()
-    .flatten()
-    {
-        assert!(
-            c.points
-                .iter()
-                .all(|p| p.coords.iter().all(|v| v.is_finite()))
-        );
+    for (c, declared) in [
+        (
+            livox::decode_cdr_reusing(data, Vec::new(), LivoxTags::KeepAll),
+            livox::declared_points_cdr(data),
+        ),
+        (
+            livox::decode_ros1_reusing(data, Vec::new(), LivoxTags::KeepAll),
+            livox::declared_points_ros1(data),
+        ),
+    ] {
+        let Ok(c) = c else { continue };
+        assert_eq!(declared.map(|d| d.1), Some(u64::from(c.width)));
+        assert!(decoded_cloud_is_sound(&c));
         assert_eq!(c.times.map(|t| t.seconds.len()), Some(c.points.len()));
     }
     if let Ok(c) = cdr::decode_point_cloud2(data) {
-        assert!(
-            c.points
-                .iter()
-                .all(|p| p.coords.iter().all(|v| v.is_finite()))
-        );
+        assert!(decoded_cloud_is_sound(&c));
     }
 }
 
-/// `foxglove.PointCloud` (protobuf) decoding.
+/// `foxglove.PointCloud` (protobuf) decoding, and the point count read before decoding.
 pub fn foxglove_point_cloud(data: &[u8]) {
     if let Ok(c) = foxglove::decode_foxglove_point_cloud(data) {
-        assert!(
-            c.points
-                .iter()
-                .all(|p| p.coords.iter().all(|v| v.is_finite()))
-        );
+        assert!(decoded_cloud_is_sound(&c));
+        // What `register` checks against --max-points before decoding is what decodes.
+        if c.width > 0 {
+            assert_eq!(
+                foxglove::point_cloud_declared_points(data).map(|d| d.1),
+                Some(u64::from(c.width))
+            );
+        }
     }
 }
 
@@ -81,11 +103,7 @@ pub fn pose_messages(data: &[u8]) {
 /// decoding.
 pub fn ros1_messages(data: &[u8]) {
     if let Ok(c) = ros1::decode_point_cloud2(data) {
-        assert!(
-            c.points
-                .iter()
-                .all(|p| p.coords.iter().all(|v| v.is_finite()))
-        );
+        assert!(decoded_cloud_is_sound(&c));
     }
     let _ = ros1::decode_pose_stamped(data);
     let _ = ros1::decode_tf_message(data);
@@ -115,6 +133,23 @@ pub fn rosbag2_metadata(data: &[u8]) {
     if let Ok(text) = std::str::from_utf8(data) {
         let _ = crate::io::bag::rosbag2::parse_metadata(text);
     }
+}
+
+/// A zstd-compressed ROS 2 bag directory of MCAP storage, one file: the first byte chooses the
+/// mode (even: `file`, the rest the compressed file; odd: `message`, the rest the MCAP file of
+/// compressed messages), then the whole `mireg register` path on the directory. Decompression
+/// bombs in either mode end in an error naming the input, within the expansion limit.
+pub fn rosbag2_compressed(data: &[u8]) {
+    let Some((&mode, file)) = data.split_first() else {
+        return;
+    };
+    let bag = scratch("bag");
+    let _ = std::fs::remove_dir_all(&bag);
+    std::fs::create_dir(&bag).expect("scratch directory made");
+    let (metadata, name) = compressed_bag_metadata(mode % 2 == 0);
+    write(&bag.join("metadata.yaml"), metadata.as_bytes());
+    write(&bag.join(name), file);
+    register_path(&bag);
 }
 
 /// A scratch file for inputs that are read from a path: in a temporary directory of this
@@ -160,8 +195,13 @@ pub fn register_input(data: &[u8]) {
 /// `mireg register` on `data` saved as `name`; on error no output may be left behind.
 fn register_file(name: &str, data: &[u8]) {
     let input = scratch(name);
-    let output = scratch("out.mcap");
     write(&input, data);
+    register_path(&input);
+}
+
+/// `mireg register` on the log at `input`; on error no output may be left behind.
+fn register_path(input: &Path) {
+    let output = scratch("out.mcap");
     let _ = std::fs::remove_file(&output);
     let config = OdometryConfig {
         pair: PairConfig {
@@ -175,7 +215,7 @@ fn register_file(name: &str, data: &[u8]) {
         force: true,
         // Small bounds: a fuzzer's inputs are small, and its time is better spent elsewhere.
         max_points_per_cloud: 20_000,
-        ..RegisterOptions::new(&input, &output, config)
+        ..RegisterOptions::new(input, &output, config)
     };
     if register_log(&opts).is_err() {
         assert!(!output.exists(), "an error left an output behind");
@@ -255,6 +295,18 @@ fn small_camera(k: usize) -> nalgebra::Isometry3<f64> {
 /// its reference poses on `/ground_truth/pose`, a JSON channel, a metadata record and an
 /// attachment. `options` sets compression, chunking and indexes.
 pub fn small_log(frames: usize, options: mcap::WriteOptions) -> Vec<u8> {
+    small_log_with(frames, options, &|_, header, points| {
+        cdr::encode_point_cloud2(header, points, None)
+    })
+}
+
+/// A frame's cloud message of [`small_log_with`], from the frame's index, the cloud's header
+/// and the room's points in the camera frame (metres).
+pub type CloudWriter<'a> = &'a dyn Fn(usize, &codec::Header, &[nalgebra::Point3<f64>]) -> Vec<u8>;
+
+/// [`small_log`] with each frame's cloud message written by `cloud` (extra fields or points, a
+/// hostile message), on the same schema (`sensor_msgs/msg/PointCloud2`).
+pub fn small_log_with(frames: usize, options: mcap::WriteOptions, cloud: CloudWriter) -> Vec<u8> {
     use mcap::records::MessageHeader;
     use nalgebra::Point3;
     use std::collections::BTreeMap;
@@ -317,8 +369,7 @@ pub fn small_log(frames: usize, options: mcap::WriteOptions) -> Vec<u8> {
             log_time: t,
             publish_time: t,
         };
-        let cloud = cdr::encode_point_cloud2(&header, &pts, None);
-        w.write_to_known_channel(&m(clouds, k as u32), &cloud)
+        w.write_to_known_channel(&m(clouds, k as u32), &cloud(k, &header, &pts))
             .expect("cloud");
         let reference = codec::Header {
             frame_id: "world".into(),
@@ -338,6 +389,17 @@ pub fn small_log(frames: usize, options: mcap::WriteOptions) -> Vec<u8> {
 
 /// A small `foxglove.PointCloud` (protobuf): three points, FLOAT32 x, y, z at offsets 0, 4, 8.
 pub fn foxglove_seed_cloud() -> Vec<u8> {
+    use nalgebra::Point3;
+    foxglove_seed_cloud_of(&[
+        Point3::new(1.0, 2.0, 3.0),
+        Point3::new(-1.0, 0.5, 2.0),
+        Point3::new(0.0, 0.0, 1.0),
+    ])
+}
+
+/// A `foxglove.PointCloud` (protobuf) of `points` (metres, written as FLOAT32 x, y, z at offsets
+/// 0, 4, 8), frame `lidar`, no pose.
+pub fn foxglove_seed_cloud_of(points: &[nalgebra::Point3<f64>]) -> Vec<u8> {
     use ::foxglove::schemas::packed_element_field::NumericType;
     use ::foxglove::schemas::{PackedElementField, PointCloud, Timestamp};
     use prost::Message;
@@ -346,8 +408,9 @@ pub fn foxglove_seed_cloud() -> Vec<u8> {
         offset,
         r#type: NumericType::Float32 as i32,
     };
-    let data: Vec<u8> = [1.0f32, 2.0, 3.0, -1.0, 0.5, 2.0, 0.0, 0.0, 1.0]
+    let data: Vec<u8> = points
         .iter()
+        .flat_map(|p| p.coords.iter().map(|&v| v as f32).collect::<Vec<_>>())
         .flat_map(|v| v.to_le_bytes())
         .collect();
     PointCloud {
@@ -359,43 +422,4 @@ pub fn foxglove_seed_cloud() -> Vec<u8> {
         data: data.into(),
     }
     .encode_to_vec()
-}
-
-/// A decompression bomb: a chunk record of `count` zero bytes compressed by zstd (streamed through
-/// the encoder, never held whole), claiming `claimed` uncompressed bytes.
-pub fn zstd_zero_chunk(count: u64, claimed: u64) -> Vec<u8> {
-    let mut enc = zstd::stream::Encoder::new(Vec::new(), 1).expect("in memory");
-    let zeros = vec![0u8; 1 << 20];
-    let mut left = count;
-    while left > 0 {
-        let n = left.min(zeros.len() as u64) as usize;
-        std::io::Write::write_all(&mut enc, &zeros[..n]).expect("in memory");
-        left -= n as u64;
-    }
-    let data = enc.finish().expect("in memory");
-    let mut body = Vec::new();
-    body.extend(0u64.to_le_bytes());
-    body.extend(0u64.to_le_bytes());
-    body.extend(claimed.to_le_bytes());
-    body.extend(0u32.to_le_bytes());
-    body.extend(4u32.to_le_bytes());
-    body.extend(b"zstd");
-    body.extend((data.len() as u64).to_le_bytes());
-    body.extend(data);
-    let mut rec = vec![mcap::records::op::CHUNK];
-    rec.extend((body.len() as u64).to_le_bytes());
-    rec.extend(body);
-    rec
-}
-
-/// `log` (a valid MCAP with a chunk) with its first chunk record replaced by `chunk`.
-pub fn with_first_chunk(log: &[u8], chunk: &[u8]) -> Vec<u8> {
-    let mut at = 8;
-    loop {
-        let len = u64::from_le_bytes(log[at + 1..at + 9].try_into().expect("8 bytes")) as usize;
-        if log[at] == mcap::records::op::CHUNK {
-            return [&log[..at], chunk, &log[at + 9 + len..]].concat();
-        }
-        at += 9 + len;
-    }
 }

@@ -70,6 +70,9 @@ pub struct PairOutcome {
     /// With a ground truth: the rotation \[deg\] and translation \[m\] errors of the estimate
     /// ([`pose_error`]).
     pub errors: Option<(f64, f64)>,
+    /// Points dropped from the source and the target cloud for a coordinate of
+    /// [`crate::io::codec::MAX_COORDINATE_M`] (10⁶ m) or more.
+    pub num_dropped_far: [usize; 2],
 }
 
 /// Runs the job: the ground truth read (if any), the two clouds read, registered, and the
@@ -86,13 +89,18 @@ pub fn pair_clouds(opts: &PairOptions) -> Result<PairOutcome> {
         .map(|gt| read_ground_truth(gt, &opts.source, &opts.target))
         .transpose()?;
     let (source, target) = rayon::join(
-        || cloud_file::read_points(&opts.source),
-        || cloud_file::read_points(&opts.target),
+        || cloud_file::read_cloud(&opts.source),
+        || cloud_file::read_cloud(&opts.target),
     );
     let (source, target) = (source?, target?);
-    let result = register_pair(&source, &target, &opts.config)?;
+    let num_dropped_far = [source.num_dropped_far, target.num_dropped_far];
+    let result = register_pair(&source.points, &target.points, &opts.config)?;
     let errors = gt.map(|gt| pose_error(&gt, &result.target_from_source));
-    Ok(PairOutcome { result, errors })
+    Ok(PairOutcome {
+        result,
+        errors,
+        num_dropped_far,
+    })
 }
 
 /// The ground-truth `target_from_source` of the clouds `source` and `target` (their file names

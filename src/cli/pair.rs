@@ -98,13 +98,28 @@ impl PairArgs {
 
 pub(super) fn run_pair(args: &PairArgs) -> Result<()> {
     crate::heap::keep_freed_memory();
-    let PairOutcome { result, errors } = pair_clouds(&args.options()?)?;
+    let PairOutcome {
+        result,
+        errors,
+        num_dropped_far: far,
+    } = pair_clouds(&args.options()?)?;
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
     if args.json {
-        writeln!(out, "{}", pair_json(&result, errors))?;
+        let mut v = pair_json(&result, errors);
+        v["num_dropped_far"] = serde_json::json!(far);
+        writeln!(out, "{v}")?;
     } else {
         write_pair_text(&mut out, &result, errors)?;
+        if far != [0, 0] {
+            writeln!(
+                out,
+                "far points dropped {} / {} (a coordinate of {} m or more)",
+                far[0],
+                far[1],
+                crate::io::codec::MAX_COORDINATE_M
+            )?;
+        }
     }
     match result.failure {
         None => Ok(()),

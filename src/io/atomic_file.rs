@@ -284,9 +284,10 @@ fn process_runs(_pid: u32) -> bool {
     true
 }
 
-pub use signals::install_signal_handlers;
+pub use signals::{forget_dir, install_signal_handlers, remove_dir_on_signal};
 
-/// `SIGINT`/`SIGTERM`: remove the named partial outputs, say so on one line, exit 130/143.
+/// `SIGINT`/`SIGTERM`: remove the named partial outputs and temporary directories, say so on one
+/// line, exit 130/143.
 mod signals {
     use std::path::Path;
 
@@ -322,12 +323,37 @@ mod signals {
             }
         }; 8];
 
+        /// Temporary directories the handler empties and removes.
+        static DIR_SLOTS: [Slot; 4] = [const {
+            Slot {
+                state: AtomicU8::new(FREE),
+                path: UnsafeCell::new([0; MAX_PATH]),
+            }
+        }; 4];
+
         pub fn remove_on_signal(path: &Path) {
+            hold(&SLOTS, path);
+        }
+
+        pub fn forget(path: &Path) {
+            release(&SLOTS, path);
+        }
+
+        pub fn remove_dir_on_signal(path: &Path) {
+            hold(&DIR_SLOTS, path);
+        }
+
+        pub fn forget_dir(path: &Path) {
+            release(&DIR_SLOTS, path);
+        }
+
+        /// Stores `path` in a free slot of `slots` (none free, or a path too long: not kept).
+        fn hold(slots: &[Slot], path: &Path) {
             let bytes = path.as_os_str().as_bytes();
             if bytes.len() >= MAX_PATH || bytes.contains(&0) {
                 return;
             }
-            for slot in &SLOTS {
+            for slot in slots {
                 if slot
                     .state
                     .compare_exchange(FREE, WRITING, Ordering::SeqCst, Ordering::SeqCst)
@@ -343,9 +369,10 @@ mod signals {
             }
         }
 
-        pub fn forget(path: &Path) {
+        /// Frees the slots of `slots` that hold `path`.
+        fn release(slots: &[Slot], path: &Path) {
             let bytes = path.as_os_str().as_bytes();
-            for slot in &SLOTS {
+            for slot in slots {
                 if slot.state.load(Ordering::SeqCst) != READY {
                     continue;
                 }
@@ -358,12 +385,73 @@ mod signals {
             }
         }
 
+        /// Unlinks every entry of the directory at `path` (files only: our temporary
+        /// directories hold no subdirectory), then the directory. Only system calls (open,
+        /// getdents64, unlinkat, lseek, close, rmdir): safe in a signal handler.
+        ///
+        /// # Safety
+        /// `path` is a NUL-terminated path.
+        unsafe fn remove_dir(path: *const libc::c_char) {
+            // SAFETY: a NUL-terminated path; the buffer outlives the calls that fill it.
+            unsafe {
+                let fd = libc::open(path, libc::O_RDONLY | libc::O_DIRECTORY | libc::O_CLOEXEC);
+                if fd >= 0 {
+                    // linux_dirent64 records: d_ino (8), d_off (8), d_reclen (2), d_type (1),
+                    // d_name (NUL-terminated); 8-byte aligned.
+                    let mut buf = [0u64; 1024];
+                    // Unlinking while reading may hide entries from this pass: read again from
+                    // the start until a pass removes nothing (bounded).
+                    for _ in 0..16 {
+                        let mut removed = false;
+                        loop {
+                            let n = libc::syscall(
+                                libc::SYS_getdents64,
+                                fd,
+                                buf.as_mut_ptr(),
+                                std::mem::size_of_val(&buf),
+                            );
+                            if n <= 0 {
+                                break;
+                            }
+                            let base = buf.as_ptr().cast::<u8>();
+                            let mut off = 0usize;
+                            while off < n as usize {
+                                let rec = base.add(off);
+                                let reclen = u16::from_ne_bytes([*rec.add(16), *rec.add(17)]);
+                                let name = rec.add(19);
+                                let dot = *name == b'.'
+                                    && (*name.add(1) == 0
+                                        || (*name.add(1) == b'.' && *name.add(2) == 0));
+                                if !dot && libc::unlinkat(fd, name.cast(), 0) == 0 {
+                                    removed = true;
+                                }
+                                off += reclen.max(1) as usize;
+                            }
+                        }
+                        if !removed {
+                            break;
+                        }
+                        libc::lseek(fd, 0, libc::SEEK_SET);
+                    }
+                    libc::close(fd);
+                }
+                libc::rmdir(path);
+            }
+        }
+
         extern "C" fn on_signal(sig: libc::c_int) {
-            // Only async-signal-safe calls here: unlink, write, _exit.
+            // Only async-signal-safe calls here: unlink, the system calls of `remove_dir`,
+            // write, _exit.
             for slot in &SLOTS {
                 if slot.state.load(Ordering::SeqCst) == READY {
                     // SAFETY: a READY slot holds a NUL-terminated path in static storage.
                     unsafe { libc::unlink(slot.path.get().cast::<libc::c_char>()) };
+                }
+            }
+            for slot in &DIR_SLOTS {
+                if slot.state.load(Ordering::SeqCst) == READY {
+                    // SAFETY: a READY slot holds a NUL-terminated path in static storage.
+                    unsafe { remove_dir(slot.path.get().cast::<libc::c_char>()) };
                 }
             }
             let msg: &[u8] = if sig == libc::SIGINT {
@@ -392,6 +480,8 @@ mod signals {
         use std::path::Path;
         pub fn remove_on_signal(_path: &Path) {}
         pub fn forget(_path: &Path) {}
+        pub fn remove_dir_on_signal(_path: &Path) {}
+        pub fn forget_dir(_path: &Path) {}
         pub fn install() {}
     }
 
@@ -409,5 +499,17 @@ mod signals {
 
     pub(super) fn forget(path: &Path) {
         imp::forget(path);
+    }
+
+    /// Has the signal handler empty and remove the directory at `path` (a temporary directory
+    /// of files only, e.g. the private copies of a ROS 2 bag); at most 4 at a time, and a path
+    /// of at most 4095 bytes (others are left to the next run's clean-up of stale directories).
+    pub fn remove_dir_on_signal(path: &Path) {
+        imp::remove_dir_on_signal(path);
+    }
+
+    /// Undoes [`remove_dir_on_signal`]: call it before removing the directory.
+    pub fn forget_dir(path: &Path) {
+        imp::forget_dir(path);
     }
 }

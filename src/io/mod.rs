@@ -9,6 +9,7 @@ pub mod bag;
 pub mod cloud_file;
 pub mod codec;
 pub mod damage;
+pub mod fingerprint;
 pub mod input_file;
 pub mod input_log;
 pub mod log_order;

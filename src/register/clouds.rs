@@ -80,13 +80,17 @@ impl CloudKind {
         self.decode_reusing(payload, Vec::new())
     }
 
-    /// The header and the points (`height · width`) a PointCloud2 message declares, read before
-    /// decoding it; `None` for other messages or when too short to say.
+    /// The header and the points a cloud message declares, read before decoding it (and before
+    /// allocating for its points): `height · width` of a PointCloud2, the data's length over
+    /// `point_stride` of a foxglove.PointCloud, the points sequence's count of a Livox
+    /// `CustomMsg`; `None` when the message is too short or malformed to say.
     pub(super) fn declared_points(self, payload: &[u8]) -> Option<(codec::Header, u64)> {
         match self {
             CloudKind::Ros2 => cdr::point_cloud2_declared_points(payload),
             CloudKind::Ros1 => ros1::point_cloud2_declared_points(payload),
-            _ => None,
+            CloudKind::Foxglove => foxglove::point_cloud_declared_points(payload),
+            CloudKind::LivoxRos2(_) => livox::declared_points_cdr(payload),
+            CloudKind::LivoxRos1(_) => livox::declared_points_ros1(payload),
         }
     }
 

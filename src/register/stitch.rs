@@ -240,6 +240,7 @@ pub fn stitch(
         .collect::<Result<Vec<_>>>()?;
     // In log order whatever order they were given in (stable: equal starts keep theirs).
     segs.sort_by_key(|s| s.frames[0].stamp_ns);
+    let fingerprint = check_fingerprints(log, &segs)?;
     let (input_log, catalog) = InputLog::open(log)?;
     let channels = catalog.channel_infos();
     let topic = segments_topic(log, &channels, &segs)?;
@@ -295,6 +296,7 @@ pub fn stitch(
         ch.write_loop_outcome(&mut out, estimates, outcome)?;
     }
     let mut meta = stitch_metadata(log, command_line, topic, &ch.topics, &segs, &seams);
+    meta.insert("input_fingerprint".to_string(), fingerprint);
     if let Some((_, outcome, config)) = &closed {
         ch.loop_metadata(&mut meta, outcome, config);
     }
@@ -308,6 +310,27 @@ pub fn stitch(
         messages_copied: copied,
         loops: closed.map(|(_, outcome, _)| outcome.summary),
     })
+}
+
+/// The content fingerprint of `log` ([`crate::io::fingerprint`]), checked against the one each
+/// segment recorded of the log it was registered from (segments of versions that recorded none
+/// are checked by topic and log times only).
+fn check_fingerprints(log: &Path, segs: &[Segment]) -> Result<String> {
+    let fingerprint = crate::io::fingerprint::content_fingerprint(log)?;
+    for seg in segs {
+        if let Some(theirs) = seg.meta.get("input_fingerprint")
+            && *theirs != fingerprint
+        {
+            return Err(Error::InvalidInput(format!(
+                "{}: registered from a log whose content fingerprint is {theirs}, {} has \
+                 {fingerprint} (size-CRC32 of sampled blocks): was the segment registered from \
+                 another log, or the log changed since?",
+                seg.path.display(),
+                log.display()
+            )));
+        }
+    }
+    Ok(fingerprint)
 }
 
 /// The cloud topic the segments registered (the same for all), as the log has it.

@@ -379,6 +379,10 @@ fn metadata(plan: &Plan, opts: &RegisterOptions) -> BTreeMap<String, String> {
     meta.insert("seed".to_string(), config.pair.seed.to_string());
     meta.insert("command_line".to_string(), opts.command_line.clone());
     meta.insert("input".to_string(), opts.input.display().to_string());
+    // What `stitch` checks a segment's log by; a log it cannot read again has none.
+    if let Ok(f) = crate::io::fingerprint::content_fingerprint(&opts.input) {
+        meta.insert("input_fingerprint".to_string(), f);
+    }
     meta.insert("topic".to_string(), plan.topic.clone());
     meta.insert("pose_topic".to_string(), plan.topics.pose.clone());
     meta.insert("stats_topic".to_string(), plan.topics.stats.clone());

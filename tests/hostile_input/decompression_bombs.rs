@@ -7,22 +7,8 @@
 //! SQLite file, and the errors name the input.
 
 use super::*;
-use mireg::fuzzing::{ChunkCompression, small_bag};
+use mireg::fuzzing::{ChunkCompression, small_bag, zstd_zeros};
 use mireg::io::bag::ros1::Bag;
-
-/// `count` zero bytes after `head`, as one zstd stream (streamed: never held whole).
-fn zstd_zeros(head: &[u8], count: u64) -> Vec<u8> {
-    let mut enc = zstd::stream::Encoder::new(Vec::new(), 1).unwrap();
-    std::io::Write::write_all(&mut enc, head).unwrap();
-    let zeros = vec![0u8; 1 << 20];
-    let mut left = count;
-    while left > 0 {
-        let n = left.min(zeros.len() as u64) as usize;
-        std::io::Write::write_all(&mut enc, &zeros[..n]).unwrap();
-        left -= n as u64;
-    }
-    enc.finish().unwrap()
-}
 
 /// A `file`-mode rosbag2 directory of one `bag_0.mcap.zstd` holding `data`.
 fn file_mode_bag(dir: &Path, data: &[u8]) -> PathBuf {
@@ -172,4 +158,74 @@ fn an_mcap_chunk_claiming_far_more_than_its_bytes_is_refused() {
         e.contains("bomb.mcap") && e.contains("decompression bomb"),
         "{e}"
     );
+}
+
+/// A `foxglove.PointCloud` or Livox `CustomMsg` declaring more points than `--max-points` was
+/// decoded whole before it was flagged (PointCloud2 was flagged on what it declares); now each is
+/// flagged on its declared count, before its points are decoded or allocated: the frame's
+/// `failure_detail` says "declares N points".
+#[test]
+fn foxglove_and_livox_clouds_over_max_points_are_flagged_before_decoding() {
+    let dir = tempfile::tempdir().unwrap();
+    // Two foxglove clouds of 300 points each, ROS 2 profile.
+    let foxglove = dir.path().join("foxglove.mcap");
+    let mut out = std::io::Cursor::new(Vec::new());
+    let mut w = mcap::WriteOptions::new()
+        .profile("ros2")
+        .create(&mut out)
+        .unwrap();
+    let schema = mireg::io::codec::foxglove::point_cloud_schema();
+    let s = w
+        .add_schema(&schema.name, &schema.encoding, &schema.data)
+        .unwrap();
+    let ch = w
+        .add_channel(s, "/cloud", "protobuf", &BTreeMap::new())
+        .unwrap();
+    let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(3);
+    for k in 0..2u32 {
+        let pts: Vec<nalgebra::Point3<f64>> = (0..300)
+            .map(|_| {
+                nalgebra::Point3::new(
+                    rng.random_range(-2.0..2.0),
+                    rng.random_range(-2.0..2.0),
+                    rng.random_range(1.0..4.0),
+                )
+            })
+            .collect();
+        let t = 1_700_000_000_000_000_000 + u64::from(k) * 100_000_000;
+        let header = MessageHeader {
+            channel_id: ch,
+            sequence: k,
+            log_time: t,
+            publish_time: t,
+        };
+        let msg = mireg::fuzzing::foxglove_seed_cloud_of(&pts);
+        w.write_to_known_channel(&header, &msg).unwrap();
+    }
+    w.finish().unwrap();
+    drop(w);
+    std::fs::write(&foxglove, out.into_inner()).unwrap();
+    let livox = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/livox");
+    for input in [
+        foxglove,
+        livox.join("icl_livox.bag"),
+        livox.join("icl_livox_ros2"),
+    ] {
+        let out = dir.path().join("out.mcap");
+        let opts = RegisterOptions {
+            max_points_per_cloud: 100,
+            ..options(&input, &out)
+        };
+        let s = register_log(&opts).unwrap();
+        assert_eq!(s.failed_frames, s.frames, "{}", input.display());
+        for f in stats(&out) {
+            assert_eq!(f["failure_reason"], "too_many_points", "{f}");
+            let detail = f["failure_detail"].as_str().unwrap();
+            assert!(
+                detail.starts_with("declares ") && detail.contains("more than the bound of 100"),
+                "{}: {detail}",
+                input.display()
+            );
+        }
+    }
 }

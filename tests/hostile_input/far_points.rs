@@ -111,3 +111,64 @@ fn a_voxel_too_small_for_the_first_cloud_names_file_topic_and_time() {
     assert!(e.contains("too small for a cloud spanning"), "{e}");
     assert!(!output.exists());
 }
+
+/// `mireg pair` read its clouds (PLY, PCD, `.npy`, KITTI `.bin`) without the bound: a point at
+/// 1e9 m in the source made the voxel too small for the cloud and ended the run. Far points are
+/// now dropped and counted as in the logs (`num_dropped_far` per cloud in the JSON, a line in
+/// the text), and the pair registers.
+#[test]
+fn pair_clouds_drop_and_count_far_points() {
+    use mireg::io::cloud_file::{CloudFileFormat, read_points};
+    let dir = tempfile::tempdir().unwrap();
+    let icl = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/icl_nuim");
+    let rows = |file: &str, far: &[[f32; 3]]| -> (usize, Vec<f32>) {
+        let pts = read_points(&icl.join(file)).unwrap();
+        let mut rows: Vec<f32> = pts
+            .iter()
+            .flat_map(|p| [p.x as f32, p.y as f32, p.z as f32])
+            .collect();
+        rows.extend(far.iter().flatten());
+        (pts.len(), rows)
+    };
+    let (n_src, src) = rows("rgbd5_00004.ply", &[[1e9, 0.0, 0.0], [0.0, 3e7, 0.0]]);
+    let (n_tgt, tgt) = rows("rgbd5_00000.ply", &[[0.0, 0.0, -1e6]]);
+    let write = |name: &str, rows: &[f32]| {
+        let path = dir.path().join(name);
+        if name.ends_with(".bin") {
+            let bytes: Vec<u8> = rows
+                .chunks(3)
+                .flat_map(|p| [p[0], p[1], p[2], 0.5])
+                .flat_map(f32::to_le_bytes)
+                .collect();
+            std::fs::write(&path, bytes).unwrap();
+        } else {
+            let format = CloudFileFormat::from_path(&path).unwrap();
+            let mut out = Vec::new();
+            format.write(rows, 3, &mut out).unwrap();
+            std::fs::write(&path, out).unwrap();
+        }
+        path.to_str().unwrap().to_string()
+    };
+    for ext in ["ply", "pcd", "npy", "bin"] {
+        let s = write(&format!("src.{ext}"), &src);
+        let t = write(&format!("tgt.{ext}"), &tgt);
+        let run = mireg(&["pair", &s, &t, "--voxel", "0.05", "--json"]);
+        assert_eq!(run.status.code(), Some(0), "{ext}: {}", stderr(&run));
+        let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+        assert_eq!(
+            v["num_dropped_far"],
+            serde_json::json!([2, 1]),
+            "{ext}: {v}"
+        );
+        assert_eq!(
+            v["num_points"],
+            serde_json::json!([n_src, n_tgt]),
+            "{ext}: {v}"
+        );
+        if ext == "ply" {
+            let run = mireg(&["pair", &s, &t, "--voxel", "0.05"]);
+            let text = String::from_utf8_lossy(&run.stdout);
+            assert!(text.contains("far points dropped 2 / 1"), "{text}");
+        }
+    }
+}

@@ -3,7 +3,8 @@
 //! frame on.
 
 use super::*;
-use mireg::io::codec::{WireWrite, cdr, cdr::CdrWriter};
+use mireg::fuzzing::timed_cloud_cdr;
+use mireg::io::codec::cdr;
 use nalgebra::{Isometry3, Point3};
 
 /// Points of each cloud whose time is a glitch, and those glitches (30 s: beyond the bound of
@@ -16,37 +17,6 @@ const GLITCHES: [f64; 6] = [
     -1e300,
     30.0,
 ];
-
-/// A ROS 2 `sensor_msgs/msg/PointCloud2`: FLOAT32 x, y, z and a FLOAT64 `time` (Velodyne's name;
-/// seconds after the stamp), one point per `(point, time)`.
-fn cloud(stamp_ns: u64, points: &[(Point3<f64>, f64)]) -> Vec<u8> {
-    let step = 20u32;
-    let mut w = CdrWriter::new();
-    w.i32((stamp_ns / 1_000_000_000) as i32);
-    w.u32((stamp_ns % 1_000_000_000) as u32);
-    w.string("lidar");
-    w.u32(1);
-    w.u32(points.len() as u32);
-    w.sequence_len(4);
-    for (name, offset, datatype) in [("x", 0, 7u8), ("y", 4, 7), ("z", 8, 7), ("time", 12, 8)] {
-        w.string(name);
-        w.u32(offset);
-        w.u8(datatype);
-        w.u32(1);
-    }
-    w.bool(false);
-    w.u32(step);
-    w.u32(step * points.len() as u32);
-    w.u32(step * points.len() as u32);
-    for (p, t) in points {
-        for c in [p.x, p.y, p.z] {
-            w.raw(&(c as f32).to_le_bytes());
-        }
-        w.raw(&t.to_le_bytes());
-    }
-    w.bool(true);
-    w.finish()
-}
 
 /// Frame `k`'s time field: the clouds of frames 5 and 6 hold 1e300 and NaN for every point (a
 /// field on another clock, a field without a time); the others a 100 ms sweep by azimuth with
@@ -97,7 +67,7 @@ fn log() -> Vec<u8> {
             log_time: t,
             publish_time: t,
         };
-        w.write_to_known_channel(&header, &cloud(t, &points))
+        w.write_to_known_channel(&header, &timed_cloud_cdr(t, &points))
             .unwrap();
     }
     w.finish().unwrap();

@@ -67,3 +67,47 @@ fn stitch_sorts_its_segments_refuses_another_logs_and_records_the_voxel() {
     assert!(e.contains("a.mcap") && e.contains("another log"), "{e}");
     assert!(!out2.exists());
 }
+
+/// Segments of another log with the same clouds on the same topic at the same log times (the
+/// same recording, re-exported with one other message changed) passed every check of topic and
+/// stamps; they are now refused by the log's content fingerprint, which `register` records.
+#[test]
+fn stitch_refuses_segments_of_a_log_with_the_same_stamps_but_other_content() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let log = d.join("log.mcap");
+    std::fs::write(&log, small(8)).unwrap();
+    let a = segment(d, &log, "a.mcap", 0, 5);
+    let b = segment(d, &log, "b.mcap", 3, 8);
+    // The same log stitches.
+    let ok = d.join("ok.mcap");
+    stitch(&log, &[a.clone(), b.clone()], &ok, false, "test", false).unwrap();
+    // Its twin: every message and stamp the same but one note's text.
+    let mut m = messages(&log);
+    let note = m
+        .messages
+        .iter()
+        .position(|(c, _, _)| m.channels[c].0 == "/notes")
+        .unwrap();
+    m.messages[note].2 = br#"{"k":9}"#.to_vec();
+    let order: Vec<usize> = (0..m.messages.len()).collect();
+    let twin = d.join("twin.mcap");
+    std::fs::write(
+        &twin,
+        rewrite(
+            &m,
+            &order,
+            mcap::WriteOptions::new().compression(Some(mcap::Compression::Zstd)),
+        ),
+    )
+    .unwrap();
+    let out = d.join("wrong.mcap");
+    let e = stitch(&twin, &[a, b], &out, false, "test", false)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("a.mcap") && e.contains("twin.mcap") && e.contains("another log"),
+        "{e}"
+    );
+    assert!(!out.exists());
+}

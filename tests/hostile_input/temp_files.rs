@@ -75,3 +75,78 @@ fn a_signal_during_a_file_mode_run_leaves_no_temporary() {
         );
     }
 }
+
+/// The `.mireg-bag-*` directories in `dir`.
+fn bag_temporaries(dir: &Path) -> Vec<String> {
+    listing(dir)
+        .into_iter()
+        .filter(|n| n.starts_with(".mireg-bag-"))
+        .collect()
+}
+
+/// A WAL bag with a hot `-wal` is read through a private copy of its `.db3` and `-wal` in a
+/// named directory `$TMPDIR/.mireg-bag-PID-*` (SQLite opens files by name). SIGINT or SIGTERM
+/// while the copy is open left it behind ("no output written" said nothing of it); now the
+/// signal handler removes it. After SIGKILL it stays, and the next run removes it.
+#[test]
+fn a_signal_while_a_wal_bag_is_read_through_a_private_copy_leaves_no_temporary() {
+    let dir = tempfile::tempdir().unwrap();
+    let bag = super::wal_bags::hot_wal_bag(dir.path());
+    for (sig, code) in [
+        (libc::SIGINT, Some(130)),
+        (libc::SIGTERM, Some(143)),
+        (libc::SIGKILL, None),
+    ] {
+        let work = dir.path().join(format!("tmp{sig}"));
+        std::fs::create_dir(&work).unwrap();
+        let out = dir.path().join("o.mcap");
+        let mut child = Command::new(env!("CARGO_BIN_EXE_mireg"))
+            .args([
+                "register",
+                bag.to_str().unwrap(),
+                "-o",
+                out.to_str().unwrap(),
+                "--voxel",
+                "0.05",
+            ])
+            .env("TMPDIR", &work)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        // The signal goes once the private copy is being written into its directory (made when
+        // the bag is opened, kept until the run ends: registering the four clouds takes far
+        // longer than this wait).
+        let copying = || {
+            bag_temporaries(&work)
+                .iter()
+                .any(|d| std::fs::read_dir(work.join(d)).is_ok_and(|mut e| e.next().is_some()))
+        };
+        while !copying() {
+            assert!(child.try_wait().unwrap().is_none(), "ended before copying");
+            std::thread::yield_now();
+        }
+        // SAFETY: signals a child of this process.
+        unsafe { libc::kill(child.id() as i32, sig) };
+        let run = child.wait_with_output().unwrap();
+        assert_eq!(run.status.code(), code, "signal {sig}: {}", stderr(&run));
+        assert!(!out.exists(), "signal {sig}");
+        if code.is_some() {
+            assert!(
+                listing(&work).is_empty(),
+                "signal {sig}: {:?}",
+                listing(&work)
+            );
+        } else {
+            // Killed: the copy stays until the next run that opens a bag.
+            assert_eq!(bag_temporaries(&work).len(), 1, "{:?}", listing(&work));
+            let info = Command::new(env!("CARGO_BIN_EXE_mireg"))
+                .args(["info", bag.to_str().unwrap()])
+                .env("TMPDIR", &work)
+                .output()
+                .unwrap();
+            assert!(info.status.success(), "{}", stderr(&info));
+            assert!(listing(&work).is_empty(), "{:?}", listing(&work));
+        }
+    }
+}

@@ -190,15 +190,13 @@ fn a_wal_bag_in_a_read_only_directory_is_read_and_never_altered() {
     assert_eq!(count_on(&out, "/camera/depth/points"), 4);
 }
 
-/// A recorder killed mid-run leaves its last messages in the `-wal`: they are read (the bag's 4th
-/// cloud is only there), through a private copy, and the bag is left as it was.
-#[test]
-fn a_hot_wal_left_by_a_crashed_recorder_is_read_and_never_altered() {
-    let dir = tempfile::tempdir().unwrap();
-    let bag = wal_bag(dir.path());
+/// A copy of the fixture bag in `dir/bag` as a recorder killed mid-run leaves it: its last cloud
+/// only in a non-empty `icl4_db3.db3-wal` beside the database (which, alone, holds 3 clouds).
+pub(crate) fn hot_wal_bag(dir: &Path) -> PathBuf {
+    let bag = wal_bag(dir);
     // The recorder: its database without the last cloud, checkpointed; then the last cloud
     // written into the write-ahead log and never checkpointed.
-    let recorder_dir = dir.path().join("recorder");
+    let recorder_dir = dir.join("recorder");
     std::fs::create_dir(&recorder_dir).unwrap();
     let recording = recorder_dir.join(DB3);
     std::fs::rename(bag.join(DB3), &recording).unwrap();
@@ -236,7 +234,15 @@ fn a_hot_wal_left_by_a_crashed_recorder_is_read_and_never_altered() {
         listing(&bag),
         ["icl4_db3.db3", "icl4_db3.db3-wal", "metadata.yaml"]
     );
+    bag
+}
 
+/// A recorder killed mid-run leaves its last messages in the `-wal`: they are read (the bag's 4th
+/// cloud is only there), through a private copy, and the bag is left as it was.
+#[test]
+fn a_hot_wal_left_by_a_crashed_recorder_is_read_and_never_altered() {
+    let dir = tempfile::tempdir().unwrap();
+    let bag = hot_wal_bag(dir.path());
     let (info, out) = read_only_runs(dir.path(), &bag);
     assert!(
         info.contains("/camera/depth/points  sensor_msgs/msg/PointCloud2 (cdr), 4 messages"),

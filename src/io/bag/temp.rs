@@ -7,7 +7,8 @@
 //!   SIGKILL included. Where the file system cannot make unnamed files, and for SQLite files
 //!   (a decompressed `.db3`, the private copies of a `.db3` with its `-wal`: SQLite opens files
 //!   by name), the files go into a directory `$TMPDIR/.mireg-bag-PID-XXXXXX`, removed when the
-//!   bag is dropped;
+//!   bag is dropped, and by the signal handler on Ctrl-C or SIGTERM
+//!   ([`crate::io::atomic_file::remove_dir_on_signal`]);
 //! - such a directory left by a process that was killed (no `/proc/PID`) is removed by the
 //!   next run that opens a bag ([`remove_stale`]).
 
@@ -63,9 +64,19 @@ impl TempFiles {
                 .prefix(&format!("{TEMP_PREFIX}{}-", std::process::id()))
                 .tempdir_in(&tmp)
                 .map_err(|e| io_err(&tmp, e))?;
+            crate::io::atomic_file::remove_dir_on_signal(dir.path());
             self.dir = Some(dir);
         }
         Ok(self.dir.as_ref().expect("made above").path())
+    }
+}
+
+impl Drop for TempFiles {
+    fn drop(&mut self) {
+        // The directory itself is removed when `dir` is dropped, after this.
+        if let Some(dir) = &self.dir {
+            crate::io::atomic_file::forget_dir(dir.path());
+        }
     }
 }
 

@@ -9,6 +9,10 @@
 //! for invalid returns in organised clouds) is skipped silently, so the result can be shorter
 //! than the point count in the header.
 //!
+//! **Far points are dropped and counted** by [`read_cloud`] (and [`read_points`]): a point with a
+//! coordinate of magnitude [`crate::io::codec::MAX_COORDINATE_M`] (10⁶ m) or more, as every log
+//! decoder drops it, so that one glitch cannot stretch a cloud past what the voxel grids index.
+//!
 //! Malformed input — a bad header, a missing `x`/`y`/`z`, an unsupported type, truncated data,
 //! or counts larger than the data could hold — is reported as [`Error::Format`] naming the file
 //! and the problem. Allocation is bounded by the input size, never by a count in a header.
@@ -97,16 +101,46 @@ fn write_f32_le(values: &[f32], out: &mut impl std::io::Write) -> std::io::Resul
     Ok(())
 }
 
+/// The points of a cloud file ([`read_cloud`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CloudFilePoints {
+    /// Finite points within the bound, in file order (the file's units: metres).
+    pub points: Vec<Point3<f64>>,
+    /// Points dropped because a coordinate's magnitude was at least
+    /// [`crate::io::codec::MAX_COORDINATE_M`].
+    pub num_dropped_far: usize,
+}
+
+/// [`read_points`], with the number of far points dropped.
+///
+/// # Errors
+/// As [`read_points`].
+pub fn read_cloud(path: &Path) -> Result<CloudFilePoints> {
+    let mut points = read_points_unbounded(path)?;
+    let before = points.len();
+    points.retain(|p| crate::io::codec::within_bound(p.x, p.y, p.z));
+    Ok(CloudFilePoints {
+        num_dropped_far: before - points.len(),
+        points,
+    })
+}
+
 /// Reads the points of a cloud file, choosing the format by extension (case-insensitive):
 /// `.ply`, `.pcd`, `.npy`, or `.bin` (KITTI velodyne: little-endian f32 x, y, z, intensity).
 ///
-/// The whole file is read into memory first. Non-finite points are dropped (see the module
-/// docs).
+/// The whole file is read into memory first. Non-finite points and far points (a coordinate of
+/// magnitude 10⁶ m or more) are dropped (see the module docs; [`read_cloud`] counts the far
+/// ones).
 ///
 /// # Errors
 /// [`Error::Io`] if the file cannot be read; [`Error::Format`] for an unknown extension or
 /// malformed content.
 pub fn read_points(path: &Path) -> Result<Vec<Point3<f64>>> {
+    read_cloud(path).map(|c| c.points)
+}
+
+/// [`read_points`] keeping far points.
+fn read_points_unbounded(path: &Path) -> Result<Vec<Point3<f64>>> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())

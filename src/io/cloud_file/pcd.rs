@@ -39,10 +39,40 @@ struct Header<'a> {
 }
 
 fn parse_header<'a>(bytes: &'a [u8], path: &Path) -> Result<Header<'a>> {
-    let err = |d: String| format_err(path, format!("PCD header: {d}"));
+    let (lines, data, body) = read_header_lines(bytes, path)?;
+    let declared = (lines.points, lines.width, lines.height);
+    let fields = fields_of(lines, path)?;
+    Ok(Header {
+        fields,
+        points: point_count(declared, path)?,
+        data,
+        body,
+    })
+}
+
+/// An error in the PCD header of `path`.
+fn header_err(path: &Path, detail: String) -> crate::Error {
+    format_err(path, format!("PCD header: {detail}"))
+}
+
+/// The header's values, as its lines give them.
+#[derive(Default)]
+struct HeaderLines {
+    names: Option<Vec<String>>,
+    sizes: Option<Vec<usize>>,
+    types: Option<Vec<String>>,
+    counts: Option<Vec<usize>>,
+    width: Option<usize>,
+    height: Option<usize>,
+    points: Option<usize>,
+}
+
+/// Reads the header's lines up to and including `DATA`: their values, the data's encoding, and
+/// the bytes after the header.
+fn read_header_lines<'a>(bytes: &'a [u8], path: &Path) -> Result<(HeaderLines, Data, &'a [u8])> {
+    let err = |d: String| header_err(path, d);
     let mut rest = bytes;
-    let (mut names, mut sizes, mut types, mut counts) = (None, None, None, None);
-    let (mut width, mut height, mut points) = (None, None, None);
+    let mut h = HeaderLines::default();
     let mut line_no = 0;
     let data = loop {
         let (raw, after) =
@@ -65,21 +95,19 @@ fn parse_header<'a>(bytes: &'a [u8], path: &Path) -> Result<Header<'a>> {
                 _ => Err(err(format!("{what} needs one value, got {}", values.len()))),
             }
         };
+        let counts = |what: &str| -> Result<Vec<usize>> {
+            let v: Option<Vec<usize>> = values.iter().map(|s| s.parse().ok()).collect();
+            v.ok_or_else(|| err(format!("bad {what} line '{line}'")))
+        };
         match key.to_ascii_uppercase().as_str() {
             "VERSION" | "VIEWPOINT" => {}
-            "FIELDS" => names = Some(values.iter().map(|s| s.to_string()).collect::<Vec<_>>()),
-            "SIZE" => {
-                let v: Option<Vec<usize>> = values.iter().map(|s| s.parse().ok()).collect();
-                sizes = Some(v.ok_or_else(|| err(format!("bad SIZE line '{line}'")))?);
-            }
-            "TYPE" => types = Some(values.iter().map(|s| s.to_string()).collect::<Vec<_>>()),
-            "COUNT" => {
-                let v: Option<Vec<usize>> = values.iter().map(|s| s.parse().ok()).collect();
-                counts = Some(v.ok_or_else(|| err(format!("bad COUNT line '{line}'")))?);
-            }
-            "WIDTH" => width = Some(one_usize("WIDTH")?),
-            "HEIGHT" => height = Some(one_usize("HEIGHT")?),
-            "POINTS" => points = Some(one_usize("POINTS")?),
+            "FIELDS" => h.names = Some(values.iter().map(|s| s.to_string()).collect()),
+            "SIZE" => h.sizes = Some(counts("SIZE")?),
+            "TYPE" => h.types = Some(values.iter().map(|s| s.to_string()).collect()),
+            "COUNT" => h.counts = Some(counts("COUNT")?),
+            "WIDTH" => h.width = Some(one_usize("WIDTH")?),
+            "HEIGHT" => h.height = Some(one_usize("HEIGHT")?),
+            "POINTS" => h.points = Some(one_usize("POINTS")?),
             "DATA" => {
                 break match values.as_slice() {
                     ["ascii"] => Data::Ascii,
@@ -91,10 +119,17 @@ fn parse_header<'a>(bytes: &'a [u8], path: &Path) -> Result<Header<'a>> {
             other => return Err(err(format!("line {line_no}: unknown key '{other}'"))),
         }
     };
-    let names = names.ok_or_else(|| err("missing FIELDS".into()))?;
-    let sizes = sizes.ok_or_else(|| err("missing SIZE".into()))?;
-    let types = types.ok_or_else(|| err("missing TYPE".into()))?;
-    let counts = counts.unwrap_or_else(|| vec![1; names.len()]);
+    Ok((h, data, rest))
+}
+
+/// The fields of the header: `FIELDS`, `SIZE` and `TYPE` (required) and `COUNT` (default 1),
+/// of equal lengths, each a supported type and size.
+fn fields_of(h: HeaderLines, path: &Path) -> Result<Vec<Field>> {
+    let err = |d: String| header_err(path, d);
+    let names = h.names.ok_or_else(|| err("missing FIELDS".into()))?;
+    let sizes = h.sizes.ok_or_else(|| err("missing SIZE".into()))?;
+    let types = h.types.ok_or_else(|| err("missing TYPE".into()))?;
+    let counts = h.counts.unwrap_or_else(|| vec![1; names.len()]);
     if sizes.len() != names.len() || types.len() != names.len() || counts.len() != names.len() {
         return Err(err(format!(
             "FIELDS has {} entries but SIZE {}, TYPE {}, COUNT {}",
@@ -129,7 +164,17 @@ fn parse_header<'a>(bytes: &'a [u8], path: &Path) -> Result<Header<'a>> {
             count,
         });
     }
-    let points = match (points, width, height) {
+    Ok(fields)
+}
+
+/// The header's point count from its `(POINTS, WIDTH, HEIGHT)`: `POINTS` (equal to
+/// `WIDTH × HEIGHT` when both are given), else `WIDTH × HEIGHT`, else `WIDTH`.
+fn point_count(
+    declared: (Option<usize>, Option<usize>, Option<usize>),
+    path: &Path,
+) -> Result<usize> {
+    let err = |d: String| header_err(path, d);
+    Ok(match declared {
         (Some(p), Some(w), Some(h)) if w.checked_mul(h) != Some(p) => {
             return Err(err(format!("POINTS {p} != WIDTH {w} × HEIGHT {h}")));
         }
@@ -139,12 +184,6 @@ fn parse_header<'a>(bytes: &'a [u8], path: &Path) -> Result<Header<'a>> {
             .ok_or_else(|| err(format!("WIDTH {w} × HEIGHT {h} overflows")))?,
         (None, Some(w), None) => w,
         _ => return Err(err("missing POINTS (and WIDTH/HEIGHT)".into())),
-    };
-    Ok(Header {
-        fields,
-        points,
-        data,
-        body: rest,
     })
 }
 

@@ -157,8 +157,50 @@ pub fn decode_foxglove_point_cloud_reusing(
 ) -> Result<PointCloud, DecodeError> {
     let msg = foxglove::schemas::PointCloud::decode(payload)
         .map_err(|e| DecodeError::new("PointCloud", format!("invalid protobuf: {e}")))?;
+    let header = header_of(msg.timestamp, msg.frame_id.clone())?;
+    let data = &msg.data[..];
+    if data.is_empty() {
+        return Ok(cloud_of(header, Default::default(), 0));
+    }
+    let (xyz, intensity) = coordinate_fields(&msg)?;
+    let (n, width) = point_count(data.len(), msg.point_stride)?;
+    let pose = cloud_pose(msg.pose.as_ref())?;
+    let layout = PackedLayout {
+        xyz,
+        intensity,
+        time: None,
+        big_endian: false,
+    };
+    let stride = msg.point_stride as usize;
+    let mut ex = extract(data, &layout, 1, n, 0, stride, points);
+    if pose != Isometry3::identity() {
+        for p in &mut ex.points {
+            *p = pose * *p;
+        }
+    }
+    Ok(cloud_of(header, ex, width))
+}
 
-    let stamp = match msg.timestamp {
+/// The cloud of `header` with the points `ex` extracted from a message of `width` points.
+fn cloud_of(header: Header, ex: super::packed::Extracted, width: u32) -> PointCloud {
+    PointCloud {
+        header,
+        points: ex.points,
+        intensity: ex.intensity,
+        times: None,
+        width,
+        height: 1,
+        num_dropped_non_finite: ex.num_dropped_non_finite,
+        num_dropped_far: ex.num_dropped_far,
+        num_dropped_zero: ex.num_dropped_zero,
+        num_dropped_tag: 0,
+        num_dropped_time: 0,
+    }
+}
+
+/// The cloud's header: `frame_id` and the `timestamp` (normalised; 0 if absent).
+fn header_of(timestamp: Option<Timestamp>, frame_id: String) -> Result<Header, DecodeError> {
+    let stamp = match timestamp {
         None => Time::default(),
         Some(ts) => {
             let ts = ts
@@ -176,53 +218,30 @@ pub fn decode_foxglove_point_cloud_reusing(
             }
         }
     };
-    let header = Header {
-        stamp,
-        frame_id: msg.frame_id,
-    };
+    Ok(Header { stamp, frame_id })
+}
 
-    let data = &msg.data[..];
-    if data.is_empty() {
-        return Ok(PointCloud {
-            header,
-            points: Vec::new(),
-            intensity: None,
-            times: None,
-            width: 0,
-            height: 1,
-            num_dropped_non_finite: 0,
-            num_dropped_far: 0,
-            num_dropped_zero: 0,
-            num_dropped_tag: 0,
-            num_dropped_time: 0,
-        });
-    }
+/// The fields `x`, `y`, `z` (at least two) and `intensity` of `msg`, each checked to fit in
+/// `point_stride`.
+fn coordinate_fields(
+    msg: &foxglove::schemas::PointCloud,
+) -> Result<([Option<PackedField>; 3], Option<PackedField>), DecodeError> {
     let stride = u64::from(msg.point_stride);
     let find = |name: &str| -> Result<Option<PackedField>, DecodeError> {
         let Some(i) = msg.fields.iter().position(|f| f.name == name) else {
             return Ok(None);
         };
         let f = &msg.fields[i];
-        let kind = match NumericType::try_from(f.r#type) {
-            Ok(NumericType::Uint8) => Scalar::U8,
-            Ok(NumericType::Int8) => Scalar::I8,
-            Ok(NumericType::Uint16) => Scalar::U16,
-            Ok(NumericType::Int16) => Scalar::I16,
-            Ok(NumericType::Uint32) => Scalar::U32,
-            Ok(NumericType::Int32) => Scalar::I32,
-            Ok(NumericType::Float32) => Scalar::F32,
-            Ok(NumericType::Float64) => Scalar::F64,
-            Ok(NumericType::Unknown) | Err(_) => {
-                return Err(DecodeError::new(
-                    format!("fields[{i}].type"),
-                    format!(
-                        "unknown numeric type {} for field '{name}' (expected 1..=8, \
-                         UINT8..FLOAT64)",
-                        f.r#type
-                    ),
-                ));
-            }
-        };
+        let kind = scalar_of(f.r#type).ok_or_else(|| {
+            DecodeError::new(
+                format!("fields[{i}].type"),
+                format!(
+                    "unknown numeric type {} for field '{name}' (expected 1..=8, \
+                     UINT8..FLOAT64)",
+                    f.r#type
+                ),
+            )
+        })?;
         check_field_fits(
             &format!("fields[{i}]"),
             u64::from(f.offset),
@@ -234,7 +253,6 @@ pub fn decode_foxglove_point_cloud_reusing(
     };
     let xyz = [find("x")?, find("y")?, find("z")?];
     let intensity = find("intensity")?;
-
     if xyz.iter().filter(|f| f.is_some()).count() < 2 {
         let names: Vec<&str> = msg.fields.iter().map(|f| f.name.as_str()).collect();
         return Err(DecodeError::new(
@@ -242,67 +260,106 @@ pub fn decode_foxglove_point_cloud_reusing(
             format!("need at least two of the fields x, y, z (fields: {names:?})"),
         ));
     }
-    let stride = msg.point_stride as usize;
-    if stride == 0 || !data.len().is_multiple_of(stride) {
+    Ok((xyz, intensity))
+}
+
+/// The scalar of a `foxglove.NumericType` value; `None` for an unknown one.
+fn scalar_of(numeric_type: i32) -> Option<Scalar> {
+    Some(match NumericType::try_from(numeric_type) {
+        Ok(NumericType::Uint8) => Scalar::U8,
+        Ok(NumericType::Int8) => Scalar::I8,
+        Ok(NumericType::Uint16) => Scalar::U16,
+        Ok(NumericType::Int16) => Scalar::I16,
+        Ok(NumericType::Uint32) => Scalar::U32,
+        Ok(NumericType::Int32) => Scalar::I32,
+        Ok(NumericType::Float32) => Scalar::F32,
+        Ok(NumericType::Float64) => Scalar::F64,
+        Ok(NumericType::Unknown) | Err(_) => return None,
+    })
+}
+
+/// The number of points in `data_len` bytes of `point_stride` each, and as the cloud's width.
+fn point_count(data_len: usize, point_stride: u32) -> Result<(usize, u32), DecodeError> {
+    let stride = point_stride as usize;
+    if stride == 0 || !data_len.is_multiple_of(stride) {
         return Err(DecodeError::new(
             "data",
-            format!(
-                "{} bytes is not a whole number of points of point_stride {stride}",
-                data.len()
-            ),
+            format!("{data_len} bytes is not a whole number of points of point_stride {stride}"),
         ));
     }
-    let n = data.len() / stride;
+    let n = data_len / stride;
     let width = u32::try_from(n).map_err(|_| {
         DecodeError::new(
             "data",
             format!("{n} points exceed the u32 width of a cloud"),
         )
     })?;
+    Ok((n, width))
+}
 
-    let pose = match &msg.pose {
-        None => Isometry3::identity(),
-        Some(p) => {
-            let t = p.position.as_ref().map_or([0.0; 3], |v| [v.x, v.y, v.z]);
-            if t.iter().any(|c| !c.is_finite()) {
-                return Err(DecodeError::new(
-                    "pose.position",
-                    format!("non-finite position {t:?}"),
-                ));
-            }
-            let q = p
-                .orientation
-                .as_ref()
-                .map_or([0.0, 0.0, 0.0, 1.0], |q| [q.x, q.y, q.z, q.w]);
-            isometry_from_parts(t, q, "pose.orientation")?
-        }
+/// The cloud's `pose` in its frame (identity when absent; an absent position or orientation is
+/// zero or the identity rotation).
+fn cloud_pose(pose: Option<&Pose>) -> Result<Isometry3<f64>, DecodeError> {
+    let Some(p) = pose else {
+        return Ok(Isometry3::identity());
     };
+    let t = p.position.as_ref().map_or([0.0; 3], |v| [v.x, v.y, v.z]);
+    if t.iter().any(|c| !c.is_finite()) {
+        return Err(DecodeError::new(
+            "pose.position",
+            format!("non-finite position {t:?}"),
+        ));
+    }
+    let q = p
+        .orientation
+        .as_ref()
+        .map_or([0.0, 0.0, 0.0, 1.0], |q| [q.x, q.y, q.z, q.w]);
+    isometry_from_parts(t, q, "pose.orientation")
+}
 
-    let layout = PackedLayout {
-        xyz,
-        intensity,
-        time: None,
-        big_endian: false,
-    };
-    let mut ex = extract(data, &layout, 1, n, 0, stride, points);
-    if pose != Isometry3::identity() {
-        for p in &mut ex.points {
-            *p = pose * *p;
+/// The fields of a `foxglove.PointCloud` that say what it holds, decoded without its `data`,
+/// `fields` and `pose` (which prost skips as unknown fields, allocating nothing).
+#[derive(Clone, PartialEq, prost::Message)]
+struct PointCloudHead {
+    #[prost(message, optional, tag = "1")]
+    timestamp: Option<Timestamp>,
+    #[prost(string, tag = "2")]
+    frame_id: String,
+    #[prost(fixed32, tag = "4")]
+    point_stride: u32,
+}
+
+/// The header of a `foxglove.PointCloud` and the points its `data` declares (its length over
+/// `point_stride`), read without decoding or copying the data: what a cloud would take is known
+/// before it is decoded, as [`super::cdr::point_cloud2_declared_points`] for PointCloud2.
+/// `None` when the message does not say (invalid protobuf, no data, a zero `point_stride`).
+pub fn point_cloud_declared_points(payload: &[u8]) -> Option<(Header, u64)> {
+    let head = PointCloudHead::decode(payload).ok()?;
+    let data_len = last_length_delimited(payload, 6)?;
+    if head.point_stride == 0 {
+        return None;
+    }
+    let header = header_of(head.timestamp, head.frame_id).ok()?;
+    Some((header, data_len / u64::from(head.point_stride)))
+}
+
+/// The length of the last top-level length-delimited field `tag` of a protobuf message (as
+/// protobuf reads a repeated scalar field: the last one wins), the other fields skipped as prost
+/// skips them (groups included); `None` if absent or malformed.
+fn last_length_delimited(mut b: &[u8], tag: u32) -> Option<u64> {
+    use prost::encoding::{DecodeContext, WireType, decode_key, decode_varint, skip_field};
+    let mut found = None;
+    while !b.is_empty() {
+        let (key, wire_type) = decode_key(&mut b).ok()?;
+        if key == tag && wire_type == WireType::LengthDelimited {
+            let len = decode_varint(&mut b).ok()?;
+            b = b.get(usize::try_from(len).ok()?..)?;
+            found = Some(len);
+        } else {
+            skip_field(wire_type, key, &mut b, DecodeContext::default()).ok()?;
         }
     }
-    Ok(PointCloud {
-        header,
-        points: ex.points,
-        intensity: ex.intensity,
-        times: None,
-        width,
-        height: 1,
-        num_dropped_non_finite: ex.num_dropped_non_finite,
-        num_dropped_far: ex.num_dropped_far,
-        num_dropped_zero: ex.num_dropped_zero,
-        num_dropped_tag: 0,
-        num_dropped_time: 0,
-    })
+    found
 }
 
 #[cfg(test)]
@@ -344,6 +401,42 @@ mod tests {
             ],
             data: data.into(),
         }
+    }
+
+    /// The count read before decoding is the decoded width, with the same header, whatever
+    /// else the message holds (a pose, fields after the data); an empty or strideless message
+    /// declares nothing.
+    #[test]
+    fn declared_points_are_the_decoded_width() {
+        let pose = Pose {
+            position: Some(Vector3 {
+                x: 1.0,
+                y: 2.0,
+                z: 3.0,
+            }),
+            orientation: None,
+        };
+        let pts = [[1.0f32, 2.0, 3.0], [4.0, 5.0, 6.0], [f32::NAN, 0.0, 1.0]];
+        for msg in [cloud(&pts, None), cloud(&pts, Some(pose))] {
+            let bytes = msg.encode_to_vec();
+            let decoded = decode_foxglove_point_cloud(&bytes).unwrap();
+            let (header, n) = point_cloud_declared_points(&bytes).unwrap();
+            assert_eq!((header, n), (decoded.header, u64::from(decoded.width)));
+            assert_eq!(n, 3);
+        }
+        // A group before the data (fuzz/regressions/foxglove_point_cloud): skipped as prost
+        // skips it.
+        let mut grouped = vec![0x5b, 0x08, 0x0a, 0x5c];
+        grouped.extend(cloud(&pts, None).encode_to_vec());
+        let decoded = decode_foxglove_point_cloud(&grouped).unwrap();
+        assert_eq!(
+            point_cloud_declared_points(&grouped).map(|d| d.1),
+            Some(u64::from(decoded.width))
+        );
+        let mut none = cloud(&[], None);
+        none.point_stride = 0;
+        assert_eq!(point_cloud_declared_points(&none.encode_to_vec()), None);
+        assert_eq!(point_cloud_declared_points(&[0xff, 0xff]), None);
     }
 
     #[test]

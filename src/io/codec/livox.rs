@@ -128,6 +128,24 @@ pub fn decode_cdr_reusing(
     ))
 }
 
+/// The header of a ROS 1 Livox `CustomMsg` and the points it holds (its `points` sequence's
+/// count, checked against what remains of the message), read without decoding them: what a
+/// cloud would take is known before it is decoded. `None` when the message does not say.
+pub fn declared_points_ros1(payload: &[u8]) -> Option<(Header, u64)> {
+    let mut r = Ros1Reader::new(payload);
+    let header = ros1::read_header(&mut r, "header.").ok()?;
+    let (_, n) = read_fixed(&mut r).ok()?;
+    Some((header, n as u64))
+}
+
+/// [`declared_points_ros1`] for a CDR (ROS 2) Livox `CustomMsg`.
+pub fn declared_points_cdr(payload: &[u8]) -> Option<(Header, u64)> {
+    let mut r = CdrReader::new(payload).ok()?;
+    let header = cdr::read_header(&mut r, "header.").ok()?;
+    let (_, n) = read_fixed(&mut r).ok()?;
+    Some((header, n as u64))
+}
+
 /// `timebase`, `point_num`, `lidar_id` and `rsvd`, then the points' count, checked against
 /// what remains.
 fn read_fixed<'a>(r: &mut impl WireRead<'a>) -> Result<(u64, usize), DecodeError> {
@@ -297,6 +315,18 @@ mod tests {
             let t_ns = timebase as i64 + i64::from(p.0) - stamp_ns;
             assert!((times.seconds[i] - t_ns as f64 * 1e-9).abs() < 1e-15);
         }
+    }
+
+    /// The count read before decoding is the decoded width, with the same header.
+    #[test]
+    fn declared_points_are_the_decoded_width() {
+        let ros1 = ros1_message((5, 6), 5_000_000_006, &POINTS);
+        let cdr = cdr_message((5, 6), 5_000_000_006, &POINTS);
+        let d = decode_ros1_reusing(&ros1, Vec::new(), LivoxTags::KeepAll).unwrap();
+        assert_eq!(declared_points_ros1(&ros1), Some((d.header, 5)));
+        let d = decode_cdr_reusing(&cdr, Vec::new(), LivoxTags::KeepAll).unwrap();
+        assert_eq!(declared_points_cdr(&cdr), Some((d.header, 5)));
+        assert_eq!(declared_points_ros1(&ros1[..ros1.len() - 1]), None);
     }
 
     #[test]

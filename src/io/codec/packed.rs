@@ -81,6 +81,7 @@ pub(crate) fn check_field_fits(
 }
 
 /// Points and intensities extracted from packed data.
+#[derive(Default)]
 pub(crate) struct Extracted {
     pub(crate) points: Vec<Point3<f64>>,
     pub(crate) intensity: Option<Vec<f32>>,

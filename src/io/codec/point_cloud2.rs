@@ -50,6 +50,72 @@ pub(crate) fn decode_body<'a>(
     header: Header,
     points: Vec<Point3<f64>>,
 ) -> Result<PointCloud, DecodeError> {
+    let body = read_body(r)?;
+    let (width, height) = (body.width, body.height);
+    let empty = PointCloud {
+        header,
+        points: Vec::new(),
+        intensity: None,
+        times: None,
+        width,
+        height,
+        num_dropped_non_finite: 0,
+        num_dropped_far: 0,
+        num_dropped_zero: 0,
+        num_dropped_tag: 0,
+        num_dropped_time: 0,
+    };
+    if width == 0 || height == 0 {
+        return Ok(empty);
+    }
+    let (layout, time_name) = layout_of(&body)?;
+    check_extent(&body)?;
+    // All of these are ≤ data.len(), so they fit usize.
+    let ex = extract(
+        body.data,
+        &layout,
+        height as usize,
+        width as usize,
+        if height > 1 {
+            body.row_step as usize
+        } else {
+            0
+        },
+        body.point_step as usize,
+        points,
+    );
+    let stamp_s = empty.header.stamp.to_ns() as f64 * 1e-9;
+    let times = time_name
+        .zip(layout.time)
+        .zip(ex.times)
+        .map(|((name, f), raw)| crate::io::point_time::point_times(name, f.kind, raw, stamp_s));
+    let mut cloud = PointCloud {
+        points: ex.points,
+        intensity: ex.intensity,
+        times,
+        num_dropped_non_finite: ex.num_dropped_non_finite,
+        num_dropped_far: ex.num_dropped_far,
+        num_dropped_zero: ex.num_dropped_zero,
+        num_dropped_tag: 0,
+        ..empty
+    };
+    cloud.drop_time_glitches();
+    Ok(cloud)
+}
+
+/// The fields of a PointCloud2 body as the wire has them, `data` borrowed from the message.
+struct RawBody<'a> {
+    height: u32,
+    width: u32,
+    fields: Vec<RawField>,
+    is_bigendian: bool,
+    point_step: u32,
+    row_step: u32,
+    data: &'a [u8],
+}
+
+/// Reads the body's fields from `r` (every length checked against what remains).
+fn read_body<'a>(r: &mut impl WireRead<'a>) -> Result<RawBody<'a>, DecodeError> {
     let height = r.u32("height")?;
     let width = r.u32("width")?;
     let n_fields = r.sequence_len("fields", MIN_POINT_FIELD_BYTES)?;
@@ -72,24 +138,22 @@ pub(crate) fn decode_body<'a>(
     let data_len = r.sequence_len("data", 1)?;
     let data = r.bytes(data_len, "data")?;
     let _is_dense = r.bool("is_dense")?;
-
-    let empty = PointCloud {
-        header,
-        points: Vec::new(),
-        intensity: None,
-        times: None,
-        width,
+    Ok(RawBody {
         height,
-        num_dropped_non_finite: 0,
-        num_dropped_far: 0,
-        num_dropped_zero: 0,
-        num_dropped_tag: 0,
-        num_dropped_time: 0,
-    };
-    if width == 0 || height == 0 {
-        return Ok(empty);
-    }
+        width,
+        fields,
+        is_bigendian,
+        point_step,
+        row_step,
+        data,
+    })
+}
 
+/// The packed layout of `body`'s points: `x`, `y`, `z` (required), `intensity`, and the first
+/// time field found ([`crate::io::point_time::TIME_FIELDS`], returned by name), each checked to
+/// fit in `point_step`.
+fn layout_of(body: &RawBody<'_>) -> Result<(PackedLayout, Option<&'static str>), DecodeError> {
+    let fields = &body.fields;
     let find = |name: &str, required: bool| -> Result<Option<PackedField>, DecodeError> {
         let Some(i) = fields.iter().position(|f| f.name == name) else {
             return if required {
@@ -117,7 +181,7 @@ pub(crate) fn decode_body<'a>(
             u64::from(f.offset),
             kind,
             u64::from(f.count),
-            u64::from(point_step),
+            u64::from(body.point_step),
         )
         .map(Some)
     };
@@ -132,14 +196,20 @@ pub(crate) fn decode_body<'a>(
         xyz: [find("x", true)?, find("y", true)?, find("z", true)?],
         intensity: find("intensity", false)?,
         time: time_field.map(|(_, f)| f),
-        big_endian: is_bigendian,
+        big_endian: body.is_bigendian,
     };
+    Ok((layout, time_field.map(|(name, _)| name)))
+}
 
+/// Checks that `body`'s rows do not overlap and that its data holds every point:
+/// `row_step ≥ width·point_step` when `height > 1`, and
+/// `(height−1)·row_step + width·point_step ≤ data.len()`.
+fn check_extent(body: &RawBody<'_>) -> Result<(), DecodeError> {
     let (w, h, ps, rs) = (
-        u64::from(width),
-        u64::from(height),
-        u64::from(point_step),
-        u64::from(row_step),
+        u64::from(body.width),
+        u64::from(body.height),
+        u64::from(body.point_step),
+        u64::from(body.row_step),
     );
     let row_bytes = w * ps; // < 2^64
     if h > 1 && rs < row_bytes {
@@ -155,45 +225,17 @@ pub(crate) fn decode_body<'a>(
         .checked_mul(rs)
         .and_then(|v| v.checked_add(row_bytes));
     match need {
-        Some(need) if need <= data.len() as u64 => {}
-        _ => {
-            return Err(DecodeError::new(
-                "data",
-                format!(
-                    "{} bytes, but height {h}, width {w}, point step {ps} and row step {rs} \
-                     need (height−1)·row_step + width·point_step = {} bytes",
-                    data.len(),
-                    need.map_or_else(|| "more than 2^64".to_string(), |n| n.to_string())
-                ),
-            ));
-        }
+        Some(need) if need <= body.data.len() as u64 => Ok(()),
+        _ => Err(DecodeError::new(
+            "data",
+            format!(
+                "{} bytes, but height {h}, width {w}, point step {ps} and row step {rs} \
+                 need (height−1)·row_step + width·point_step = {} bytes",
+                body.data.len(),
+                need.map_or_else(|| "more than 2^64".to_string(), |n| n.to_string())
+            ),
+        )),
     }
-    // All of these are ≤ data.len(), so they fit usize.
-    let ex = extract(
-        data,
-        &layout,
-        height as usize,
-        width as usize,
-        if height > 1 { row_step as usize } else { 0 },
-        point_step as usize,
-        points,
-    );
-    let stamp_s = empty.header.stamp.to_ns() as f64 * 1e-9;
-    let times = time_field
-        .zip(ex.times)
-        .map(|((name, f), raw)| crate::io::point_time::point_times(name, f.kind, raw, stamp_s));
-    let mut cloud = PointCloud {
-        points: ex.points,
-        intensity: ex.intensity,
-        times,
-        num_dropped_non_finite: ex.num_dropped_non_finite,
-        num_dropped_far: ex.num_dropped_far,
-        num_dropped_zero: ex.num_dropped_zero,
-        num_dropped_tag: 0,
-        ..empty
-    };
-    cloud.drop_time_glitches();
-    Ok(cloud)
 }
 
 /// Writes the body of a little-endian `sensor_msgs/PointCloud2` (after its header) with FLOAT32 fields `x`, `y`, `z`
