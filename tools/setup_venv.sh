@@ -37,7 +37,8 @@ venv="$here/.venv-$(IFS=-; echo "${groups[*]}")"
 if [ ! -x "$venv/bin/python" ]; then
     python3 -m venv "$venv"
 fi
-pip=("$venv/bin/python" -m pip install --quiet --disable-pip-version-check)
+# genz-icp is installed from its wheel only, never built from source here.
+pip=("$venv/bin/python" -m pip install --quiet --disable-pip-version-check --only-binary=genz-icp)
 "${pip[@]}" "$here[$(IFS=,; echo "${groups[*]}")]"
 mireg=0 open3d=0
 for group in "${groups[@]}"; do
