@@ -78,109 +78,21 @@ pub fn small_bag(
     compression: ChunkCompression,
     declared_size: Option<u32>,
 ) -> Vec<u8> {
-    let conn = 0u32.to_le_bytes();
-    let connection_data = {
-        let mut d = Vec::new();
-        for (k, v) in [
-            ("topic", "/points"),
-            ("type", ros1::POINT_CLOUD2_SCHEMA_NAME),
-            ("md5sum", ros1::POINT_CLOUD2_MD5),
-            ("message_definition", ros1::POINT_CLOUD2_SCHEMA),
-            ("callerid", "/seed"),
-            ("latching", "0"),
-        ] {
-            d.extend(((k.len() + 1 + v.len()) as u32).to_le_bytes());
-            d.extend(k.as_bytes());
-            d.push(b'=');
-            d.extend(v.as_bytes());
-        }
-        d
-    };
-    let connection = record(
-        &[("op", &[0x07]), ("conn", &conn), ("topic", b"/points")],
-        &connection_data,
-    );
-    let world = super::small_scene();
-    let t0 = 1_700_000_000_000_000_000u64;
+    let connection = connection_record();
     let mut body = Vec::new();
     let mut infos = Vec::new();
     for k in 0..frames {
-        let t = t0 + k as u64 * 100_000_000;
-        let camera_from_world = super::small_camera(k).inverse();
-        let pts: Vec<_> = world.iter().map(|p| camera_from_world * p).collect();
-        let header = codec::Header {
-            stamp: codec::Time::from_ns(t as i64).expect("in range"),
-            frame_id: "camera".into(),
-        };
-        let cloud = ros1::encode_point_cloud2(&header, &pts, None);
-        let mut chunk = if k == 0 {
-            connection.clone()
-        } else {
-            Vec::new()
-        };
-        let msg_offset = chunk.len() as u32;
-        chunk.extend(record(
-            &[("op", &[0x02]), ("conn", &conn), ("time", &time(t))],
-            &cloud,
-        ));
-        let size = declared_size.unwrap_or(chunk.len() as u32).to_le_bytes();
         let chunk_pos = (ros1_bag_magic().len() + body.len()) as u64;
-        body.extend(record(
-            &[
-                ("op", &[0x05]),
-                ("compression", compression.name().as_bytes()),
-                ("size", &size),
-            ],
-            &compression.compress(&chunk),
-        ));
-        let mut index = time(t).to_vec();
-        index.extend(msg_offset.to_le_bytes());
-        body.extend(record(
-            &[
-                ("op", &[0x04]),
-                ("ver", &1u32.to_le_bytes()),
-                ("conn", &conn),
-                ("count", &1u32.to_le_bytes()),
-            ],
-            &index,
-        ));
-        let mut pairs = conn.to_vec();
-        pairs.extend(1u32.to_le_bytes());
-        infos.push(record(
-            &[
-                ("op", &[0x06]),
-                ("ver", &1u32.to_le_bytes()),
-                ("chunk_pos", &chunk_pos.to_le_bytes()),
-                ("start_time", &time(t)),
-                ("end_time", &time(t)),
-                ("count", &1u32.to_le_bytes()),
-            ],
-            &pairs,
-        ));
+        let (records, info) = frame_records(k, &connection, compression, declared_size, chunk_pos);
+        body.extend(records);
+        infos.push(info);
     }
     // The bag header comes first, so its length is fixed before the offsets are: a header of
     // fixed fields, padded like rosbag pads it.
-    let header_len = record(
-        &[
-            ("op", &[0x03]),
-            ("index_pos", &[0; 8]),
-            ("conn_count", &[0; 4]),
-            ("chunk_count", &[0; 4]),
-        ],
-        &[b' '; 64],
-    )
-    .len();
+    let header_len = bag_header(0, 0).len();
     let index_pos = (ros1_bag_magic().len() + header_len + body.len()) as u64;
     let mut out = ros1_bag_magic().to_vec();
-    out.extend(record(
-        &[
-            ("op", &[0x03]),
-            ("index_pos", &index_pos.to_le_bytes()),
-            ("conn_count", &1u32.to_le_bytes()),
-            ("chunk_count", &(frames as u32).to_le_bytes()),
-        ],
-        &[b' '; 64],
-    ));
+    out.extend(bag_header(index_pos, frames as u32));
     // Chunk positions were counted from the end of the magic without the bag header.
     let shift = header_len as u64;
     out.extend(body);
@@ -190,6 +102,113 @@ pub fn small_bag(
         out.extend(info);
     }
     out
+}
+
+/// The bag header record: the index at `index_pos`, one connection, `chunks` chunks, padded
+/// like rosbag pads it.
+fn bag_header(index_pos: u64, chunks: u32) -> Vec<u8> {
+    record(
+        &[
+            ("op", &[0x03]),
+            ("index_pos", &index_pos.to_le_bytes()),
+            ("conn_count", &1u32.to_le_bytes()),
+            ("chunk_count", &chunks.to_le_bytes()),
+        ],
+        &[b' '; 64],
+    )
+}
+
+/// The connection record of `/points` (connection 0).
+fn connection_record() -> Vec<u8> {
+    let mut d = Vec::new();
+    for (k, v) in [
+        ("topic", "/points"),
+        ("type", ros1::POINT_CLOUD2_SCHEMA_NAME),
+        ("md5sum", ros1::POINT_CLOUD2_MD5),
+        ("message_definition", ros1::POINT_CLOUD2_SCHEMA),
+        ("callerid", "/seed"),
+        ("latching", "0"),
+    ] {
+        d.extend(((k.len() + 1 + v.len()) as u32).to_le_bytes());
+        d.extend(k.as_bytes());
+        d.push(b'=');
+        d.extend(v.as_bytes());
+    }
+    record(
+        &[
+            ("op", &[0x07]),
+            ("conn", &0u32.to_le_bytes()),
+            ("topic", b"/points"),
+        ],
+        &d,
+    )
+}
+
+/// Frame `k`'s chunk (the connection record first in frame 0's) and index data record, and its
+/// chunk info record, for a chunk at `chunk_pos` (counted from the end of the magic).
+fn frame_records(
+    k: usize,
+    connection: &[u8],
+    compression: ChunkCompression,
+    declared_size: Option<u32>,
+    chunk_pos: u64,
+) -> (Vec<u8>, Vec<u8>) {
+    let conn = 0u32.to_le_bytes();
+    let t = 1_700_000_000_000_000_000u64 + k as u64 * 100_000_000;
+    let camera_from_world = super::small_camera(k).inverse();
+    let pts: Vec<_> = super::small_scene()
+        .iter()
+        .map(|p| camera_from_world * p)
+        .collect();
+    let header = codec::Header {
+        stamp: codec::Time::from_ns(t as i64).expect("in range"),
+        frame_id: "camera".into(),
+    };
+    let cloud = ros1::encode_point_cloud2(&header, &pts, None);
+    let mut chunk = if k == 0 {
+        connection.to_vec()
+    } else {
+        Vec::new()
+    };
+    let msg_offset = chunk.len() as u32;
+    chunk.extend(record(
+        &[("op", &[0x02]), ("conn", &conn), ("time", &time(t))],
+        &cloud,
+    ));
+    let size = declared_size.unwrap_or(chunk.len() as u32).to_le_bytes();
+    let mut records = record(
+        &[
+            ("op", &[0x05]),
+            ("compression", compression.name().as_bytes()),
+            ("size", &size),
+        ],
+        &compression.compress(&chunk),
+    );
+    let mut index = time(t).to_vec();
+    index.extend(msg_offset.to_le_bytes());
+    records.extend(record(
+        &[
+            ("op", &[0x04]),
+            ("ver", &1u32.to_le_bytes()),
+            ("conn", &conn),
+            ("count", &1u32.to_le_bytes()),
+        ],
+        &index,
+    ));
+    let mut pairs = conn.to_vec();
+    pairs.extend(1u32.to_le_bytes());
+    let info = record(
+        &[
+            ("op", &[0x06]),
+            ("ver", &1u32.to_le_bytes()),
+            ("chunk_pos", &chunk_pos.to_le_bytes()),
+            ("start_time", &time(t)),
+            ("end_time", &time(t)),
+            ("count", &1u32.to_le_bytes()),
+        ],
+        &pairs,
+    );
+    (records, info)
 }
 
 fn ros1_bag_magic() -> &'static [u8] {
