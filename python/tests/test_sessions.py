@@ -76,3 +76,42 @@ def test_view_of_a_merge_draws_sessions_and_links(tmp_path, sessions):
     # every candidate tried, once (each is on both sessions' outputs)
     tried = sum(p["appearance_candidates"] + p["place_candidates"] for p in report["pairs"])
     assert len(links) == tried
+
+
+def test_view_of_a_localized_log_draws_its_links(tmp_path, sessions):
+    pytest.importorskip("rerun", reason="the viewer extra is not installed")
+    from rerun.chunk import RrdReader
+
+    _, b = sessions
+    out = tmp_path / "loc.mcap"
+    summary = mireg.localize(FIXTURES / "icl_livingroom1.mcap", b, out)
+    links = [json.loads(m) for m in messages(out, summary["session_links_topic"])]
+    registered = [d for d in links if d["a_from_b"] is not None]
+    assert any(d["verdict"] == "accepted" for d in registered)
+    rrd = tmp_path / "l.rrd"
+    p = subprocess.run([sys.executable, "-m", "mireg.viewer", str(out), "--save", str(rrd)],
+                       capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    entities = {c.entity_path.lstrip("/") for c in RrdReader(rrd).stream()}
+    drawn = [e for e in entities if e.startswith("world/localized/links/")]
+    # every frame of the fixture is placed, so every registered link is drawn, once
+    assert len(drawn) == len(registered)
+
+
+def test_a_links_map_frame_is_placed_by_the_inverse_of_its_registration():
+    np = pytest.importorskip("numpy")
+    from mireg.viewer.sessions import map_frame_position
+
+    def iso(yaw, t):
+        c, s = np.cos(yaw), np.sin(yaw)
+        m = np.eye(4)
+        m[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+        m[:3, 3] = t
+        return m
+
+    world_from_b, a_from_b = iso(0.3, [1.0, 2.0, 0.5]), iso(-1.1, [0.4, -0.2, 0.1])
+    half = -1.1 / 2
+    pose = {"translation": a_from_b[:3, 3].tolist(),
+            "rotation_xyzw": [0.0, 0.0, np.sin(half), np.cos(half)]}
+    want = (world_from_b @ np.linalg.inv(a_from_b))[:3, 3]
+    assert np.allclose(map_frame_position(world_from_b, pose), want)

@@ -8,7 +8,10 @@ output (``mireg view merged/``, ``mireg view today.localized.mcap``).
   a segment between its two frames, green if accepted, red if rejected, the message's fields on
   hover.
 - a localised log: ``world/localized``, its frames coloured by status (localized green, tracking
-  blue, outside_map orange; lost frames have no pose).
+  blue, outside_map orange; lost frames have no pose), and ``world/localized/links/link_NNNN``:
+  every link tried against the map whose registration ran, a segment from the log's frame to
+  where that registration puts the map's keyframe or tile (green if accepted, red if rejected,
+  the reason as its label and the message's fields on hover).
 """
 
 from __future__ import annotations
@@ -102,7 +105,45 @@ def log_localized(rr, path: Path) -> dict:
         xyz = poses[:, :3, 3]
         rr.log("world/localized", rr.LineStrips3D([xyz], colors=[[127, 127, 127]]), static=True)
         rr.log("world/localized/frames", rr.Points3D(xyz, colors=colours), static=True)
+    topic = meta.get("session_links_topic")
+    if topic:
+        counts["links_drawn"] = log_localized_links(rr, path, topic, dict(zip(stamps.tolist(), poses)))
     return counts
+
+
+def map_frame_position(world_from_b: np.ndarray, a_from_b: dict) -> np.ndarray:
+    """Where a link puts its map frame's origin: ``world_from_b · a_from_b⁻¹ · 0``."""
+    x, y, z, w = a_from_b["rotation_xyzw"]
+    r = np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+    in_b = -r.T @ np.asarray(a_from_b["translation"])
+    return world_from_b[:3, :3] @ in_b + world_from_b[:3, 3]
+
+
+def log_localized_links(rr, path: Path, topic: str, placed: dict) -> int:
+    """Logs each link of ``topic`` whose registration ran and whose log frame was placed;
+    returns how many."""
+    _, messages = _mireg.read_json_topics(str(path), [topic])
+    drawn = 0
+    for _, _, text in messages:
+        d = json.loads(text)
+        world_from_b = placed.get(d["stamp_b_ns"])
+        if d["a_from_b"] is None or world_from_b is None:
+            continue
+        a = map_frame_position(world_from_b, d["a_from_b"])
+        accepted = d["verdict"] == "accepted"
+        fields = {k: v for k, v in d.items() if isinstance(v, (int, float, str))}
+        rr.log(f"world/localized/links/link_{drawn:04d}",
+               rr.LineStrips3D([np.stack([world_from_b[:3, 3], a])],
+                               colors=[ACCEPTED if accepted else REJECTED],
+                               labels=[f"{d['verdict']}: {d['reason']}" if d["reason"]
+                                       else d["verdict"]]),
+               rr.AnyValues(**fields), static=True)
+        drawn += 1
+    return drawn
 
 
 def view(path: Path, save: Path | None) -> int:
