@@ -322,6 +322,25 @@ fn place(
     Ok((placed, weights))
 }
 
+/// Writes `records` on channel `links`, each at the log time of its frame of the log, in time
+/// order.
+fn write_links(
+    out: &mut OutputLog,
+    links: u16,
+    log: &Session,
+    records: &[LinkRecord],
+) -> Result<()> {
+    let mut timed: Vec<(u64, &LinkRecord)> = records
+        .iter()
+        .map(|r| (log.output.frames[r.frame_b()].log_time, r))
+        .collect();
+    timed.sort_by_key(|(t, _)| *t);
+    for (t, r) in timed {
+        out.write(links, t, t, &serde_json::to_vec(r).expect("JSON"))?;
+    }
+    Ok(())
+}
+
 /// The JSON schema of `…/localization`.
 #[must_use]
 pub fn localization_json_schema() -> serde_json::Value {
@@ -392,15 +411,7 @@ fn write_output(
         "json",
     )?;
     input.pass_through(&mut out, &BTreeSet::new(), None, |_, _, _| Ok(()))?;
-    // Each link at the log time of its frame of the log, in time order.
-    let mut timed: Vec<(u64, &LinkRecord)> = records
-        .iter()
-        .map(|r| (log.output.frames[r.frame_b()].log_time, r))
-        .collect();
-    timed.sort_by_key(|(t, _)| *t);
-    for (t, r) in timed {
-        out.write(links, t, t, &serde_json::to_vec(r).expect("JSON"))?;
-    }
+    write_links(&mut out, links, log, records)?;
     for (k, (f, p)) in log.output.frames.iter().zip(placed).enumerate() {
         if let Some(world_from_sensor) = p.pose {
             let stamped = StampedPose {
