@@ -203,13 +203,24 @@ fn retrieval(name: &str, frames: &[Frame], poses: &[Isometry3<f64>], truth: &Tru
             right as f64 / total.max(1) as f64
         );
     }
-    // The appearance gate of `find_candidates`: a pair passes when its distance is at most
-    // `max_descriptor_distance` and `appearance_ratio` × the median distance from the query to
-    // the database; at the default and at 0.5.
+    appearance_gate(frames, poses, truth, &with_truth, &database);
+}
+
+/// The appearance gate of `find_candidates` on the `queries` (odd frames with a true match)
+/// against the `database` (even frames): a pair passes when its distance is at most
+/// `max_descriptor_distance` and `appearance_ratio` × the median distance from the query to the
+/// database; printed at the default and at 0.5.
+fn appearance_gate(
+    frames: &[Frame],
+    poses: &[Isometry3<f64>],
+    truth: &Truth,
+    with_truth: &[usize],
+    database: &[usize],
+) {
     let default = CandidateConfig::default();
     let mut ratios = Vec::new();
     let mut gates = Vec::new();
-    for &q in &with_truth {
+    for &q in with_truth {
         let d: Vec<(f64, usize)> = database
             .iter()
             .map(|&m| (frames[q].ours.distance(&frames[m].ours), m))

@@ -86,22 +86,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         );
     }
     if std::env::var("DIAG_BENCH").is_ok() {
-        let grid = mireg::ransac::OverlapTarget::new(&t.points, thr, || Ok(&dense_t))?;
-        let tree = mireg::ransac::OverlapTarget::Tree(&dense_t);
-        for (name, target) in [("grid", &grid), ("kd-tree", &tree)] {
-            let dense_est = mireg::ransac::DenseRigidEstimator::new(est, &s.points, target);
-            let t0 = std::time::Instant::now();
-            let mut acc = 0u32;
-            for _ in 0..200 {
-                acc += dense_est.score(&gt, thr * thr).inliers;
-            }
-            let dt = t0.elapsed().as_secs_f64();
-            println!(
-                "dense score ({name}): {:.1} µs per call, {:.0} ns per point ({acc})",
-                dt / 200.0 * 1e6,
-                dt / 200.0 / s.points.len() as f64 * 1e9
-            );
-        }
+        bench_dense(&est, (&s.points, &t.points), &dense_t, thr, &gt)?;
     }
     let cc = ConsensusConfig {
         inlier_threshold: thr,
@@ -125,50 +110,105 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let levy = Levy::new(TruncatedLevy::new(-50.0, 1.0, 100.0)?, sp.len())?;
     let uni = Uniform::new(sp.len());
     for (name, sampler) in [("levy", &levy as &dyn DynSampler), ("uniform", &uni)] {
-        let mut buf = [0usize; 3];
-        let (mut verified, mut near_n, mut first_near) = (0u64, 0u64, None);
-        let mut best_near_corr = 0u32;
-        let mut best_near_dense = 0.0f64;
-        let mut best_corr: (u32, f64, f64) = (0, 0.0, 0.0); // corr, dense, rms
-        let mut best_dense: (f64, u32, f64) = (0.0, 0, 0.0);
-        for h in 0..config.max_hypotheses {
-            sampler.draw_dyn(h, seed, &mut buf);
-            if !est.accept_sample(&buf) {
-                continue;
-            }
-            let Some(model) = est.estimate(&buf) else {
-                continue;
-            };
-            verified += 1;
-            let c = corr(&model);
-            let d = dense(&model).0;
-            let rms = rms_motion(&model, &gt, &s.points);
-            if rms < near {
-                near_n += 1;
-                first_near.get_or_insert(h);
-                best_near_corr = best_near_corr.max(c);
-                best_near_dense = best_near_dense.max(d);
-            }
-            if c > best_corr.0 {
-                best_corr = (c, d, rms);
-            }
-            if d > best_dense.0 {
-                best_dense = (d, c, rms);
-            }
-        }
-        println!(
-            "{name:>8}: verified {verified}, near-GT (rms<{:.0} mm) {near_n} first at {first_near:?}, best near corr {best_near_corr} dense {best_near_dense:.4}; \
-             best-by-corr {} (dense {:.4}, rms {:.1} mm); best-by-dense {:.4} (corr {}, rms {:.1} mm)",
-            near * 1e3,
-            best_corr.0,
-            best_corr.1,
-            best_corr.2 * 1e3,
-            best_dense.0,
-            best_dense.1,
-            best_dense.2 * 1e3
+        let scores: Scores = (&corr, &dense);
+        replay(
+            name,
+            sampler,
+            &est,
+            scores,
+            (&gt, &s.points),
+            (config.max_hypotheses, seed, near),
         );
     }
     Ok(())
+}
+
+/// Times 200 dense scores of the ground truth against the grid and the kd-tree target.
+fn bench_dense(
+    est: &RigidEstimator,
+    (source, target_points): (&[Point3<f64>], &[Point3<f64>]),
+    dense_t: &IcpTarget,
+    thr: f64,
+    gt: &Isometry3<f64>,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let grid = mireg::ransac::OverlapTarget::new(target_points, thr, || Ok(dense_t))?;
+    let tree = mireg::ransac::OverlapTarget::Tree(dense_t);
+    for (name, target) in [("grid", &grid), ("kd-tree", &tree)] {
+        let dense_est = mireg::ransac::DenseRigidEstimator::new(*est, source, target);
+        let t0 = std::time::Instant::now();
+        let mut acc = 0u32;
+        for _ in 0..200 {
+            acc += dense_est.score(gt, thr * thr).inliers;
+        }
+        let dt = t0.elapsed().as_secs_f64();
+        println!(
+            "dense score ({name}): {:.1} µs per call, {:.0} ns per point ({acc})",
+            dt / 200.0 * 1e6,
+            dt / 200.0 / source.len() as f64 * 1e9
+        );
+    }
+    Ok(())
+}
+
+/// Correspondence inliers and dense (fitness, RMSE \[m\]) of a model.
+type Scores<'a> = (
+    &'a dyn Fn(&Isometry3<f64>) -> u32,
+    &'a dyn Fn(&Isometry3<f64>) -> (f64, f64),
+);
+
+/// Replays every hypothesis `sampler` draws (up to the cap, on the consensus loop's RNG streams)
+/// and prints how many were verified, how many landed near the ground truth `gt` (source points
+/// moved less than `near` \[m\] RMS from where it puts them) and the best of each score.
+fn replay(
+    name: &str,
+    sampler: &dyn DynSampler,
+    est: &RigidEstimator,
+    (corr, dense): Scores,
+    (gt, source): (&Isometry3<f64>, &[Point3<f64>]),
+    (max_hypotheses, seed, near): (u64, u64, f64),
+) {
+    let mut buf = [0usize; 3];
+    let (mut verified, mut near_n, mut first_near) = (0u64, 0u64, None);
+    let mut best_near_corr = 0u32;
+    let mut best_near_dense = 0.0f64;
+    let mut best_corr: (u32, f64, f64) = (0, 0.0, 0.0); // corr, dense, rms
+    let mut best_dense: (f64, u32, f64) = (0.0, 0, 0.0);
+    for h in 0..max_hypotheses {
+        sampler.draw_dyn(h, seed, &mut buf);
+        if !est.accept_sample(&buf) {
+            continue;
+        }
+        let Some(model) = est.estimate(&buf) else {
+            continue;
+        };
+        verified += 1;
+        let c = corr(&model);
+        let d = dense(&model).0;
+        let rms = rms_motion(&model, gt, source);
+        if rms < near {
+            near_n += 1;
+            first_near.get_or_insert(h);
+            best_near_corr = best_near_corr.max(c);
+            best_near_dense = best_near_dense.max(d);
+        }
+        if c > best_corr.0 {
+            best_corr = (c, d, rms);
+        }
+        if d > best_dense.0 {
+            best_dense = (d, c, rms);
+        }
+    }
+    println!(
+        "{name:>8}: verified {verified}, near-GT (rms<{:.0} mm) {near_n} first at {first_near:?}, best near corr {best_near_corr} dense {best_near_dense:.4}; \
+         best-by-corr {} (dense {:.4}, rms {:.1} mm); best-by-dense {:.4} (corr {}, rms {:.1} mm)",
+        near * 1e3,
+        best_corr.0,
+        best_corr.1,
+        best_corr.2 * 1e3,
+        best_dense.0,
+        best_dense.1,
+        best_dense.2 * 1e3
+    );
 }
 
 trait DynSampler {
