@@ -36,7 +36,7 @@ use super::job::{Attempt, Linker, link_records};
 use super::links::Track;
 use super::map_prior::{MAP_MIN_REVERSE_FITNESS, is_map_file, map_session, read_map, tiling_for};
 use super::session::{Session, prepare_sessions};
-use super::write::{LinkRecord, session_links_json_schema};
+use super::write::{LinkRecord, session_links_json_schema, write_links};
 use crate::io::atomic_file::{check_target, same_file};
 use crate::io::codec::Time;
 use crate::io::input_log::InputLog;
@@ -322,25 +322,6 @@ fn place(
     Ok((placed, weights))
 }
 
-/// Writes `records` on channel `links`, each at the log time of its frame of the log, in time
-/// order.
-fn write_links(
-    out: &mut OutputLog,
-    links: u16,
-    log: &Session,
-    records: &[LinkRecord],
-) -> Result<()> {
-    let mut timed: Vec<(u64, &LinkRecord)> = records
-        .iter()
-        .map(|r| (log.output.frames[r.frame_b()].log_time, r))
-        .collect();
-    timed.sort_by_key(|(t, _)| *t);
-    for (t, r) in timed {
-        out.write(links, t, t, &serde_json::to_vec(r).expect("JSON"))?;
-    }
-    Ok(())
-}
-
 /// The JSON schema of `…/localization`.
 #[must_use]
 pub fn localization_json_schema() -> serde_json::Value {
@@ -411,7 +392,9 @@ fn write_output(
         "json",
     )?;
     input.pass_through(&mut out, &BTreeSet::new(), None, |_, _, _| Ok(()))?;
-    write_links(&mut out, links, log, records)?;
+    write_links(&mut out, links, records, |r| {
+        log.output.frames[r.frame_b()].log_time
+    })?;
     for (k, (f, p)) in log.output.frames.iter().zip(placed).enumerate() {
         if let Some(world_from_sensor) = p.pose {
             let stamped = StampedPose {

@@ -91,6 +91,23 @@ impl LinkRecord {
     }
 }
 
+/// Writes `records` on `channel`, each at its `log_time`, in time order (a stable sort: records of
+/// one time keep their order).
+pub(super) fn write_links<'r>(
+    out: &mut OutputLog,
+    channel: u16,
+    records: impl IntoIterator<Item = &'r LinkRecord>,
+    log_time: impl Fn(&LinkRecord) -> u64,
+) -> Result<()> {
+    let mut timed: Vec<(u64, &LinkRecord)> =
+        records.into_iter().map(|r| (log_time(r), r)).collect();
+    timed.sort_by_key(|(t, _)| *t);
+    for (t, r) in timed {
+        out.write(channel, t, t, &serde_json::to_vec(r).expect("JSON"))?;
+    }
+    Ok(())
+}
+
 /// The JSON schema of `…/session_links`.
 #[must_use]
 pub fn session_links_json_schema() -> serde_json::Value {
@@ -178,22 +195,17 @@ pub(super) fn write_session(
         out.write(tf, f.log_time, f.publish_time, &tf_msg)?;
         out.write(pose, f.log_time, f.publish_time, &pose_msg)?;
     }
-    let mut mine: Vec<(u64, &LinkRecord)> = records
+    let mine = records
         .iter()
-        .filter(|r| r.ends.0 == index || r.ends.1 == index)
-        .map(|r| {
-            let frame = if r.ends.0 == index {
-                r.frame_a
-            } else {
-                r.frame_b
-            };
-            (run.frames[frame].log_time, r)
-        })
-        .collect();
-    mine.sort_by_key(|(t, _)| *t);
-    for (t, r) in mine {
-        out.write(links, t, t, &serde_json::to_vec(r).expect("JSON"))?;
-    }
+        .filter(|r| r.ends.0 == index || r.ends.1 == index);
+    write_links(&mut out, links, mine, |r| {
+        let frame = if r.ends.0 == index {
+            r.frame_a
+        } else {
+            r.frame_b
+        };
+        run.frames[frame].log_time
+    })?;
     let meta = BTreeMap::from([
         ("version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
         ("command_line".to_string(), opts.command_line.clone()),
