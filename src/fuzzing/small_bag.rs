@@ -79,11 +79,19 @@ pub fn small_bag(
     declared_size: Option<u32>,
 ) -> Vec<u8> {
     let connection = connection_record();
+    let world = super::small_scene();
     let mut body = Vec::new();
     let mut infos = Vec::new();
     for k in 0..frames {
         let chunk_pos = (ros1_bag_magic().len() + body.len()) as u64;
-        let (records, info) = frame_records(k, &connection, compression, declared_size, chunk_pos);
+        let (records, info) = frame_records(
+            k,
+            &world,
+            &connection,
+            compression,
+            declared_size,
+            chunk_pos,
+        );
         body.extend(records);
         infos.push(info);
     }
@@ -145,9 +153,11 @@ fn connection_record() -> Vec<u8> {
 }
 
 /// Frame `k`'s chunk (the connection record first in frame 0's) and index data record, and its
-/// chunk info record, for a chunk at `chunk_pos` (counted from the end of the magic).
+/// chunk info record, for a chunk at `chunk_pos` (counted from the end of the magic): `world`
+/// (the room's points) seen from the frame's camera.
 fn frame_records(
     k: usize,
+    world: &[nalgebra::Point3<f64>],
     connection: &[u8],
     compression: ChunkCompression,
     declared_size: Option<u32>,
@@ -156,10 +166,7 @@ fn frame_records(
     let conn = 0u32.to_le_bytes();
     let t = 1_700_000_000_000_000_000u64 + k as u64 * 100_000_000;
     let camera_from_world = super::small_camera(k).inverse();
-    let pts: Vec<_> = super::small_scene()
-        .iter()
-        .map(|p| camera_from_world * p)
-        .collect();
+    let pts: Vec<_> = world.iter().map(|p| camera_from_world * p).collect();
     let header = codec::Header {
         stamp: codec::Time::from_ns(t as i64).expect("in range"),
         frame_id: "camera".into(),
