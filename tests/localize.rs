@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use mcap::records::Record;
+use mireg::io::cloud_file::write_npy;
 use mireg::io::mcap::log::for_each_record;
 use mireg::io::poses::read_mcap_pose_topic;
 use mireg::trajectory::Trajectory;
@@ -201,33 +202,17 @@ fn a_map_file_of_another_place_localizes_nothing() {
     let ouster = root().join("fixtures/ouster_os1_ros1.mcap");
     let out = dir.path().join("loc.mcap");
     localize(&ouster, &map, &out, None);
-    let status = statuses(&out);
-    assert!(
-        !status.is_empty() && status.iter().all(|s| s == "lost"),
-        "{status:?}"
-    );
-    assert!(
-        read_mcap_pose_topic(&out, "/mireg/pose")
-            .unwrap()
-            .poses
-            .is_empty()
-    );
+    assert_nothing_localized(&out);
 }
 
 #[test]
 fn a_map_file_too_small_is_refused_before_the_log_is_registered() {
     let dir = tempfile::tempdir().unwrap();
-    // An .npy of 10 points (float64, 10 × 3).
+    // An .npy of 10 points (10 × 3).
     let map = dir.path().join("tiny.npy");
-    let header = "{'descr': '<f8', 'fortran_order': False, 'shape': (10, 3), }";
-    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
-    let pad = 64 - (10 + header.len() + 1) % 64;
-    let header = format!("{header}{}\n", " ".repeat(pad));
-    bytes.extend((header.len() as u16).to_le_bytes());
-    bytes.extend(header.as_bytes());
-    for k in 0..30 {
-        bytes.extend((k as f64).to_le_bytes());
-    }
+    let rows: Vec<f32> = (0..30).map(|k| k as f32).collect();
+    let mut bytes = Vec::new();
+    write_npy(&rows, 3, &mut bytes).unwrap();
     std::fs::write(&map, bytes).unwrap();
     let out = dir.path().join("loc.mcap");
     let fixture = fixture();
@@ -254,14 +239,18 @@ fn a_map_of_another_place_localizes_nothing() {
     let ouster = root().join("fixtures/ouster_os1_ros1.mcap");
     let out = dir.path().join("loc.mcap");
     localize(&ouster, &prior, &out, None);
-    let status = statuses(&out);
+    assert_nothing_localized(&out);
+}
+
+/// Every frame of the localisation `out` is lost, and no pose is guessed.
+fn assert_nothing_localized(out: &Path) {
+    let status = statuses(out);
     assert!(
         !status.is_empty() && status.iter().all(|s| s == "lost"),
         "{status:?}"
     );
-    // No pose guessed.
     assert!(
-        read_mcap_pose_topic(&out, "/mireg/pose")
+        read_mcap_pose_topic(out, "/mireg/pose")
             .unwrap()
             .poses
             .is_empty()

@@ -3,20 +3,9 @@
 //! frame on.
 
 use super::*;
-use mireg::fuzzing::timed_cloud_cdr;
+use mireg::fuzzing::{TIME_GLITCHES as GLITCHES, timed_cloud_cdr};
 use mireg::io::codec::cdr;
 use nalgebra::{Isometry3, Point3};
-
-/// Points of each cloud whose time is a glitch, and those glitches (30 s: beyond the bound of
-/// `mireg::io::point_time::POINT_TIME_BOUND_S`, 2 s, from the cloud's median time).
-const GLITCHES: [f64; 6] = [
-    f64::NAN,
-    f64::INFINITY,
-    f64::NEG_INFINITY,
-    1e300,
-    -1e300,
-    30.0,
-];
 
 /// Frame `k`'s time field: the clouds of frames 5 and 6 hold 1e300 and NaN for every point (a
 /// field on another clock, a field without a time); the others a 100 ms sweep by azimuth with
