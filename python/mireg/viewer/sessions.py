@@ -23,6 +23,7 @@ import numpy as np
 
 from .. import _mireg
 from ..run import read_trajectory
+from .geometry import quaternion_matrix
 
 PALETTE = [[31, 119, 180], [255, 127, 14], [148, 103, 189], [23, 190, 207], [188, 189, 34],
            [227, 119, 194], [140, 86, 75], [127, 127, 127]]
@@ -113,12 +114,7 @@ def log_localized(rr, path: Path) -> dict:
 
 def map_frame_position(world_from_b: np.ndarray, a_from_b: dict) -> np.ndarray:
     """Where a link puts its map frame's origin: ``world_from_b · a_from_b⁻¹ · 0``."""
-    x, y, z, w = a_from_b["rotation_xyzw"]
-    r = np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
+    r = quaternion_matrix(a_from_b["rotation_xyzw"])[:3, :3]
     in_b = -r.T @ np.asarray(a_from_b["translation"])
     return world_from_b[:3, :3] @ in_b + world_from_b[:3, 3]
 
