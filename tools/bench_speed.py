@@ -42,7 +42,7 @@ import numpy as np
 from genz_icp.config import load_config as genz_config
 from genz_icp.genz_icp import GenZICP
 
-from compare_kiss_icp import pose_matrix, read_log, run_kiss, score, xyz  # noqa: E402
+from compare_kiss_icp import exported_poses, read_log, run_kiss, run_odometry, score, xyz  # noqa: E402
 
 
 def run_mireg(binary, log, extra):
@@ -55,38 +55,8 @@ def run_mireg(binary, log, extra):
         wall = time.perf_counter() - t0
         if run.returncode != 0:
             raise SystemExit(f"mireg register {log} failed ({run.returncode}): {run.stderr}")
-        tum = subprocess.run([binary, "export", out, "--format", "tum"], capture_output=True, text=True,
-                             check=True).stdout
-    poses = {}
-    for line in tum.splitlines():
-        words = line.split()
-        sec, _, frac = words[0].partition(".")
-        stamp = int(sec) * 1_000_000_000 + int((frac + "000000000")[:9])
-        x, y, z, qx, qy, qz, qw = (float(w) for w in words[1:])
-        poses[stamp] = pose_matrix(type("P", (), {
-            "position": type("V", (), {"x": x, "y": y, "z": z}),
-            "orientation": type("Q", (), {"x": qx, "y": qy, "z": qz, "w": qw}),
-        }))
+        poses = exported_poses(binary, out)
     return poses, len(poses) / wall
-
-
-def run_genz(clouds):
-    """GenZ-ICP on the decoded clouds: (poses by stamp relative to the first, frames/s of
-    `register_frame`)."""
-    config = genz_config(None)
-    first = xyz(clouds[0][1])
-    config.data.max_range = float(min(config.data.max_range, np.linalg.norm(first, axis=1).max()))
-    config.mapping.voxel_size = config.data.max_range / 100.0
-    odom = GenZICP(config)
-    frames = [(s, xyz(msg)) for s, msg, _m in clouds]
-    poses = {}
-    t0 = time.perf_counter()
-    for s, p in frames:
-        odom.register_frame(p, np.zeros(0))
-        poses[s] = np.asarray(odom.last_pose).copy()
-    elapsed = time.perf_counter() - t0
-    first_inv = np.linalg.inv(poses[frames[0][0]])
-    return {s: first_inv @ p for s, p in poses.items()}, len(frames) / elapsed
 
 
 def bench_log(args, log):
@@ -106,7 +76,7 @@ def bench_log(args, log):
             rows.setdefault(name, []).append((fps, score(poses, reference)[0]))
         poses, fps, _voxel = run_kiss(clouds)
         rows.setdefault("KISS-ICP", []).append((fps, score(poses, reference)[0]))
-        poses, fps = run_genz(clouds)
+        poses, fps, _voxel = run_odometry(clouds, genz_config(None), GenZICP)
         rows.setdefault("GenZ-ICP", []).append((fps, score(poses, reference)[0]))
     print(f"\n{log} ({topic}, {len(clouds)} clouds, {points:.0f} points/cloud, {args.rounds} rounds)")
     print(f"| {'':22} | {'frames/s':>9} | {'/ KISS-ICP':>18} | {'/ GenZ-ICP':>18} | {'ATE [cm]':>9} |")

@@ -129,21 +129,46 @@ def score(estimate, reference):
     return ate, float(np.mean(rpe)) if rpe else 0.0, len(stamps)
 
 
-def run_kiss(clouds):
-    config = load_config(None)
+def run_odometry(clouds, config, make):
+    """A KISS-ICP-style odometry (`make(config)`: `register_frame`, `last_pose`) on the decoded
+    clouds, its voxel derived as KISS-ICP's pipeline does for short data (max_range = min(its
+    max_range, the farthest point of the first cloud), voxel = max_range / 100): (poses by stamp
+    relative to the first, frames/s of `register_frame`, the voxel)."""
     first = xyz(clouds[0][1])
     config.data.max_range = float(min(config.data.max_range, np.linalg.norm(first, axis=1).max()))
     config.mapping.voxel_size = config.data.max_range / 100.0
-    odom = KissICP(config)
+    odom = make(config)
     frames = [(s, xyz(msg)) for s, msg, _m in clouds]
     poses = {}
     t0 = time.perf_counter()
     for s, p in frames:
         odom.register_frame(p, np.zeros(0))
-        poses[s] = odom.last_pose.copy()
+        poses[s] = np.asarray(odom.last_pose).copy()
     elapsed = time.perf_counter() - t0
     first_inv = np.linalg.inv(poses[frames[0][0]])
     return {s: first_inv @ p for s, p in poses.items()}, len(frames) / elapsed, config.mapping.voxel_size
+
+
+def run_kiss(clouds):
+    return run_odometry(clouds, load_config(None), KissICP)
+
+
+def exported_poses(binary, out):
+    """The poses `mireg export` gives of the output `out` (its best trajectory), by stamp [ns]."""
+    tum = subprocess.run([binary, "export", out, "--format", "tum"], capture_output=True, text=True,
+                         check=True).stdout
+    poses = {}
+    for line in tum.splitlines():
+        words = line.split()
+        # Stamps as written (seconds with nine decimals): exact in integers, not in a float.
+        sec, _, frac = words[0].partition(".")
+        s = int(sec) * 1_000_000_000 + int((frac + "000000000")[:9])
+        x, y, z, qx, qy, qz, qw = (float(w) for w in words[1:])
+        poses[s] = pose_matrix(type("P", (), {
+            "position": type("V", (), {"x": x, "y": y, "z": z}),
+            "orientation": type("Q", (), {"x": qx, "y": qy, "z": qz, "w": qw}),
+        }))
+    return poses
 
 
 def run_mireg(binary, log, extra):
@@ -153,19 +178,7 @@ def run_mireg(binary, log, extra):
         if run.returncode != 0:
             raise SystemExit(f"mireg register failed ({run.returncode}): {run.stderr}")
         summary = json.loads(run.stdout)
-        tum = subprocess.run([binary, "export", out, "--format", "tum"], capture_output=True, text=True, check=True).stdout
-    poses = {}
-    for line in tum.splitlines():
-        words = line.split()
-        # Stamps as written (seconds with nine decimals): exact in integers, not in a float.
-        sec, _, frac = words[0].partition(".")
-        s = int(sec) * 1_000_000_000 + int((frac + "000000000")[:9])
-        x, y, z, qx, qy, qz, qw = (float(w) for w in words[1:])
-        m = pose_matrix(type("P", (), {
-            "position": type("V", (), {"x": x, "y": y, "z": z}),
-            "orientation": type("Q", (), {"x": qx, "y": qy, "z": qz, "w": qw}),
-        }))
-        poses[s] = m
+        poses = exported_poses(binary, out)
     return poses, summary
 
 
