@@ -15,6 +15,7 @@
 
 mod map_fit;
 mod map_input;
+pub mod retry;
 pub mod stream;
 pub mod suspect;
 pub mod uncertainty;
@@ -149,8 +150,9 @@ pub const MAP_ICP_MIN_UPDATE: (f64, f64) = (0.003, 0.0057);
 pub const MAP_ICP_MAX_ITERATIONS_AFTER_COARSE: usize = 2;
 
 /// A frame whose global estimate fits the local map with a fitness below this is doubtful: global
-/// registration runs once more on another RANSAC stream ([`SECOND_OPINION_SEED_OFFSET`]) and the
-/// start that fits the map better wins. Default of the rule, not a setting: 0.5.
+/// registration is retried on another RANSAC stream ([`SECOND_OPINION_SEED_OFFSET`]) and at a
+/// coarser scale ([`retry`]), and the start that fits the map best wins. Default of the rule,
+/// not a setting: 0.5.
 ///
 /// NOTE: not in the paper. MI-RANSAC stops when the ranking's mass on the best model's inliers
 /// makes a better model unlikely (`src/ransac/consensus.rs`); where a wrong model's inliers are
@@ -193,6 +195,10 @@ pub enum InitialGuess {
     /// A second global estimate, from another RANSAC stream, where the first fitted the map
     /// doubtfully ([`DOUBTFUL_MAP_FITNESS`], [`MAP_FITNESS_DROP`]) and the second fitted better.
     SecondGlobal,
+    /// A global estimate on clouds at [`retry::RETRY_VOXEL_FACTOR`] times the feature voxel,
+    /// where the first (and second) fitted the map doubtfully or disagreed with the prediction,
+    /// and it fitted better.
+    CoarseGlobal,
     /// The prediction, accepted without global registration ([`OdometryConfig::track_first`]).
     Tracked,
 }
@@ -204,6 +210,7 @@ impl InitialGuess {
             InitialGuess::Global => "global",
             InitialGuess::ConstantVelocity => "constant_velocity",
             InitialGuess::SecondGlobal => "second_global",
+            InitialGuess::CoarseGlobal => "coarse_global",
             InitialGuess::Tracked => "tracked",
         }
     }
@@ -237,6 +244,9 @@ pub struct MapFit {
     /// The winning refinement's point-to-plane normal matrix at its pose (its ICP cloud against
     /// the map, at the map distance): the frame's uncertainty ([`uncertainty`]).
     pub hessian: IcpHessian,
+    /// Rounds of retries its global registration got ([`retry`]: another RANSAC stream and a
+    /// coarser scale each), 0 when the first estimate was trusted.
+    pub retry_rounds: usize,
 }
 
 /// The estimate for one frame.
@@ -320,6 +330,9 @@ pub struct Odometry {
     retired: Option<(usize, PreparedFrame)>,
     /// The last accepted frame's fit to the map (fitness), for [`MAP_FITNESS_DROP`].
     last_map_fitness: Option<f64>,
+    /// How far the prediction was from each of the last [`retry::RECENT_MISSES`] frames
+    /// accepted on the map \[m\], oldest first.
+    prediction_misses: std::collections::VecDeque<f64>,
 }
 
 impl Odometry {
@@ -358,6 +371,7 @@ impl Odometry {
             keep_retired: false,
             retired: None,
             last_map_fitness: None,
+            prediction_misses: std::collections::VecDeque::with_capacity(retry::RECENT_MISSES),
         })
     }
 
@@ -540,6 +554,15 @@ impl Odometry {
         world_from_prev: &Isometry3<f64>,
     ) -> FrameEstimate {
         let last_map_fitness = self.last_map_fitness;
+        // The first step's prediction is the identity, not a measured motion: not a miss.
+        if last_map_fitness.is_some() {
+            let predicted = world_from_prev * self.velocity;
+            if self.prediction_misses.len() == retry::RECENT_MISSES {
+                self.prediction_misses.pop_front();
+            }
+            let miss = retry::prediction_miss(&pose, &predicted);
+            self.prediction_misses.push_back(miss);
+        }
         est.prev_from_curr = world_from_prev.inverse() * pose;
         self.velocity = est.prev_from_curr;
         est.world_from_frame = pose;
@@ -565,45 +588,6 @@ impl Odometry {
             || self
                 .last_map_fitness
                 .is_none_or(|last| fitness < MAP_FITNESS_DROP * last)
-    }
-
-    /// Global registration of `frame` to `prev` once more, on the RANSAC stream of
-    /// [`SECOND_OPINION_SEED_OFFSET`], refined on the map from its estimate alone: the pair
-    /// result, the pose and the fit (guess [`InitialGuess::SecondGlobal`]), or `None` when it
-    /// found no model with enough inliers.
-    fn second_opinion(
-        &self,
-        frame: &PreparedFrame,
-        prev: &PreparedFrame,
-        target: (&IcpTarget, f64),
-        world_from_prev: &Isometry3<f64>,
-    ) -> Result<Option<(PairResult, Isometry3<f64>, MapFit)>> {
-        let config = PairConfig {
-            seed: self
-                .config
-                .pair
-                .seed
-                .wrapping_add(SECOND_OPINION_SEED_OFFSET),
-            ..self.config.pair.clone()
-        };
-        let pair = register_prepared_coarse(frame, prev, &config)?;
-        if pair.failure.is_some() || pair.num_inliers < self.config.min_inliers {
-            return Ok(None);
-        }
-        let global = world_from_prev * pair.target_from_source;
-        // The prediction was tried with the first start if it was worth trying: passed the global
-        // start as the prediction, `refine_on_map` refines the global start alone.
-        let refined = self.refine_on_map(frame, target, Some(&global), &global)?;
-        Ok(refined.map(|(pose, fit)| {
-            (
-                pair,
-                pose,
-                MapFit {
-                    guess: InitialGuess::SecondGlobal,
-                    ..fit
-                },
-            )
-        }))
     }
 
     /// `frame` registered frame to frame: the RANSAC model in `pair` refined by ICP on `prev`,

@@ -87,7 +87,12 @@ fn a_doubtful_frame_gets_a_second_global_registration() {
         .filter(|m| m.0 == "/mireg/stats")
         .map(|m| serde_json::from_slice(&m.3).unwrap())
         .collect();
-    assert_eq!(stats[1]["map_guess"], "second_global", "{}", stats[1]);
+    // The retry that fitted better: another stream or a coarser scale.
+    assert!(
+        ["second_global", "coarse_global"].contains(&stats[1]["map_guess"].as_str().unwrap()),
+        "{}",
+        stats[1]
+    );
     assert!(stats[1]["map_fitness"].as_f64().unwrap() > 0.5);
     // A frame that fits at once is not asked again.
     assert_eq!(stats[2]["map_guess"], "global", "{}", stats[2]);

@@ -60,11 +60,18 @@ fn floor_only_frames_are_flagged_and_uncertain_along_the_floor() {
             let u = PoseUncertainty::new(Some(&omega), &uninformed_information(v));
             let sd = |i: usize| u.covariance[(i, i)].sqrt();
             let (x, y, z) = (sd(3), sd(4), sd(5));
+            // NOTE: 5×, not 10×, and degeneracy below the unconfirmed rule's 0.05, not 0.01:
+            // since the retries, frame 7 registers (a retry finds a model, which the prediction
+            // outfits on the map) instead of failing, and the floor's edges against the map's
+            // walls hold x and y at 6.8× and 7.8× z, degeneracy 0.016 (measured 2026-12-06).
             assert!(
-                x > 10.0 * z && y > 10.0 * z,
+                x > 5.0 * z && y > 5.0 * z,
                 "frame {k}: sigma x {x} y {y} z {z} m"
             );
-            assert!(u.degeneracy_translation < 0.01, "{u:?}");
+            assert!(
+                u.degeneracy_translation < mireg::odometry::suspect::UNCONFIRMED_DEGENERACY,
+                "{u:?}"
+            );
         }
     }
 }

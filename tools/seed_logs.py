@@ -3,8 +3,9 @@
 ATE (the loop-closed trajectory where there is one, SE(3)-aligned, against /ground_truth/pose) and
 the accepted loops within 0.5 m and 2 deg of the reference's relative pose (loop precision).
 
-Usage: tools/.venv-odometry/bin/python tools/seed_logs.py BIN LOG... (venv: `bash tools/setup_venv.sh
-odometry`; logs from tools/make_loop_logs.py and the fixture).
+Usage: tools/.venv-odometry/bin/python tools/seed_logs.py BIN LOG... [-- REGISTER_FLAG...] (venv:
+`bash tools/setup_venv.sh odometry`; logs from tools/make_loop_logs.py and the fixture). Flags after
+`--` go to every `mireg register` run, e.g. `-- --voxel 0.5`.
 """
 
 import os
@@ -23,6 +24,8 @@ LOOP_M, LOOP_DEG = 0.5, 2.0
 
 
 def main(argv):
+    flags = argv[argv.index("--") + 1:] if "--" in argv else []
+    argv = argv[:argv.index("--")] if "--" in argv else argv
     binary, logs = argv[0], argv[1:]
     for log in logs:
         _, clouds, reference = read_log(log, None, "/ground_truth/pose")
@@ -32,7 +35,8 @@ def main(argv):
         with tempfile.TemporaryDirectory() as tmp:
             for seed in SEEDS:
                 out = os.path.join(tmp, f"out_{seed}.mcap")
-                subprocess.run([binary, "register", log, "-o", out, "--seed", str(seed), "--quiet"],
+                subprocess.run([binary, "register", log, "-o", out, "--seed", str(seed), "--quiet",
+                                *flags],
                                check=True)
                 poses, loops, _topics = read_mireg_output(out)
                 traj = "/mireg/pose_optimized" if "/mireg/pose_optimized" in poses else "/mireg/pose"
@@ -48,7 +52,8 @@ def main(argv):
         med = statistics.median(ates)
         print(f"{os.path.basename(log)}: ATE median {100 * med:.2f} cm, max {100 * max(ates):.2f} cm "
               f"(max/median {max(ates) / med:.2f}); accepted loops {accepted} over {len(SEEDS)} seeds, "
-              f"within {LOOP_M} m and {LOOP_DEG} deg: {right}")
+              f"within {LOOP_M} m and {LOOP_DEG} deg: {right}; per seed (cm): "
+              + " ".join(f"{100 * a:.1f}" for a in ates))
 
 
 if __name__ == "__main__":

@@ -25,6 +25,12 @@ pub enum Suspect {
     /// Global registration drew its whole hypothesis budget without its stopping rule being met,
     /// and the pose came from that estimate.
     HypothesisCap,
+    /// Global registration found models, but none fitted the map as well as the
+    /// constant-velocity prediction, whose refinement gave the pose, and that refinement
+    /// constrains some direction weakly (degeneracy below [`UNCONFIRMED_DEGENERACY`]): along it
+    /// the step is the prediction's, confirmed by nothing (a floor alone, whose every global
+    /// estimate, retries included, slid off).
+    Unconfirmed,
 }
 
 impl Suspect {
@@ -34,6 +40,7 @@ impl Suspect {
             Suspect::Degenerate => "degenerate",
             Suspect::FitnessDrop => "fitness_drop",
             Suspect::HypothesisCap => "hypothesis_cap",
+            Suspect::Unconfirmed => "unconfirmed",
         }
     }
 }
@@ -44,6 +51,14 @@ impl Suspect {
 /// depth camera, the narrowest view, 0.05–0.07 in translation; KAIST03 0.32); a frame of one
 /// plane is at 0.
 pub const SUSPECT_DEGENERACY: f64 = 0.01;
+
+/// A frame placed by the prediction ([`Suspect::Unconfirmed`]) whose registration's smallest
+/// over largest eigenvalue is below this: 0.05, the lowest of any registered frame of the shared
+/// logs (ICL-NUIM's narrow depth camera, 0.05–0.07). Measured 2026-12-06 in
+/// `tests/suspect_steps.rs`: a floor-only frame placed by the prediction at 0.016 (above
+/// [`SUSPECT_DEGENERACY`]: the floor's edges meet the map's walls), the frame with walls after it
+/// well above.
+pub const UNCONFIRMED_DEGENERACY: f64 = 0.05;
 
 /// A map fitness below this fraction of the previous accepted frame's is
 /// [`Suspect::FitnessDrop`]: 0.7 (below the second opinion's trigger,
@@ -61,10 +76,11 @@ pub fn judge(est: &mut FrameEstimate, last_map_fitness: Option<f64>, max_hypothe
     if !est.success {
         return;
     }
-    let degenerate = est.information.is_some_and(|omega| {
+    let weakest = est.information.map(|omega| {
         let (t, r) = degeneracy(&omega);
-        t.min(r) < SUSPECT_DEGENERACY
+        t.min(r)
     });
+    let degenerate = weakest.is_some_and(|d| d < SUSPECT_DEGENERACY);
     let fitness_drop = match (est.map, last_map_fitness) {
         (Some(fit), Some(last)) if fit.used => fit.fitness < SUSPECT_FITNESS_DROP * last,
         _ => false,
@@ -72,7 +88,9 @@ pub fn judge(est: &mut FrameEstimate, last_map_fitness: Option<f64>, max_hypothe
     let from_global = est.map.is_none_or(|m| {
         matches!(
             m.guess,
-            super::InitialGuess::Global | super::InitialGuess::SecondGlobal
+            super::InitialGuess::Global
+                | super::InitialGuess::SecondGlobal
+                | super::InitialGuess::CoarseGlobal
         )
     });
     let capped = from_global
@@ -80,12 +98,18 @@ pub fn judge(est: &mut FrameEstimate, last_map_fitness: Option<f64>, max_hypothe
             .pair
             .as_ref()
             .is_some_and(|p| !p.converged && p.hypotheses >= max_hypotheses);
+    let unconfirmed = est
+        .map
+        .is_some_and(|m| m.used && m.guess == super::InitialGuess::ConstantVelocity)
+        && weakest.is_some_and(|d| d < UNCONFIRMED_DEGENERACY);
     est.suspect = if degenerate {
         Some(Suspect::Degenerate)
     } else if fitness_drop {
         Some(Suspect::FitnessDrop)
     } else if capped {
         Some(Suspect::HypothesisCap)
+    } else if unconfirmed {
+        Some(Suspect::Unconfirmed)
     } else {
         None
     };
