@@ -51,6 +51,10 @@ Usage:
         --cone 70 --out /tmp/loop_kaist03_cone70.mcap   # a Livox-like 70 deg field of view
     tools/.venv-mcap/bin/python tools/make_loop_logs.py --source kaist03 --kind out-and-back \\
         --degenerate 5,14 --out /tmp/loop_kaist03_degenerate.mcap   # two frames of road alone
+    tools/.venv-mcap/bin/python tools/make_loop_logs.py --source kaist03 --kind out-and-back \
+        --cone 25 --out /tmp/loop_kaist03_cone25.mcap   # a narrow view whose features repeat
+    tools/.venv-mcap/bin/python tools/make_loop_logs.py --source kaist03 --kind gap --cone 40 \
+        --gap-len 3 --out /tmp/loop_kaist03_cone40_gap3.mcap   # ... and a jump of 9 m
     tools/.venv-mcap/bin/python tools/make_loop_logs.py --all --out-dir /tmp   # the set above + micro211 gap/x10
 """
 
@@ -294,6 +298,8 @@ ALL = [
     ("loop_kaist03_gap", "kaist03", "gap", {}),
     ("loop_kaist03_x10", "kaist03", "out-and-back", {"repeat": 10}),
     ("loop_kaist03_cone70", "kaist03", "out-and-back", {"cone": 70.0}),
+    ("loop_kaist03_cone25", "kaist03", "out-and-back", {"cone": 25.0}),
+    ("loop_kaist03_cone40_gap3", "kaist03", "gap", {"cone": 40.0, "gap_len": 3}),
 ]
 
 
