@@ -247,6 +247,19 @@ pub struct MapFit {
     /// Rounds of retries its global registration got ([`retry`]: another RANSAC stream and a
     /// coarser scale each), 0 when the first estimate was trusted.
     pub retry_rounds: usize,
+    /// The best-fitting other start whose refinement ended elsewhere (beyond the map distance
+    /// or 1° of the accepted pose), if any: a second answer the frame's registrations gave.
+    pub rival: Option<Rival>,
+}
+
+/// A start of a frame's map refinement that fitted the map but ended away from the accepted
+/// pose ([`MapFit::rival`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Rival {
+    /// Its fitness on the map (as [`MapFit::fitness`]).
+    pub fitness: f64,
+    /// Its pose relative to the accepted one (`accepted⁻¹ · rival`).
+    pub offset: Isometry3<f64>,
 }
 
 /// The estimate for one frame.

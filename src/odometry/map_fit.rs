@@ -4,11 +4,11 @@
 use nalgebra::{Isometry3, Point3};
 
 use super::map_input::{add_to_map, add_to_map_and_target};
-use super::retry::{MAX_RETRY_ROUNDS, RetryInputs};
+use super::retry::RetryInputs;
 use super::{
     InitialGuess, MAP_FINE_MAX_ITERATIONS, MAP_FINE_MAX_POINTS, MAP_FINE_POINTS_PER_ICP_POINT,
     MAP_ICP_MAX_ITERATIONS_AFTER_COARSE, MAP_ICP_MIN_UPDATE, MAP_ICP_RELATIVE_CHANGE, MapFit,
-    Odometry,
+    Odometry, Rival,
 };
 use crate::Result;
 use crate::pipeline::refine::{FineInputs, fine_stage};
@@ -56,39 +56,17 @@ impl Odometry {
                         || self.far_from_prediction(pose, predicted, distance))
             }
         };
-        // Rounds of retries while the best start is missing or fits the map poorly; the first
-        // round also answers a capped or disagreeing estimate, and the first frame on the map.
-        let mut round = 0;
-        while round < MAX_RETRY_ROUNDS
-            && (round == 0 && retry
-                || round > 0
-                    && first
-                        .as_ref()
-                        .is_none_or(|(_, f)| self.fits_poorly(f.fitness)))
-        {
-            round += 1;
-            let inputs = RetryInputs {
-                frame,
-                prev,
-                target,
-                world_from_prev,
-            };
-            let opinions = self.retry_round(round, inputs)?;
-            for (other, pose, fit2) in opinions.into_iter().flatten() {
-                // NOTE: a retry that lands within the map distance and 1° of the best start so
-                // far agrees with it and does not replace it, whatever the last digits of their
-                // fitness: two ICP runs ending in one basin differ by their stopping rule only
-                // (a deskewed log's first deskewed frame, retried for its fitness drop, took a
-                // coarse retry's 0.593 over 0.589 and the steps after it ended 3.7 cm off
-                // instead of 2.0: `tests/deskew.rs`).
-                if first.as_ref().is_none_or(|(best, fit)| {
-                    fit2.fitness > fit.fitness && !within(best, &pose, distance)
-                }) {
-                    *pair = other;
-                    first = Some((pose, fit2));
-                }
-            }
+        let mut seen = Vec::new();
+        if let Some((pose, fit)) = &first {
+            seen.push((*pose, *fit));
         }
+        let inputs = RetryInputs {
+            frame,
+            prev,
+            target,
+            world_from_prev,
+        };
+        let round = self.retry_rounds(retry, inputs, distance, pair, &mut first, &mut seen)?;
         // NOTE: where both global estimates fit the map doubtfully, the constant-velocity
         // prediction is tried too and wins if it fits better: after a frame whose own
         // features were poor (a floor alone), global registration against it went 3 m
@@ -102,6 +80,7 @@ impl Odometry {
             && refit.used
             && refit.fitness > fit.fitness
         {
+            seen.push((pose, refit));
             first = Some((pose, refit));
             tracked = true;
         }
@@ -116,14 +95,12 @@ impl Odometry {
             pair.target_from_source = world_from_prev.inverse() * pose;
             pair.fitness = fit.fitness;
             pair.inlier_rmse_m = fit.inlier_rmse_m;
-            let retry_rounds = round as usize;
-            return Ok(Some((
-                pose,
-                MapFit {
-                    retry_rounds,
-                    ..fit
-                },
-            )));
+            let fit = MapFit {
+                retry_rounds: round as usize,
+                rival: rival(&seen, &pose, distance),
+                ..fit
+            };
+            return Ok(Some((pose, fit)));
         }
         Ok(None)
     }
@@ -292,14 +269,27 @@ impl MapIcpPlan<'_> {
             icp_s: 0.0,
             hessian: r.hessian,
             retry_rounds: 0,
+            rival: None,
         };
         Ok((r.target_from_source, fit))
     }
 }
 
+/// The best-fitting start in `seen` (refined poses and their fits) that was used and does not
+/// agree with the accepted `pose` ([`within`] `distance`): its fitness and its offset from `pose`.
+fn rival(seen: &[(Isometry3<f64>, MapFit)], pose: &Isometry3<f64>, distance: f64) -> Option<Rival> {
+    seen.iter()
+        .filter(|(p, fit)| fit.used && !within(pose, p, distance))
+        .max_by(|a, b| a.1.fitness.total_cmp(&b.1.fitness))
+        .map(|(p, fit)| Rival {
+            fitness: fit.fitness,
+            offset: pose.inverse() * p,
+        })
+}
+
 /// Whether poses `a` and `b` are within `distance` \[m\] and 1° of each other: ICP from either
 /// would converge alike.
-fn within(a: &Isometry3<f64>, b: &Isometry3<f64>, distance: f64) -> bool {
+pub(super) fn within(a: &Isometry3<f64>, b: &Isometry3<f64>, distance: f64) -> bool {
     let apart = a.inverse() * b;
     apart.translation.vector.norm() <= distance && apart.rotation.angle() <= 1f64.to_radians()
 }

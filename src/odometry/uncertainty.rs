@@ -69,6 +69,17 @@ pub fn registration_information(
         .map(|omega| omega * scale)
 }
 
+/// `omega` (a step's information, (rotation, translation) order) with the spread of a rival
+/// estimate added to its covariance: `(Ω⁻¹ + ξξᵀ)⁻¹`, where `ξ` is the rival's offset from the
+/// step's pose as a right perturbation (rotation vector \[rad\], translation \[m\]). By the
+/// Sherman–Morrison formula, `Ω − Ωξ (Ωξ)ᵀ / (1 + ξᵀΩξ)`: the information along `ξ` falls to
+/// about `1/|ξ|²` where it was larger, and is unchanged across it.
+#[must_use]
+pub fn with_spread(omega: &Matrix6<f64>, xi: &Vector6<f64>) -> Matrix6<f64> {
+    let w = omega * xi;
+    omega - (w * w.transpose()) / (1.0 + xi.dot(&w))
+}
+
 /// A step's covariance and the figures `/mireg/stats` reports of it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PoseUncertainty {
@@ -169,6 +180,26 @@ fn marginal_condition(omega: &Matrix6<f64>, at: usize, other: usize) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn spread_adds_its_outer_product_to_the_covariance() {
+        // Oracle: the covariance inverted, the spread added, inverted back.
+        let a = Matrix6::from_fn(|i, j| ((i * 7 + j * 3) % 5) as f64 * 0.1);
+        let omega = a * a.transpose() + Matrix6::from_diagonal_element(2.0);
+        let xi = Vector6::new(0.01, -0.02, 0.005, 0.3, -0.1, 0.05);
+        let direct = (omega.try_inverse().unwrap() + xi * xi.transpose())
+            .try_inverse()
+            .unwrap();
+        let got = with_spread(&omega, &xi);
+        assert!(
+            (got - direct).amax() < 1e-9 * direct.amax(),
+            "{got} vs {direct}"
+        );
+        // Along ξ the variance grows by |ξ|²; a direction Ω-orthogonal to ξ keeps its information.
+        let u = xi.normalize();
+        let var = |m: &Matrix6<f64>| (u.transpose() * m.try_inverse().unwrap() * u)[(0, 0)];
+        assert!((var(&got) - var(&omega) - xi.norm_squared()).abs() < 1e-9);
+    }
 
     #[test]
     fn ros_order_puts_translation_first() {

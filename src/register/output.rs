@@ -45,12 +45,15 @@ pub fn stats_json_schema() -> serde_json::Value {
             "map_icp_iterations": {"type": ["integer", "null"]},
             "map_coarse_icp_iterations": {"type": ["integer", "null"]},
             "map_points": {"type": ["integer", "null"]},
+            "map_rival_fitness": {"type": ["number", "null"], "description": "Map fitness of the best other start whose refinement ended beyond the map distance or 1 deg of the accepted pose (null: none did)"},
+            "map_rival_offset_m": {"type": ["number", "null"], "description": "How far that start's pose is from the accepted one [m]"},
+            "map_rival_offset_deg": {"type": ["number", "null"], "description": "... and its rotation from it [deg]"},
             "map_retry_rounds": {"type": ["integer", "null"], "description": "Rounds of retries of the frame's global registration (another RANSAC stream and a coarser scale each; 0: the first estimate was trusted)"},
             "sigma_m": {"type": "number", "description": "Predicted standard deviation of the frame's step along its least certain direction [m] (the covariance of /mireg/pose_cov)"},
             "sigma_deg": {"type": "number", "description": "Predicted standard deviation about the least certain rotation axis [deg]"},
             "degeneracy_translation": {"type": "number", "description": "Smallest over largest eigenvalue of the registration's translation information (0: a direction unconstrained, 1: all alike); 0 for a failed frame"},
             "degeneracy_rotation": {"type": "number", "description": "The same for the rotation"},
-            "suspect": {"type": ["string", "null"], "enum": ["degenerate", "fitness_drop", "hypothesis_cap", "unconfirmed", null], "description": "Why a registered frame is doubtful (its step's deviations are then 10x what its registration measured)"},
+            "suspect": {"type": ["string", "null"], "enum": ["degenerate", "fitness_drop", "hypothesis_cap", "ambiguous", "unconfirmed", null], "description": "Why a registered frame is doubtful (its step's deviations are then 10x what its registration measured)"},
             "map_correspondences": {"type": ["integer", "null"], "description": "Point-to-plane correspondences of the map ICP at the final pose: what the covariance was measured on"},
             "timings_s": {"type": "object", "additionalProperties": num}
         },
@@ -66,6 +69,7 @@ fn frame_stats(out: &FrameOut, u: &PoseUncertainty) -> serde_json::Value {
     let t = p.map(|p| p.timings_s).unwrap_or_default();
     let num_corr = p.map_or(0, |p| p.num_correspondences);
     let num_inl = p.map_or(0, |p| p.num_inliers);
+    let rival = e.map.and_then(|m| m.rival);
     json!({
         "frame": e.index,
         "stamp_ns": out.cloud.header.stamp.to_ns(),
@@ -102,6 +106,9 @@ fn frame_stats(out: &FrameOut, u: &PoseUncertainty) -> serde_json::Value {
         "map_fine_icp_iterations": e.map.map(|m| m.fine_iterations),
         "map_points": e.map.map(|m| m.map_points),
         "map_retry_rounds": e.map.map(|m| m.retry_rounds),
+        "map_rival_fitness": rival.map(|r| r.fitness),
+        "map_rival_offset_m": rival.map(|r| r.offset.translation.vector.norm()),
+        "map_rival_offset_deg": rival.map(|r| r.offset.rotation.angle().to_degrees()),
         "map_correspondences": e.map.map(|m| m.hessian.count),
         "sigma_m": u.sigma_m,
         "sigma_deg": u.sigma_deg,
