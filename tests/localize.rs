@@ -269,3 +269,40 @@ fn the_same_poses_on_one_and_two_threads() {
     }
     assert_eq!(runs[0], runs[1]);
 }
+
+#[test]
+fn a_map_file_localizes_alike_when_no_tile_fits_the_memory_budget() {
+    // Oracle: the default budget, which holds every tile of this map. With no room for any, each
+    // candidate's tile is cut from the map's points and prepared again: the same clouds, the same
+    // seeded preparation, so the same links and poses.
+    let dir = tempfile::tempdir().unwrap();
+    let run = prior(dir.path(), 30);
+    let map = map_file(dir.path(), &run, "prior_30.ply");
+    let mut runs = Vec::new();
+    for budget in [
+        mireg::merge::MergeConfig::default().keyframe_memory_bytes,
+        0,
+    ] {
+        let out = dir.path().join(format!("loc_{budget}.mcap"));
+        let opts = mireg::merge::LocalizeOptions {
+            log: fixture(),
+            prior: map.clone(),
+            output: out.clone(),
+            force: false,
+            seed: 0,
+            config: mireg::merge::MergeConfig {
+                keyframe_memory_bytes: budget,
+                ..Default::default()
+            },
+            topic: None,
+            command_line: String::new(),
+        };
+        mireg::merge::localize(&opts).unwrap();
+        runs.push((
+            read_mcap_pose_topic(&out, "/mireg/pose").unwrap().poses,
+            json_messages(&out, "/mireg/session_links"),
+        ));
+    }
+    assert!(!runs[0].0.is_empty() && !runs[0].1.is_empty());
+    assert_eq!(runs[0], runs[1]);
+}

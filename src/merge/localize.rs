@@ -21,7 +21,9 @@
 //! the parent `map`.
 //!
 //! NOTE: offline, not a tracker at the sensor's rate: the whole log is registered, then placed.
-//! Every keyframe (or tile) of the prior is prepared up front: memory grows with the prior.
+//! Every keyframe (or tile) of the prior is prepared up front for its descriptor, but only those
+//! within [`super::MergeConfig::keyframe_memory_bytes`] are held; a map file's points are held
+//! whole.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -238,7 +240,8 @@ impl Prior {
                 loops.verify.min_reverse_fitness = MAP_MIN_REVERSE_FITNESS;
                 let [log] = only;
                 let voxels = (log.voxel_m, log.feature_voxel_m);
-                let map = map_session(&opts.prior, &points, tiling_for(&log)?, voxels, &pair)?;
+                let tiling = tiling_for(&log)?;
+                let map = map_session(&opts.prior, points, tiling, voxels, (&pair, budget))?;
                 Ok(([map, log], loops, pair))
             }
         }

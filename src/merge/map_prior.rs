@@ -14,8 +14,11 @@
 //!
 //! NOTE: a map is rigid: its tiles have no drift between them, so their path length is 0 (the
 //! links' agreement test allows no drift on the map's side, [`super::links::links_agree`]).
-//! Every tile is prepared once and held while the log is linked; a map too large for that
-//! (more than [`MAX_TILES`] tiles even at a coarser grid) is refused, not truncated.
+//! Every tile is prepared once for its descriptor; the prepared tiles are held while they fit the
+//! keyframe memory budget ([`super::MergeConfig::keyframe_memory_bytes`]), as a run's keyframes
+//! are, and the others cut and prepared again for the candidates that need them. The map's
+//! points stay in memory (bucketed, [`TileIndex`]). A map needing more than [`MAX_TILES`] tiles
+//! even at a coarser grid is refused, not truncated.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -82,15 +85,10 @@ pub(super) fn read_map(path: &Path) -> Result<Vec<Point3<f64>>> {
 /// The tiling that fits `log`'s keyframes (prepared): the radius their points reach (the median
 /// over keyframes of each one's 90th percentile range), the grid at half of it.
 pub(super) fn tiling_for(log: &Session) -> Result<Tiling> {
-    let mut reach: Vec<f64> = log
-        .frames
-        .iter()
-        .flatten()
-        .filter_map(|f| percentile_range(&f.points, 0.9))
-        .collect();
+    let mut reach: Vec<f64> = log.reach_m.iter().copied().flatten().collect();
     if reach.is_empty() {
         return Err(Error::InvalidInput(format!(
-            "{}: no keyframe of the log kept a cloud to measure its range by",
+            "{}: no keyframe of the log has a cloud to measure its range by",
             log.output.path.display()
         )));
     }
@@ -103,7 +101,7 @@ pub(super) fn tiling_for(log: &Session) -> Result<Tiling> {
 }
 
 /// The `q`-th quantile of the distances of `points` to the origin (`None` when empty).
-fn percentile_range(points: &[Point3<f64>], q: f64) -> Option<f64> {
+pub(super) fn percentile_range(points: &[Point3<f64>], q: f64) -> Option<f64> {
     let mut r: Vec<f64> = points.iter().map(|p| p.coords.norm()).collect();
     if r.is_empty() {
         return None;
@@ -128,45 +126,78 @@ fn tile_centres(points: &[Point3<f64>], spacing: f64) -> Vec<Point3<f64>> {
         .collect()
 }
 
-/// The map's points within `radius` of each centre, in the centre's frame, each tile's points in
-/// map order; a bucket grid of edge `radius` answers each centre from its 27 cells.
-fn tile_points(
-    points: &[Point3<f64>],
-    centres: &[Point3<f64>],
+/// A map's points bucketed for cutting tiles: a grid of edge [`Tiling::radius_m`], so that a
+/// tile's points are in the 27 cells about its centre. Held by the map's session, which cuts and
+/// prepares again the tiles it did not keep ([`Session::load`]).
+pub(super) struct TileIndex {
+    points: Vec<Point3<f64>>,
+    buckets: BTreeMap<[i64; 3], Vec<u32>>,
     radius: f64,
-) -> Vec<Vec<Point3<f64>>> {
-    let key = |p: &Point3<f64>| [p.x / radius, p.y / radius, p.z / radius].map(floor_i64);
-    let mut buckets: BTreeMap<[i64; 3], Vec<u32>> = BTreeMap::new();
-    for (i, p) in points.iter().enumerate() {
-        buckets.entry(key(p)).or_default().push(i as u32);
+}
+
+impl TileIndex {
+    /// `points` bucketed for tiles of `radius` \[m\].
+    fn new(points: Vec<Point3<f64>>, radius: f64) -> Self {
+        let mut buckets: BTreeMap<[i64; 3], Vec<u32>> = BTreeMap::new();
+        for (i, p) in points.iter().enumerate() {
+            buckets.entry(key(p, radius)).or_default().push(i as u32);
+        }
+        Self {
+            points,
+            buckets,
+            radius,
+        }
     }
-    let r2 = radius * radius;
-    centres
-        .par_iter()
-        .map(|c| {
-            let k = key(c);
-            let mut ids: Vec<u32> = Vec::new();
-            for dx in -1..=1 {
-                for dy in -1..=1 {
-                    for dz in -1..=1 {
-                        if let Some(b) = buckets.get(&[k[0] + dx, k[1] + dy, k[2] + dz]) {
-                            ids.extend(
-                                b.iter()
-                                    .filter(|&&i| (points[i as usize] - c).norm_squared() <= r2),
-                            );
-                        }
+
+    /// The map's points within the radius of `centre`, in the centre's frame, in map order.
+    fn cloud(&self, centre: &Point3<f64>) -> Vec<Point3<f64>> {
+        let k = key(centre, self.radius);
+        let r2 = self.radius * self.radius;
+        let mut ids: Vec<u32> = Vec::new();
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    if let Some(b) = self.buckets.get(&[k[0] + dx, k[1] + dy, k[2] + dz]) {
+                        ids.extend(
+                            b.iter().filter(|&&i| {
+                                (self.points[i as usize] - centre).norm_squared() <= r2
+                            }),
+                        );
                     }
                 }
             }
-            ids.sort_unstable();
-            ids.iter().map(|&i| points[i as usize] - c.coords).collect()
-        })
-        .collect()
+        }
+        ids.sort_unstable();
+        ids.iter()
+            .map(|&i| self.points[i as usize] - centre.coords)
+            .collect()
+    }
+
+    /// The tile at `centre` prepared with `pair`; `None` when it has fewer than
+    /// [`MIN_TILE_POINTS`] points or prepares without features or an ICP cloud.
+    pub(super) fn prepare(&self, centre: &Point3<f64>, pair: &PairConfig) -> Option<PreparedFrame> {
+        let cloud = self.cloud(centre);
+        (cloud.len() >= MIN_TILE_POINTS)
+            .then(|| prepare_frame(&cloud, pair).ok())
+            .flatten()
+            .filter(|f| !f.features.is_empty() && f.icp.is_some())
+    }
 }
+
+/// The grid cell of `p` at edge `edge`.
+fn key(p: &Point3<f64>, edge: f64) -> [i64; 3] {
+    [p.x / edge, p.y / edge, p.z / edge].map(floor_i64)
+}
+
+/// Tiles prepared at a time while a map is cut: each is dropped (its descriptor kept) once the
+/// kept ones fill the budget, so at most this many more are held: 16.
+const TILES_AT_A_TIME: usize = 16;
 
 /// The map `points` (read from `path`) as the prior session of a localisation: tiles by
 /// `tiling` (its grid coarsened until at most [`MAX_TILES`] cells are occupied), each prepared
-/// with `pair` (the log's registration settings) and kept, with its descriptor. The session's
+/// with `pair` (the log's registration settings), with its descriptor; the prepared tiles are
+/// kept while they fit `budget_bytes` (by [`PreparedFrame::idle_bytes`]), the others cut and
+/// prepared again when a candidate needs them. The session's
 /// world is the map's frame, named `map`.
 ///
 /// # Errors
@@ -174,19 +205,19 @@ fn tile_points(
 /// the map needs more than [`MAX_TILES`] tiles.
 pub(super) fn map_session(
     path: &Path,
-    points: &[Point3<f64>],
+    points: Vec<Point3<f64>>,
     tiling: Tiling,
     voxels: (f64, f64),
-    pair: &PairConfig,
+    (pair, budget_bytes): (&PairConfig, usize),
 ) -> Result<Session> {
     let mut spacing = tiling.spacing_m;
-    let mut centres = tile_centres(points, spacing);
+    let mut centres = tile_centres(&points, spacing);
     for _ in 0..8 {
         if centres.len() <= MAX_TILES {
             break;
         }
         spacing *= 1.5;
-        centres = tile_centres(points, spacing);
+        centres = tile_centres(&points, spacing);
     }
     if centres.len() > MAX_TILES {
         return Err(format_err(
@@ -199,21 +230,23 @@ pub(super) fn map_session(
             ),
         ));
     }
-    let clouds = tile_points(points, &centres, tiling.radius_m);
-    let prepared: Vec<Option<PreparedFrame>> = clouds
-        .par_iter()
-        .map(|cloud| {
-            (cloud.len() >= MIN_TILE_POINTS)
-                .then(|| prepare_frame(cloud, pair).ok())
-                .flatten()
-                .filter(|f| !f.features.is_empty() && f.icp.is_some())
-        })
-        .collect();
-    let tiles: Vec<(Point3<f64>, PreparedFrame)> = centres
-        .into_iter()
-        .zip(prepared)
-        .filter_map(|(c, f)| f.map(|f| (c, f)))
-        .collect();
+    let index = TileIndex::new(points, tiling.radius_m);
+    let mut tiles: Vec<Tile> = Vec::new();
+    let mut bytes = 0usize;
+    for chunk in centres.chunks(TILES_AT_A_TIME) {
+        let prepared: Vec<Option<PreparedFrame>> =
+            chunk.par_iter().map(|c| index.prepare(c, pair)).collect();
+        for (c, frame) in chunk.iter().zip(prepared) {
+            let Some(frame) = frame else { continue };
+            let descriptor = Descriptor::from_prepared(&frame);
+            let b = frame.idle_bytes();
+            let kept = (bytes + b <= budget_bytes).then(|| {
+                bytes += b;
+                frame
+            });
+            tiles.push((*c, kept, descriptor));
+        }
+    }
     if tiles.is_empty() {
         return Err(format_err(
             path,
@@ -224,19 +257,23 @@ pub(super) fn map_session(
             ),
         ));
     }
-    Ok(tiled_session(path, tiles, voxels))
+    Ok(tiled_session(path, tiles, voxels, index))
 }
 
-/// The session of `tiles` (centre, prepared cloud in the centre's frame): one frame per tile at
-/// its centre, every one a keyframe, kept.
+/// A tile of a map: its centre, its prepared cloud while the budget held it, its descriptor.
+type Tile = (Point3<f64>, Option<PreparedFrame>, Descriptor);
+
+/// The session of `tiles`: one frame per tile at its centre, every one a keyframe; `index` cuts
+/// again those not kept.
 fn tiled_session(
     path: &Path,
-    tiles: Vec<(Point3<f64>, PreparedFrame)>,
+    tiles: Vec<Tile>,
     (voxel_m, feature_voxel_m): (f64, f64),
+    index: TileIndex,
 ) -> Session {
     let poses: Vec<Isometry3<f64>> = tiles
         .iter()
-        .map(|(c, _)| Isometry3::from_parts(Translation3::from(c.coords), Default::default()))
+        .map(|(c, ..)| Isometry3::from_parts(Translation3::from(c.coords), Default::default()))
         .collect();
     let frames: Vec<SegFrame> = poses
         .iter()
@@ -250,11 +287,8 @@ fn tiled_session(
             stats: serde_json::Value::Null,
         })
         .collect();
-    let descriptors = tiles
-        .iter()
-        .map(|(_, f)| Descriptor::from_prepared(f))
-        .collect();
     let n = tiles.len();
+    let (prepared, descriptors) = tiles.into_iter().map(|(_, f, d)| (f, d)).unzip();
     Session {
         output: Segment {
             path: PathBuf::from(path),
@@ -273,8 +307,10 @@ fn tiled_session(
         voxel_m,
         feature_voxel_m,
         keyframes: (0..n).collect(),
-        frames: tiles.into_iter().map(|(_, f)| Some(f)).collect(),
+        frames: prepared,
         descriptors,
+        reach_m: vec![None; n],
+        tiles: Some(index),
     }
 }
 
@@ -290,14 +326,15 @@ mod tests {
             .collect();
         let centres = tile_centres(&points, 2.5);
         assert_eq!(centres.len(), 16);
-        let tiles = tile_points(&points, &centres, 3.0);
-        for (c, tile) in centres.iter().zip(&tiles) {
+        let index = TileIndex::new(points.clone(), 3.0);
+        for c in &centres {
+            let tile = index.cloud(c);
             let expected: Vec<Point3<f64>> = points
                 .iter()
                 .filter(|p| (*p - c).norm() <= 3.0)
                 .map(|p| p - c.coords)
                 .collect();
-            assert_eq!(tile, &expected);
+            assert_eq!(tile, expected);
         }
     }
 

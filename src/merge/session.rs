@@ -4,9 +4,10 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Point3};
 
 use super::links::Track;
+use super::map_prior::{TileIndex, percentile_range};
 use crate::evaluate::path_distances;
 use crate::io::format_err;
 use crate::io::mcap::log::list_channels;
@@ -40,6 +41,13 @@ pub(super) struct Session {
     pub(super) keyframes: Vec<usize>,
     pub(super) frames: Vec<Option<PreparedFrame>>,
     pub(super) descriptors: Vec<Descriptor>,
+    /// Each keyframe's reach: the 90th percentile of its feature cloud's ranges \[m\] (what a
+    /// map file's tiles are cut to, [`super::map_prior::tiling_for`]), measured as it was
+    /// prepared, kept or not.
+    pub(super) reach_m: Vec<Option<f64>>,
+    /// A map file's points, which cut its tiles (the keyframes, at their poses) again where
+    /// they were not kept; `None` for a run's output, whose clouds are read again.
+    pub(super) tiles: Option<TileIndex>,
 }
 
 impl Session {
@@ -110,6 +118,8 @@ impl Session {
             keyframes: Vec::new(),
             frames: Vec::new(),
             descriptors: Vec::new(),
+            reach_m: Vec::new(),
+            tiles: None,
         })
     }
 
@@ -127,8 +137,10 @@ impl Session {
         let mut bytes = 0usize;
         let budget = config.memory_budget_bytes;
         let (mut keyframes, mut frames, mut descriptors) = (Vec::new(), Vec::new(), Vec::new());
+        let mut reach = Vec::new();
         self.for_each_prepared(&keys, pair, |k, frame| {
             descriptors.push(Descriptor::from_prepared(&frame));
+            reach.push(percentile_range(&frame.points, 0.9));
             keyframes.push(k);
             let b = frame.idle_bytes();
             if bytes + b <= budget {
@@ -139,11 +151,12 @@ impl Session {
             }
         })?;
         (self.keyframes, self.frames, self.descriptors) = (keyframes, frames, descriptors);
+        self.reach_m = reach;
         Ok(())
     }
 
     /// The prepared clouds of the keyframes `wanted` (indices into [`Session::keyframes`]) that
-    /// are not kept, prepared again from the output.
+    /// are not kept, prepared again from the output (or cut again from the map's points).
     pub(super) fn load(
         &self,
         wanted: &BTreeSet<usize>,
@@ -156,6 +169,15 @@ impl Session {
             .collect();
         let mut out = BTreeMap::new();
         if missing.is_empty() {
+            return Ok(out);
+        }
+        if let Some(index) = &self.tiles {
+            for k in missing {
+                let centre = Point3::from(self.poses[self.keyframes[k]].translation.vector);
+                if let Some(frame) = index.prepare(&centre, pair) {
+                    out.insert(k, frame);
+                }
+            }
             return Ok(out);
         }
         let frames: Vec<usize> = missing.iter().map(|&k| self.keyframes[k]).collect();
