@@ -28,6 +28,11 @@ pub struct LocalizeArgs {
     /// Seed of the registrations' randomness.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Memory for the prior's and the logs' prepared keyframes (a map file's tiles too), MiB, by
+    /// their size on the heap: those beyond it are prepared again for the candidates that need
+    /// them. A candidate verifies the same either way; 0 keeps none.
+    #[arg(long, value_name = "MIB", default_value_t = crate::loops::closure::DEFAULT_LOOP_MEMORY_BYTES >> 20)]
+    pub keyframe_memory: usize,
     /// Replace an existing output.
     #[arg(long)]
     pub force: bool,
@@ -53,6 +58,7 @@ pub(super) fn run_localize(args: &LocalizeArgs) -> Result<()> {
         seed: args.seed,
         config: MergeConfig {
             min_links: args.min_links,
+            keyframe_memory_bytes: args.keyframe_memory.saturating_mul(1 << 20),
             ..MergeConfig::default()
         },
         topic: args.topic.clone(),
