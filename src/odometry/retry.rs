@@ -45,7 +45,7 @@ pub const DISAGREEMENT_DISTANCES: f64 = 2.0;
 /// [`RECENT_MISSES`] accepted frames. A hand-held camera's prediction misses by a large
 /// fraction of its steps (micro211: 2–21 cm at steps of 3–28 cm), a car's by little (KAIST03:
 /// 0.1–0.4 m at 2–2.7 m); with the first two rules alone 20 of micro211's 52 frames were
-/// retried, none of them to a better fit, and with this one 4 (measured 2026-12-06).
+/// retried, none of them to a better fit, and with this one 3 (measured 2026-12-06).
 pub const DISAGREEMENT_OVER_USUAL: f64 = 4.0;
 
 /// Accepted frames whose prediction misses [`DISAGREEMENT_OVER_USUAL`] takes the median of: 8.
