@@ -232,3 +232,50 @@ fn median(values: &std::collections::VecDeque<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v.get(v.len() / 2).copied().unwrap_or(0.0)
 }
+
+#[cfg(test)]
+mod tests {
+    use std::collections::VecDeque;
+
+    use nalgebra::{Isometry3, Translation3};
+
+    use super::*;
+    use crate::odometry::OdometryConfig;
+
+    #[test]
+    fn the_median_is_the_upper_middle_value_and_zero_for_none() {
+        assert_eq!(median(&VecDeque::new()), 0.0);
+        assert_eq!(median(&VecDeque::from([1.0, 3.0, 2.0])), 2.0);
+        assert_eq!(median(&VecDeque::from([4.0, 1.0, 3.0, 2.0])), 3.0);
+    }
+
+    /// An odometry whose last step was 2 m along x, whose prediction missed each of the last
+    /// frames by `miss` metres.
+    fn moving(miss: f64) -> Odometry {
+        let mut o = Odometry::new(OdometryConfig::default()).unwrap();
+        o.last_map_fitness = Some(0.9);
+        o.velocity = Isometry3::from_parts(Translation3::new(2.0, 0.0, 0.0), Default::default());
+        o.prediction_misses = std::iter::repeat_n(miss, RECENT_MISSES).collect();
+        o
+    }
+
+    #[test]
+    fn an_estimate_is_far_from_the_prediction_only_beyond_every_bound() {
+        let predicted = Isometry3::from_parts(Translation3::new(2.0, 0.0, 0.0), Default::default());
+        let at = |x: f64| Isometry3::from_parts(Translation3::new(x, 0.0, 0.0), Default::default());
+        let distance = 0.35;
+        // Standing still where the car moved 2 m: beyond 2 distances (0.7 m), half the step
+        // (1 m) and 4× the usual 0.1 m miss.
+        assert!(moving(0.1).far_from_prediction(&at(0.0), &predicted, distance));
+        // 0.9 m off: beyond 2 distances and 4× the usual miss, within half the step.
+        assert!(!moving(0.1).far_from_prediction(&at(1.1), &predicted, distance));
+        // The same 2 m where the prediction usually misses by 0.6 m (4× = 2.4 m).
+        assert!(!moving(0.6).far_from_prediction(&at(0.0), &predicted, distance));
+        // A larger map distance (1.1 m: 2.2 m needed).
+        assert!(!moving(0.1).far_from_prediction(&at(0.0), &predicted, 1.1));
+        // Before a step was measured against the map, the prediction is not a measured motion.
+        let mut first = moving(0.1);
+        first.last_map_fitness = None;
+        assert!(!first.far_from_prediction(&at(0.0), &predicted, distance));
+    }
+}
