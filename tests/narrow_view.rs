@@ -7,7 +7,7 @@
 //! the even keyframes and back on the odd ones, as `tools/make_loop_logs.py --source kaist03
 //! --cone 25` builds it. The oracle is the data set's reference (SC-A-LOAM's loop-closed poses,
 //! good to a few cm). Measured before the retries, default flags, seeds 0–7: ATE 3.8, 720, 241,
-//! 4.1, 4.3, 589, 3.9 and 190 cm.
+//! 4.1, 4.3, 589, 3.9 and 190 cm. The same log with a gap follows.
 
 use mireg::io::cloud_file::read_points;
 use mireg::io::codec::{Header, Time, cdr};
@@ -57,26 +57,23 @@ fn cone(points: &[Point3<f64>]) -> Vec<Point3<f64>> {
         .collect()
 }
 
-#[test]
-fn a_narrow_view_registers_right_for_every_seed() {
-    let Some(data) = shared_data("mulran_kaist03_keyframes") else {
-        return;
-    };
+/// Registers the cone log of `messages` (each a keyframe and its message slot, stamped
+/// `T0 + slot × PERIOD_NS`) with seeds 0–7, loops off; per seed the largest position error
+/// against the reference, unaligned (both trajectories start at the identity). `None` without
+/// the shared data.
+fn largest_errors(messages: &[(usize, usize)]) -> Option<Vec<f64>> {
+    let data = shared_data("mulran_kaist03_keyframes")?;
     let truth = reference(&std::fs::read_to_string(data.join("poses_kitti.txt")).unwrap());
-    // Out on the even keyframes, back on the odd ones.
-    let order: Vec<usize> = (0..SCANS)
-        .step_by(2)
-        .chain((1..SCANS).step_by(2).rev())
-        .collect();
     let dir = tempfile::tempdir().unwrap();
     let log_path = dir.path().join("cone25.mcap");
     let mut log = OutputLog::create(&log_path, false, "ros2").unwrap();
     let clouds = log
         .add_cdr_channel("/os1_points", cdr::POINT_CLOUD2)
         .unwrap();
-    for (i, &k) in order.iter().enumerate() {
+    let stamp = |slot: usize| T0 + slot as i64 * PERIOD_NS;
+    for &(k, slot) in messages {
         let scan = read_points(&data.join(format!("Scans/{k:06}.pcd"))).unwrap();
-        let t = T0 + i as i64 * PERIOD_NS;
+        let t = stamp(slot);
         let header = Header {
             stamp: Time::from_ns(t).unwrap(),
             frame_id: "os1".into(),
@@ -86,7 +83,7 @@ fn a_narrow_view_registers_right_for_every_seed() {
     }
     log.finish().unwrap();
 
-    let first_inv = truth[order[0]].inverse();
+    let first_inv = truth[messages[0].0].inverse();
     let mut worst = Vec::new();
     for seed in 0..8 {
         let out = dir.path().join(format!("out_{seed}.mcap"));
@@ -99,12 +96,10 @@ fn a_narrow_view_registers_right_for_every_seed() {
         };
         register_log(&opts).unwrap();
         let poses = poses_by_stamp(&out, "/mireg/pose");
-        // Unaligned: both trajectories start at the identity.
-        let largest = order
+        let largest = messages
             .iter()
-            .enumerate()
-            .map(|(i, &k)| {
-                let est = poses[&(T0 + i as i64 * PERIOD_NS)];
+            .map(|&(k, slot)| {
+                let est = poses[&stamp(slot)];
                 ((first_inv * truth[k]).inverse() * est)
                     .translation
                     .vector
@@ -113,6 +108,45 @@ fn a_narrow_view_registers_right_for_every_seed() {
             .fold(0.0, f64::max);
         worst.push(largest);
     }
+    Some(worst)
+}
+
+/// Out on the even keyframes, back on the odd ones, one message slot each.
+fn out_and_back() -> Vec<(usize, usize)> {
+    (0..SCANS)
+        .step_by(2)
+        .chain((1..SCANS).step_by(2).rev())
+        .enumerate()
+        .map(|(slot, k)| (k, slot))
+        .collect()
+}
+
+#[test]
+fn a_narrow_view_registers_right_for_every_seed() {
+    let Some(worst) = largest_errors(&out_and_back()) else {
+        return;
+    };
+    assert!(
+        worst.iter().all(|&e| e < 0.5),
+        "largest position error per seed [m]: {worst:.3?}"
+    );
+}
+
+/// The same with messages 5 and 6 dropped (a jump of 7 m over three periods, as
+/// `tools/make_loop_logs.py --kind gap --cone 25` drops them): after it the prediction is the
+/// jump, and a frame whose every estimate stays far from it is retried again. Measured: before
+/// the retries 332–700 cm of ATE on every seed; with one round of retries 4.1–4.4 cm but for
+/// seed 1, 270 cm (frame 6 took a model of no motion at map fitness 0.61, and the frames after
+/// it followed); with further rounds while the best stays far from the prediction, 4.1–4.4 cm.
+#[test]
+fn a_narrow_view_with_a_gap_registers_right_for_every_seed() {
+    let messages: Vec<(usize, usize)> = out_and_back()
+        .into_iter()
+        .filter(|&(_, slot)| !(5..7).contains(&slot))
+        .collect();
+    let Some(worst) = largest_errors(&messages) else {
+        return;
+    };
     assert!(
         worst.iter().all(|&e| e < 0.5),
         "largest position error per seed [m]: {worst:.3?}"

@@ -55,6 +55,8 @@ Usage:
         --cone 25 --out /tmp/loop_kaist03_cone25.mcap   # a narrow view whose features repeat
     tools/.venv-mcap/bin/python tools/make_loop_logs.py --source kaist03 --kind gap --cone 40 \
         --gap-len 3 --out /tmp/loop_kaist03_cone40_gap3.mcap   # ... and a jump of 9 m
+    tools/.venv-mcap/bin/python tools/make_loop_logs.py --source kaist03 --kind gap --cone 25 \
+        --out /tmp/loop_kaist03_cone25_gap.mcap   # the narrowest view, and a jump of 7 m
     tools/.venv-mcap/bin/python tools/make_loop_logs.py --all --out-dir /tmp   # the set above + micro211 gap/x10
 """
 
@@ -300,6 +302,7 @@ ALL = [
     ("loop_kaist03_cone70", "kaist03", "out-and-back", {"cone": 70.0}),
     ("loop_kaist03_cone25", "kaist03", "out-and-back", {"cone": 25.0}),
     ("loop_kaist03_cone40_gap3", "kaist03", "gap", {"cone": 40.0, "gap_len": 3}),
+    ("loop_kaist03_cone25_gap", "kaist03", "gap", {"cone": 25.0}),
 ]
 
 

@@ -65,6 +65,7 @@ impl Odometry {
             prev,
             target,
             world_from_prev,
+            predicted,
         };
         let round = self.retry_rounds(retry, inputs, distance, pair, &mut first, &mut seen)?;
         // NOTE: where both global estimates fit the map doubtfully, the constant-velocity
