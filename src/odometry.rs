@@ -214,6 +214,14 @@ impl InitialGuess {
             InitialGuess::Tracked => "tracked",
         }
     }
+
+    /// Whether the start was a global registration's estimate (the first, or a retry's).
+    pub fn is_global(&self) -> bool {
+        matches!(
+            self,
+            InitialGuess::Global | InitialGuess::SecondGlobal | InitialGuess::CoarseGlobal
+        )
+    }
 }
 
 /// How a frame fitted the local map.
@@ -597,10 +605,7 @@ impl Odometry {
     /// Whether a global start's fit to the map is doubtful: below [`DOUBTFUL_MAP_FITNESS`], or
     /// below [`MAP_FITNESS_DROP`] times the last accepted frame's, or there is no such frame yet.
     fn doubtful(&self, fitness: f64) -> bool {
-        fitness < DOUBTFUL_MAP_FITNESS
-            || self
-                .last_map_fitness
-                .is_none_or(|last| fitness < MAP_FITNESS_DROP * last)
+        self.last_map_fitness.is_none() || self.fits_poorly(fitness)
     }
 
     /// `frame` registered frame to frame: the RANSAC model in `pair` refined by ICP on `prev`,

@@ -87,11 +87,7 @@ impl Odometry {
         }
         if let Some((pose, fit)) = first
             && fit.used
-            && (tracked
-                || matches!(
-                    fit.guess,
-                    InitialGuess::Global | InitialGuess::SecondGlobal | InitialGuess::CoarseGlobal
-                ))
+            && (tracked || fit.guess.is_global())
         {
             pair.target_from_source = world_from_prev.inverse() * pose;
             pair.fitness = fit.fitness;

@@ -99,14 +99,7 @@ pub fn judge(est: &mut FrameEstimate, last_map_fitness: Option<f64>, max_hypothe
         (Some(fit), Some(last)) if fit.used => fit.fitness < SUSPECT_FITNESS_DROP * last,
         _ => false,
     };
-    let from_global = est.map.is_none_or(|m| {
-        matches!(
-            m.guess,
-            super::InitialGuess::Global
-                | super::InitialGuess::SecondGlobal
-                | super::InitialGuess::CoarseGlobal
-        )
-    });
+    let from_global = est.map.is_none_or(|m| m.guess.is_global());
     let capped = from_global
         && est
             .pair
