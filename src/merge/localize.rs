@@ -378,21 +378,15 @@ fn write_output(
     let mut out = OutputLog::create(&opts.output, opts.force, profile)?;
     out.declare_input(&opts.log, &catalog)?;
     let (tf, pose) = pose_channels(&mut out, kind, &topics[1], &topics[0])?;
-    let schema = serde_json::to_string(&localization_json_schema()).expect("schema JSON");
-    let status = out.add_channel(
+    let status = out.add_json_channel(
         &topics[2],
         "mireg.Localization",
-        "jsonschema",
-        schema.as_bytes(),
-        "json",
+        &localization_json_schema(),
     )?;
-    let links_schema = serde_json::to_string(&session_links_json_schema()).expect("schema JSON");
-    let links = out.add_channel(
+    let links = out.add_json_channel(
         &topics[3],
         "mireg.SessionLink",
-        "jsonschema",
-        links_schema.as_bytes(),
-        "json",
+        &session_links_json_schema(),
     )?;
     input.pass_through(&mut out, &BTreeSet::new(), None, |_, _, _| Ok(()))?;
     write_links(&mut out, links, records, |r| {

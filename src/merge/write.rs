@@ -174,13 +174,10 @@ pub(super) fn write_session(
     let mut out = OutputLog::create(target, opts.force, profile)?;
     out.declare_input(&run.path, &catalog)?;
     let (tf, pose) = pose_channels(&mut out, run.kind, &tf_topic, &pose_topic)?;
-    let schema = serde_json::to_string(&session_links_json_schema()).expect("schema JSON");
-    let links = out.add_channel(
+    let links = out.add_json_channel(
         &links_topic,
         "mireg.SessionLink",
-        "jsonschema",
-        schema.as_bytes(),
-        "json",
+        &session_links_json_schema(),
     )?;
     input.pass_through(&mut out, &BTreeSet::new(), None, |_, _, _| Ok(()))?;
     for (f, p) in run.frames.iter().zip(merged) {

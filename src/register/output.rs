@@ -200,14 +200,8 @@ impl Outputs {
         voxel_m: Option<f64>,
     ) -> Result<Self> {
         let (tf, pose) = pose_channels(log, kind, &topics.tf, &topics.pose)?;
-        let schema = serde_json::to_string(&stats_json_schema()).expect("schema JSON");
-        let stats = log.add_channel(
-            &topics.stats,
-            "mireg.FrameStats",
-            "jsonschema",
-            schema.as_bytes(),
-            "json",
-        )?;
+        let stats =
+            log.add_json_channel(&topics.stats, "mireg.FrameStats", &stats_json_schema())?;
         let pose_cov = match (kind, voxel_m) {
             (CloudKind::Foxglove, _) | (_, None) => None,
             (_, Some(voxel_m)) => Some((
@@ -218,14 +212,8 @@ impl Outputs {
         let loops = if loops {
             let (tf, pose) =
                 pose_channels(log, kind, &topics.tf_optimized, &topics.pose_optimized)?;
-            let schema = serde_json::to_string(&loops_json_schema()).expect("schema JSON");
-            let loops = log.add_channel(
-                &topics.loops,
-                "mireg.LoopCandidate",
-                "jsonschema",
-                schema.as_bytes(),
-                "json",
-            )?;
+            let loops =
+                log.add_json_channel(&topics.loops, "mireg.LoopCandidate", &loops_json_schema())?;
             Some(LoopChannels { tf, pose, loops })
         } else {
             None

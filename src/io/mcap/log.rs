@@ -368,6 +368,18 @@ impl OutputLog {
         }
     }
 
+    /// A channel of JSON messages (`json`) whose schema `schema_name` is the JSON schema
+    /// `schema` (`jsonschema`), as Foxglove reads them.
+    pub fn add_json_channel(
+        &mut self,
+        topic: &str,
+        schema_name: &str,
+        schema: &serde_json::Value,
+    ) -> Result<u16> {
+        let text = serde_json::to_string(schema).expect("schema JSON");
+        self.add_channel(topic, schema_name, "jsonschema", text.as_bytes(), "json")
+    }
+
     /// Adds a new channel with its schema (reusing an equal schema added before), with ids above
     /// every id defined so far; returns the output channel id.
     pub fn add_channel(
