@@ -26,7 +26,7 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Isometry3, Point3, Translation3, Vector3};
 use rayon::prelude::*;
 
-use super::session::Session;
+use super::session::{Session, keep_within};
 use crate::geometry::floor_i64;
 use crate::io::cloud_file::read_points;
 use crate::io::format_err;
@@ -239,12 +239,7 @@ pub(super) fn map_session(
         for (c, frame) in chunk.iter().zip(prepared) {
             let Some(frame) = frame else { continue };
             let descriptor = Descriptor::from_prepared(&frame);
-            let b = frame.idle_bytes();
-            let kept = (bytes + b <= budget_bytes).then(|| {
-                bytes += b;
-                frame
-            });
-            tiles.push((*c, kept, descriptor));
+            tiles.push((*c, keep_within(&mut bytes, budget_bytes, frame), descriptor));
         }
     }
     if tiles.is_empty() {

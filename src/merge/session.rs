@@ -5,6 +5,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
 use nalgebra::{Isometry3, Point3};
+use rayon::prelude::*;
 
 use super::links::Track;
 use super::map_prior::{TileIndex, percentile_range};
@@ -142,13 +143,7 @@ impl Session {
             descriptors.push(Descriptor::from_prepared(&frame));
             reach.push(percentile_range(&frame.points, 0.9));
             keyframes.push(k);
-            let b = frame.idle_bytes();
-            if bytes + b <= budget {
-                bytes += b;
-                frames.push(Some(frame));
-            } else {
-                frames.push(None);
-            }
+            frames.push(keep_within(&mut bytes, budget, frame));
         })?;
         (self.keyframes, self.frames, self.descriptors) = (keyframes, frames, descriptors);
         self.reach_m = reach;
@@ -172,9 +167,15 @@ impl Session {
             return Ok(out);
         }
         if let Some(index) = &self.tiles {
-            for k in missing {
-                let centre = Point3::from(self.poses[self.keyframes[k]].translation.vector);
-                if let Some(frame) = index.prepare(&centre, pair) {
+            let prepared: Vec<Option<PreparedFrame>> = missing
+                .par_iter()
+                .map(|&k| {
+                    let centre = Point3::from(self.poses[self.keyframes[k]].translation.vector);
+                    index.prepare(&centre, pair)
+                })
+                .collect();
+            for (k, frame) in missing.into_iter().zip(prepared) {
+                if let Some(frame) = frame {
                     out.insert(k, frame);
                 }
             }
@@ -215,6 +216,20 @@ impl Session {
         })?;
         Ok(())
     }
+}
+
+/// `frame`, counted into `kept_bytes`, while the frames kept and it fit `budget` bytes (by
+/// [`PreparedFrame::idle_bytes`]); else `None` (it is prepared again when needed).
+pub(super) fn keep_within(
+    kept_bytes: &mut usize,
+    budget: usize,
+    frame: PreparedFrame,
+) -> Option<PreparedFrame> {
+    let b = frame.idle_bytes();
+    (*kept_bytes + b <= budget).then(|| {
+        *kept_bytes += b;
+        frame
+    })
 }
 
 /// The loop settings (at the first session's voxel, keyframes kept within `keyframe_memory_bytes`)
