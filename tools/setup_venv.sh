@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
-# Create tools/.venv-GROUP[-GROUP...] with the pinned packages of the optional-dependency groups
-# of tools/pyproject.toml named on the command line (idempotent; re-run after editing it).
+# Create tools/.venv-GROUP[-GROUP...] with the packages of the optional-dependency groups of
+# tools/pyproject.toml named on the command line, exactly as tools/uv.lock pins them (idempotent;
+# re-run after editing the groups and renewing the lock with `tools/.venv-uv/bin/uv lock --project
+# tools`). uv itself is installed once into tools/.venv-uv.
 #
 # Usage: bash tools/setup_venv.sh GROUP... [--screenshot]
 #   groups: mcap rosbags python ray peers odometry loops map gtsam evo lint (tools/pyproject.toml)
@@ -19,7 +21,7 @@ screenshot=0
 for arg in "$@"; do
     case "$arg" in
         --screenshot) screenshot=1 ;;
-        -h|--help) sed -n '2,14p' "$0"; exit 0 ;;
+        -h|--help) sed -n '2,16p' "$0"; exit 0 ;;
         -*) echo "unknown option: $arg" >&2; exit 2 ;;
         *)
             if ! grep -q "^$arg = \[" "$here/pyproject.toml"; then
@@ -30,16 +32,25 @@ for arg in "$@"; do
     esac
 done
 if [ ${#groups[@]} -eq 0 ]; then
-    sed -n '2,14p' "$0" >&2
+    sed -n '2,16p' "$0" >&2
     exit 2
 fi
 venv="$here/.venv-$(IFS=-; echo "${groups[*]}")"
 if [ ! -x "$venv/bin/python" ]; then
     python3 -m venv "$venv"
 fi
-# genz-icp is installed from its wheel only, never built from source here.
-pip=("$venv/bin/python" -m pip install --quiet --disable-pip-version-check --only-binary=genz-icp)
-"${pip[@]}" "$here[$(IFS=,; echo "${groups[*]}")]"
+uv="$here/.venv-uv/bin/uv"
+if [ ! -x "$uv" ]; then
+    python3 -m venv "$here/.venv-uv"
+    "$here/.venv-uv/bin/python" -m pip install --quiet --disable-pip-version-check uv==0.13.8
+fi
+extras=()
+for group in "${groups[@]}"; do extras+=(--extra "$group"); done
+# The lock's versions, nothing else (--frozen); packages installed beside them stay (--inexact: the
+# mireg package below); genz-icp from its wheel only, never built from source here.
+UV_PROJECT_ENVIRONMENT="$venv" "$uv" sync --quiet --project "$here" --frozen --inexact \
+    --no-install-project --no-build-package genz-icp "${extras[@]}"
+pip=("$venv/bin/python" -m pip install --quiet --disable-pip-version-check)
 mireg=0 open3d=0
 for group in "${groups[@]}"; do
     case "$group" in
