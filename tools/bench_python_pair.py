@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 import mireg
+import mireg_run
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -37,7 +38,7 @@ def read_ply(path: Path) -> np.ndarray:
 def main():
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--mireg", default=str(REPO / "target/release/mireg"))
+    ap.add_argument("--mireg", default=mireg_run.default_binary())
     ap.add_argument("--runs", type=int, default=15)
     args = ap.parse_args()
     src = read_ply(REPO / "fixtures/icl_nuim/rgbd5_00004.ply")

@@ -29,6 +29,7 @@ import time
 
 import localize_error
 import merge_ate
+import mireg_run
 
 
 def run(cmd):
@@ -60,7 +61,7 @@ def json_of(tool, argv):
 def main(argv):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("logs", nargs="+", type=pathlib.Path)
-    ap.add_argument("--mireg", default="target/release/mireg")
+    ap.add_argument("--mireg", default=mireg_run.default_binary())
     ap.add_argument("--work", type=pathlib.Path, default=pathlib.Path("/tmp/mireg-sessions"))
     args = ap.parse_args(argv)
     args.work.mkdir(parents=True, exist_ok=True)

@@ -36,12 +36,12 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import time
 
 import numpy as np
 from genz_icp.config import load_config as genz_config
 from genz_icp.genz_icp import GenZICP
 
+import mireg_run
 from compare_kiss_icp import exported_poses, read_log, run_kiss, run_odometry, score, xyz  # noqa: E402
 
 
@@ -49,12 +49,7 @@ def run_mireg(binary, log, extra):
     """(poses by stamp [ns], frames/s of the whole process)."""
     with tempfile.TemporaryDirectory() as tmp:
         out = os.path.join(tmp, "out.mcap")
-        t0 = time.perf_counter()
-        run = subprocess.run([binary, "register", log, "-o", out, "--quiet", *extra],
-                             capture_output=True, text=True)
-        wall = time.perf_counter() - t0
-        if run.returncode != 0:
-            raise SystemExit(f"mireg register {log} failed ({run.returncode}): {run.stderr}")
+        _summary, wall = mireg_run.register(binary, log, out, extra)
         poses = exported_poses(binary, out)
     return poses, len(poses) / wall
 
@@ -96,7 +91,7 @@ def bench_log(args, log):
 def main(argv):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("logs", nargs="+")
-    ap.add_argument("--mireg", default=os.environ.get("MIREG_BIN", "target/release/mireg"))
+    ap.add_argument("--mireg", default=mireg_run.default_binary())
     ap.add_argument("--topic")
     ap.add_argument("--reference-topic", default="/ground_truth/pose")
     ap.add_argument("--rounds", type=int, default=3)

@@ -37,6 +37,8 @@ import tempfile
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+import mireg_run
+
 CHI2_6_95 = 12.5916
 CHI2_6_MEDIAN = 5.3481
 
@@ -166,7 +168,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("paths", nargs="+")
     ap.add_argument("--register", action="store_true", help="register each path first (mireg register PATH -o tmp)")
-    ap.add_argument("--mireg", default=os.environ.get("MIREG_BIN", "target/release/mireg"))
+    ap.add_argument("--mireg", default=mireg_run.default_binary())
     ap.add_argument("--reference", default="/ground_truth/pose")
     ap.add_argument("--cov-topic", default="/mireg/pose_cov")
     ap.add_argument("--stats-topic", default="/mireg/stats")

@@ -21,6 +21,8 @@ import sys
 import tempfile
 import zipfile
 
+import mireg_run
+
 
 def run(cmd, **kw):
     r = subprocess.run(cmd, capture_output=True, text=True, **kw)
@@ -32,7 +34,7 @@ def run(cmd, **kw):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("mcap", help="output of `mireg register`")
-    ap.add_argument("--mireg", default="target/release/mireg", help="mireg binary")
+    ap.add_argument("--mireg", default=mireg_run.default_binary(), help="mireg binary")
     ap.add_argument(
         "--evo-ape",
         default=os.path.join(os.path.dirname(sys.executable), "evo_ape"),

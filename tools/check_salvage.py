@@ -44,6 +44,8 @@ from mcap.records import Channel, Message
 from mcap.stream_reader import StreamReader
 from rosbags.rosbag1 import Reader as Ros1Reader
 
+import mireg_run
+
 
 def key(topic, log_time, data):
     return (topic, log_time, hashlib.sha256(bytes(data)).hexdigest())
@@ -130,7 +132,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("inputs", nargs="+", type=Path)
-    ap.add_argument("--mireg", default="target/release/mireg")
+    ap.add_argument("--mireg", default=mireg_run.default_binary())
     ap.add_argument("--step", type=int, default=1, help="percent between cuts [%(default)s]")
     args = ap.parse_args()
     problems = []

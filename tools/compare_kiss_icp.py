@@ -20,9 +20,7 @@ mireg then reads a copy of the log holding only them.
 """
 
 import argparse
-import json
 import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -34,6 +32,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer as Ros2Writer
 
+import mireg_run
 from make_kaist03_mcap import parse_frames  # noqa: E402
 
 CLOUD = "sensor_msgs/msg/PointCloud2"
@@ -62,8 +61,14 @@ def xyz(msg):
 
 
 def pose_matrix(p):
-    q = p.orientation
-    x, y, z, w = q.x, q.y, q.z, q.w
+    """A ROS Pose as a 4x4 matrix."""
+    q, t = p.orientation, p.position
+    return tum_matrix((t.x, t.y, t.z, q.x, q.y, q.z, q.w))
+
+
+def tum_matrix(pose):
+    """(x, y, z, qx, qy, qz, qw) as a 4x4 matrix."""
+    px, py, pz, x, y, z, w = pose
     r = np.array([
         [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
         [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
@@ -71,7 +76,7 @@ def pose_matrix(p):
     ])
     t = np.eye(4)
     t[:3, :3] = r
-    t[:3, 3] = [p.position.x, p.position.y, p.position.z]
+    t[:3, 3] = [px, py, pz]
     return t
 
 
@@ -155,29 +160,13 @@ def run_kiss(clouds):
 
 def exported_poses(binary, out):
     """The poses `mireg export` gives of the output `out` (its best trajectory), by stamp [ns]."""
-    tum = subprocess.run([binary, "export", out, "--format", "tum"], capture_output=True, text=True,
-                         check=True).stdout
-    poses = {}
-    for line in tum.splitlines():
-        words = line.split()
-        # Stamps as written (seconds with nine decimals): exact in integers, not in a float.
-        sec, _, frac = words[0].partition(".")
-        s = int(sec) * 1_000_000_000 + int((frac + "000000000")[:9])
-        x, y, z, qx, qy, qz, qw = (float(w) for w in words[1:])
-        poses[s] = pose_matrix(type("P", (), {
-            "position": type("V", (), {"x": x, "y": y, "z": z}),
-            "orientation": type("Q", (), {"x": qx, "y": qy, "z": qz, "w": qw}),
-        }))
-    return poses
+    return {s: tum_matrix(p) for s, p in mireg_run.exported_tum(binary, out).items()}
 
 
 def run_mireg(binary, log, extra):
     with tempfile.TemporaryDirectory() as tmp:
         out = os.path.join(tmp, "out.mcap")
-        run = subprocess.run([binary, "register", log, "-o", out, "--json", *extra], capture_output=True, text=True)
-        if run.returncode != 0:
-            raise SystemExit(f"mireg register failed ({run.returncode}): {run.stderr}")
-        summary = json.loads(run.stdout)
+        summary, _wall = mireg_run.register(binary, log, out, extra, summary=True)
         poses = exported_poses(binary, out)
     return poses, summary
 
@@ -195,7 +184,7 @@ def log_parser(description):
     target/release/mireg) and --topic."""
     ap = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("log")
-    ap.add_argument("--mireg", default=os.environ.get("MIREG_BIN", "target/release/mireg"))
+    ap.add_argument("--mireg", default=mireg_run.default_binary())
     ap.add_argument("--topic")
     return ap
 

@@ -67,7 +67,6 @@ import contextlib
 import json
 import math
 import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -76,6 +75,7 @@ import numpy as np
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+import mireg_run
 from compare_kiss_icp import pose_matrix, read_log, score, split_mireg_args, xyz  # noqa: E402
 
 LOOP_DEG = 2.0  # a loop is correct below this rotation error ...
@@ -177,13 +177,7 @@ def read_mireg_output(path):
 
 def run_mireg(binary, log, extra, tmp):
     out = os.path.join(tmp, "mireg_out.mcap")
-    t0 = time.perf_counter()
-    run = subprocess.run([binary, "register", log, "-o", out, "--json", "--force", *extra],
-                         capture_output=True, text=True)
-    wall = time.perf_counter() - t0
-    if run.returncode != 0:
-        raise SystemExit(f"mireg register failed ({run.returncode}): {run.stderr}")
-    summary = json.loads(run.stdout)
+    summary, wall = mireg_run.register(binary, log, out, extra, summary=True)
     poses, loops, topics = read_mireg_output(out)
     return summary, poses, loops, topics, wall
 
@@ -440,7 +434,7 @@ def main(argv):
     argv, extra = split_mireg_args(argv)
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("logs", nargs="+")
-    ap.add_argument("--mireg", default=os.environ.get("MIREG_BIN", "target/release/mireg"))
+    ap.add_argument("--mireg", default=mireg_run.default_binary())
     ap.add_argument("--topic")
     ap.add_argument("--reference-topic", default="/ground_truth/pose")
     ap.add_argument("--tools", default="mireg,kiss-slam,open3d", help="comma list of mireg, kiss-slam, open3d")

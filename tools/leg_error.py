@@ -19,11 +19,12 @@ numpy (tools/setup_venv.sh loops makes that venv).
 from __future__ import annotations
 
 import argparse
-import os
 import subprocess
 import sys
 
 import numpy as np
+
+import mireg_run
 
 TOPICS = ("/mireg/pose", "/mireg/pose_optimized")
 
@@ -60,7 +61,7 @@ def rms(e: np.ndarray) -> float:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("outputs", nargs="+")
-    ap.add_argument("--mireg", default=os.environ.get("MIREG_BIN", "target/release/mireg"))
+    ap.add_argument("--mireg", default=mireg_run.default_binary())
     args = ap.parse_args()
     for log in args.outputs:
         ref = positions(args.mireg, log, "/ground_truth/pose")

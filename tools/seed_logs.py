@@ -10,12 +10,12 @@ Usage: tools/.venv-odometry/bin/python tools/seed_logs.py BIN LOG... [-- REGISTE
 
 import os
 import statistics
-import subprocess
 import sys
 import tempfile
 
 import numpy as np
 
+import mireg_run
 from compare_kiss_icp import read_log, score
 from compare_loops import loop_truth, read_mireg_output, transform_error
 
@@ -35,9 +35,7 @@ def main(argv):
         with tempfile.TemporaryDirectory() as tmp:
             for seed in SEEDS:
                 out = os.path.join(tmp, f"out_{seed}.mcap")
-                subprocess.run([binary, "register", log, "-o", out, "--seed", str(seed), "--quiet",
-                                *flags],
-                               check=True)
+                mireg_run.register(binary, log, out, ["--seed", str(seed), *flags])
                 poses, loops, _topics = read_mireg_output(out)
                 traj = "/mireg/pose_optimized" if "/mireg/pose_optimized" in poses else "/mireg/pose"
                 ates.append(score(poses[traj], reference)[0])

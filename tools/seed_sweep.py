@@ -23,6 +23,7 @@ import tempfile
 import numpy as np
 
 import compare_open3d as C  # noqa: E402  (the pairs, pose generator and error measures)
+import mireg_run
 
 MAKERS = {
     "3dmatch": C.make_3dmatch,
@@ -40,7 +41,7 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--pose-seed", type=int, default=0, help="compare_open3d.py's --seed (default 0)")
     ap.add_argument("--max-translation", type=float, default=1.0)
-    ap.add_argument("--mireg", default="target/release/mireg")
+    ap.add_argument("--mireg", default=mireg_run.default_binary())
     ap.add_argument("--data", default=os.path.join("..", "shared", "data"))
     ap.add_argument("--fixtures", default="fixtures")
     ap.add_argument("extra", nargs="*", help="arguments passed to every `mireg pair` (after --)")

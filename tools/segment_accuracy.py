@@ -29,13 +29,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import statistics
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
+import mireg_run
 from mireg_ray.segments import bounds  # noqa: E402  (the driver's own split)
 
 
@@ -106,7 +106,7 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0],
                     help="run everything once per seed (register --seed); with several, also print "
                          "the ratio of the mean ATEs")
-    ap.add_argument("--mireg", default=os.environ.get("MIREG_BIN", "target/release/mireg"))
+    ap.add_argument("--mireg", default=mireg_run.default_binary())
     args = ap.parse_args(argv)
     b = args.mireg
     n = json.loads(run([b, "info", str(args.log), "--json"]))["cloud_messages"]
