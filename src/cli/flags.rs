@@ -55,7 +55,7 @@ pub struct RegistrationFlags {
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
     /// Voxel size in metres; normal, feature, inlier and ICP radii derive from it [default: 0.05].
-    #[arg(long)]
+    #[arg(long, value_name = "METRES")]
     pub voxel: Option<f64>,
     /// Hypothesis sampler [default: levy].
     #[arg(long, value_enum)]
@@ -64,7 +64,7 @@ pub struct RegistrationFlags {
     #[arg(long, allow_hyphen_values = true)]
     pub mu: Option<f64>,
     /// Lévy scale c [default: 1].
-    #[arg(long)]
+    #[arg(long, value_name = "C")]
     pub levy_c: Option<f64>,
     /// Lévy draws with replacement (the authors' behaviour).
     #[arg(long)]
@@ -73,13 +73,13 @@ pub struct RegistrationFlags {
     #[arg(long, value_enum)]
     pub ranking: Option<RankingArg>,
     /// Descriptor radius τ_d for the count rankings, in FPFH units [default: 12].
-    #[arg(long)]
+    #[arg(long, value_name = "RADIUS")]
     pub descriptor_radius: Option<f32>,
     /// Keep only mutual nearest neighbours in feature space.
     #[arg(long)]
     pub mutual: bool,
     /// Cap on RANSAC hypotheses [default: 200000; Open3D's is 100000].
-    #[arg(long)]
+    #[arg(long, value_name = "N")]
     pub max_hypotheses: Option<u64>,
     /// What RANSAC hypotheses are scored against [default: dense].
     #[arg(long, value_enum)]

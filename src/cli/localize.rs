@@ -17,7 +17,7 @@ pub struct LocalizeArgs {
     #[arg(long, value_name = "RUN|MAP")]
     pub map: PathBuf,
     /// Output MCAP [default: LOG's name with `.localized.mcap`, beside it].
-    #[arg(short, long)]
+    #[arg(short, long, value_name = "FILE")]
     pub output: Option<PathBuf>,
     /// Point cloud topic of the log [default: as `register` chooses].
     #[arg(long)]

@@ -94,3 +94,68 @@ pub fn run(cli: Cli) -> Result<()> {
         None => register::run_default(),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+
+    use clap::CommandFactory;
+
+    use super::Cli;
+
+    /// Every option that takes a value, over the subcommands: (subcommand, long name, value name).
+    fn options() -> Vec<(String, String, String)> {
+        let cli = Cli::command();
+        let mut all = Vec::new();
+        for sub in cli.get_subcommands() {
+            for arg in sub.get_arguments() {
+                let (Some(long), Some(names)) = (arg.get_long(), arg.get_value_names()) else {
+                    continue;
+                };
+                // Flags, and choices (their help lists the values).
+                if !arg.get_action().takes_values() || !arg.get_possible_values().is_empty() {
+                    continue;
+                }
+                let name = names
+                    .iter()
+                    .map(|n| n.as_str())
+                    .collect::<Vec<_>>()
+                    .join(" ");
+                all.push((sub.get_name().to_string(), long.to_string(), name));
+            }
+        }
+        all
+    }
+
+    /// A flag means one thing across the subcommands: the same value name wherever it appears
+    /// (`merge -o` names a folder, the others a file).
+    #[test]
+    fn a_flag_shared_by_subcommands_names_its_value_alike() {
+        let mut seen: BTreeMap<String, Vec<(String, String)>> = BTreeMap::new();
+        for (sub, long, name) in options() {
+            if (sub.as_str(), long.as_str(), name.as_str()) != ("merge", "output", "DIR") {
+                seen.entry(long).or_default().push((sub, name));
+            }
+        }
+        let differ: Vec<_> = seen
+            .iter()
+            .filter(|(_, uses)| uses.iter().any(|(_, n)| *n != uses[0].1))
+            .collect();
+        assert!(differ.is_empty(), "{differ:?}");
+    }
+
+    /// A value name says what to give (`METRES`, `N`, `FILE`, ...), not clap's default, the
+    /// flag's own name in capitals (`--voxel <VOXEL>`), except where that name is the thing given.
+    #[test]
+    fn value_names_say_what_to_give() {
+        const OWN_NAME_IS_THE_ANSWER: [&str; 5] = ["topic", "seed", "mu", "format", "trajectory"];
+        let bare: Vec<_> = options()
+            .into_iter()
+            .filter(|(_, long, name)| {
+                *name == long.to_uppercase().replace('-', "_")
+                    && !OWN_NAME_IS_THE_ANSWER.contains(&long.as_str())
+            })
+            .collect();
+        assert!(bare.is_empty(), "{bare:?}");
+    }
+}

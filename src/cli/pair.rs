@@ -47,7 +47,7 @@ pub struct PairArgs {
     #[command(flatten)]
     pub flags: RegistrationFlags,
     /// Ground truth to compare against (adds rotation/translation errors).
-    #[arg(long)]
+    #[arg(long, value_name = "FILE")]
     pub gt: Option<PathBuf>,
     /// Format of --gt.
     #[arg(long, value_enum, default_value_t = GtFormatArg::Matrix)]

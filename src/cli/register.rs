@@ -25,7 +25,7 @@ pub struct RegisterArgs {
     /// (or its metadata.yaml).
     pub input: PathBuf,
     /// Output MCAP [default: INPUT's name with .mireg.mcap, next to it].
-    #[arg(short, long)]
+    #[arg(short, long, value_name = "FILE")]
     pub output: Option<PathBuf>,
     /// Point cloud topic [default: the only point cloud topic: sensor_msgs PointCloud2,
     /// foxglove.PointCloud or Livox CustomMsg].
@@ -35,10 +35,10 @@ pub struct RegisterArgs {
     #[command(flatten)]
     pub flags: RegistrationFlags,
     /// A registration with fewer RANSAC inliers is flagged as failed.
-    #[arg(long, default_value_t = OdometryConfig::default().min_inliers)]
+    #[arg(long, default_value_t = OdometryConfig::default().min_inliers, value_name = "N")]
     pub min_inliers: usize,
     /// A registration with lower ICP fitness is flagged as failed.
-    #[arg(long, default_value_t = OdometryConfig::default().min_fitness, value_parser = parse_fraction)]
+    #[arg(long, default_value_t = OdometryConfig::default().min_fitness, value_parser = parse_fraction, value_name = "FRACTION")]
     pub min_fitness: f64,
     /// Register each frame to the previous one only: no refinement against a local map of
     /// recent frames (chains frame-to-frame estimates; drifts more on long logs).
@@ -89,7 +89,7 @@ pub struct RegisterArgs {
     #[arg(long, value_name = "N", default_value_t = OdometryConfig::default().feature_points)]
     pub feature_points: usize,
     /// Name of the world frame (the first cloud's sensor frame) in /tf and /mireg/pose.
-    #[arg(long, default_value = "world")]
+    #[arg(long, default_value = "world", value_name = "FRAME")]
     pub world_frame: String,
     /// A cloud with more points is flagged (too_many_points) instead of registered.
     #[arg(long, value_name = "N", default_value_t = crate::register::DEFAULT_MAX_POINTS_PER_CLOUD)]

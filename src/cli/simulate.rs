@@ -17,7 +17,7 @@ pub struct SimulateArgs {
     #[arg(long)]
     pub csv: bool,
     /// Monte Carlo runs per cell [default: 20, or 5 with --quick].
-    #[arg(long)]
+    #[arg(long, value_name = "N")]
     pub runs: Option<usize>,
     /// Seed of all randomness.
     #[arg(long, default_value_t = 0)]

@@ -15,7 +15,7 @@ pub struct StitchArgs {
     #[arg(required = true)]
     pub segments: Vec<PathBuf>,
     /// Output MCAP.
-    #[arg(short, long)]
+    #[arg(short, long, value_name = "FILE")]
     pub output: PathBuf,
     /// Skip loop closure over the stitched trajectory (on by default, as in `register`).
     #[arg(long)]

@@ -26,33 +26,43 @@ pub struct SweepArgs {
     #[arg(long, value_name = "FILE", requires = "gt_log")]
     pub gt_info: Option<PathBuf>,
     /// Largest information-matrix error of a correct registration [m²] (Choi's 0.04: 0.2 m RMSE).
-    #[arg(long, default_value_t = crate::sweep::CHOI_MAX_ERROR)]
+    #[arg(long, default_value_t = crate::sweep::CHOI_MAX_ERROR, value_name = "ERROR")]
     pub max_info_error: f64,
     /// Point cloud topic [default: the only one].
     #[arg(long)]
     pub topic: Option<String>,
     /// Reference PoseStamped topic, matched to clouds by stamp.
-    #[arg(long, default_value = crate::trajectory::DEFAULT_GROUND_TRUTH_TOPIC)]
+    #[arg(long, default_value = crate::trajectory::DEFAULT_GROUND_TRUTH_TOPIC, value_name = "TOPIC")]
     pub reference_topic: String,
     /// Frame gaps k of the pairs (i, i + k), comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "5,10,20")]
+    #[arg(
+        value_name = "FRAMES,...",
+        long,
+        value_delimiter = ',',
+        default_value = "5,10,20"
+    )]
     pub gaps: Vec<usize>,
     /// Seeded runs per pair and cell (the paper's M) [default: 20; 3 with --quick].
-    #[arg(long)]
+    #[arg(long, value_name = "N")]
     pub runs: Option<usize>,
     /// First seed (run r uses seed + r).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Rankings, comma-separated: ratio, distance, count_most (the authors'), count_fewest
     /// [default: ratio,distance,count_most; ratio,count_most with --quick].
-    #[arg(long, value_delimiter = ',')]
+    #[arg(long, value_delimiter = ',', value_name = "RANKING,...")]
     pub rankings: Option<Vec<String>>,
     /// Lévy locations μ, comma-separated [default: the paper's −1, −50, −1e2 … −1e6; −1, −50,
     /// −1e3, −1e6 with --quick].
-    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    #[arg(
+        value_name = "MU,...",
+        long,
+        value_delimiter = ',',
+        allow_hyphen_values = true
+    )]
     pub mus: Option<Vec<f64>>,
     /// At most this many pairs (evenly spaced over all of them) [default: all; 20 with --quick].
-    #[arg(long)]
+    #[arg(long, value_name = "N")]
     pub max_pairs: Option<usize>,
     /// A quick look (under a minute on the fixture, 2 cores): the defaults of --runs, --mus,
     /// --rankings and --max-pairs become 3 runs, μ ∈ {−1, −50, −1e3, −1e6}, rankings ratio and
@@ -60,22 +70,22 @@ pub struct SweepArgs {
     #[arg(long)]
     pub quick: bool,
     /// Voxel size [m] [default: the first cloud's median range / 40, as register].
-    #[arg(long)]
+    #[arg(long, value_name = "METRES")]
     pub voxel: Option<f64>,
     /// A reported registration is correct within this rotation error [deg].
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, default_value_t = 2.0, value_name = "DEGREES")]
     pub max_re_deg: f64,
     /// ... and this translation error [m] [default: one voxel].
-    #[arg(long)]
+    #[arg(long, value_name = "METRES")]
     pub max_te_m: Option<f64>,
     /// Reported needs at least this many RANSAC inliers (register's test).
-    #[arg(long, default_value_t = Acceptance::default().min_inliers)]
+    #[arg(long, default_value_t = Acceptance::default().min_inliers, value_name = "N")]
     pub min_inliers: usize,
     /// ... and at least this ICP fitness.
-    #[arg(long, default_value_t = Acceptance::default().min_fitness)]
+    #[arg(long, default_value_t = Acceptance::default().min_fitness, value_name = "FRACTION")]
     pub min_fitness: f64,
     /// Dataset name in the table [default: the input's file stem].
-    #[arg(long)]
+    #[arg(long, value_name = "NAME")]
     pub dataset: Option<String>,
     /// Print CSV: dataset,ranking,sampler,mu,runs,pairs,recall,precision,hypotheses_median,time_s_median.
     #[arg(long)]
