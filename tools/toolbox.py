@@ -73,7 +73,7 @@ GROUPS = {
     "pose_md5.sh": None,
 }
 # Modules other tools run or import, not commands of their own.
-HELPERS = {"mireg_run.py", "peer_open3d_match_icp.py", "toolbox.py"}
+HELPERS = {"livox_scene.py", "mireg_run.py", "peer_open3d_match_icp.py", "toolbox.py"}
 # Families, by the file name's first word.
 FAMILIES = [
     ("make", "build fixtures and test logs"),
