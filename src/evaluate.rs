@@ -7,7 +7,9 @@ mod export;
 mod inputs;
 mod job;
 
-pub use export::{ExportFormat, ExportOptions, read_export, write_export, write_trajectory};
+pub use export::{
+    ExportFormat, ExportOptions, export_to_file, read_export, write_export, write_trajectory,
+};
 pub use inputs::registered_log;
 pub use job::{
     EvaluateOptions, EvaluateSummary, LogEvaluation, TrajectoryFormat, evaluate_log, evaluate_run,

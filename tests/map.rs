@@ -517,3 +517,46 @@ fn bad_input_fails_cleanly_and_writes_nothing() {
     mireg_ok(&["map", s(&novox), "-o", s(&out), "--voxel", "0.1", "--force"]);
     assert_ne!(std::fs::read(&out).unwrap(), b"keep me");
 }
+
+/// The map and export jobs of the library check their paths themselves, before reading (they
+/// were the command line's checks): an output that is the input is refused and the input's
+/// bytes stay; an output in a missing folder is named before the input is looked at (here it
+/// does not even exist).
+#[test]
+fn the_map_and_export_jobs_refuse_an_output_that_is_an_input_before_reading() {
+    use mireg::evaluate::{ExportOptions, export_to_file};
+    use mireg::map::{MapOptions, map_runs};
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("run.npy");
+    std::fs::write(&input, b"not a run").unwrap();
+    let e = map_runs(
+        std::slice::from_ref(&input),
+        &input,
+        true,
+        &MapOptions::default(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("is the input"), "{e}");
+    let opts = ExportOptions {
+        input: input.clone(),
+        ..ExportOptions::default()
+    };
+    let e = export_to_file(&opts, &input).unwrap_err().to_string();
+    assert!(e.contains("is the input"), "{e}");
+    assert_eq!(std::fs::read(&input).unwrap(), b"not a run");
+    let missing = dir.path().join("no_such_folder/map.ply");
+    let absent = dir.path().join("absent.mcap");
+    let e = map_runs(&[absent.clone()], &missing, false, &MapOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("no_such_folder"), "{e}");
+    let opts = ExportOptions {
+        input: absent,
+        ..ExportOptions::default()
+    };
+    let e = export_to_file(&opts, &missing).unwrap_err().to_string();
+    assert!(e.contains("no_such_folder"), "{e}");
+    let listing: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
+    assert_eq!(listing.len(), 1, "nothing written beside the input");
+}

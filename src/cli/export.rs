@@ -1,14 +1,14 @@
 //! `mireg export`: clap arguments → [`crate::evaluate::ExportOptions`], the trajectory read
-//! ([`crate::evaluate::read_export`]) and written to the output file or stdout.
+//! ([`crate::evaluate::read_export`]) and written to stdout, or the job with an output file
+//! ([`crate::evaluate::export_to_file`]).
 
 use std::io::Write;
 use std::path::PathBuf;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
 
-use crate::evaluate::{ExportFormat, ExportOptions, read_export, write_export, write_trajectory};
-use crate::io::atomic_file::{check_target, same_file};
+use crate::evaluate::{ExportFormat, ExportOptions, export_to_file, read_export, write_trajectory};
 
 use super::evaluate::ignore_broken_pipe;
 
@@ -69,29 +69,15 @@ impl ExportArgs {
 pub(super) fn run_export(args: &ExportArgs) -> Result<()> {
     let opts = args.options();
     if let Some(path) = &opts.output {
-        // Before the log is read: an output in a missing folder fails at once.
-        check_target(path, true)?;
+        export_to_file(&opts, path)?;
+        return Ok(());
     }
     let (_, t) = read_export(&opts)?;
-    match &opts.output {
-        Some(path) => {
-            if same_file(&opts.input, path) {
-                bail!(
-                    "output {} is the input; mireg never writes over its input",
-                    path.display()
-                );
-            }
-            write_export(&t, opts.format, path)?;
-        }
-        None => {
-            let stdout = std::io::stdout();
-            let mut w = std::io::BufWriter::new(stdout.lock());
-            ignore_broken_pipe(
-                write_trajectory(&t, opts.format, &mut w)
-                    .map_err(anyhow::Error::from)
-                    .and_then(|()| w.flush().context("writing stdout")),
-            )?;
-        }
-    }
-    Ok(())
+    let stdout = std::io::stdout();
+    let mut w = std::io::BufWriter::new(stdout.lock());
+    ignore_broken_pipe(
+        write_trajectory(&t, opts.format, &mut w)
+            .map_err(anyhow::Error::from)
+            .and_then(|()| w.flush().context("writing stdout")),
+    )
 }

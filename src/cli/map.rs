@@ -1,16 +1,13 @@
-//! `mireg map`: clap arguments → [`crate::map::MapOptions`]; the voxel-downsampled world map of a
-//! `register` output ([`crate::map::build_map_of_runs`]) written as `.ply`, `.pcd` or `.npy`
-//! ([`crate::map::write_map`]), its summary printed.
+//! `mireg map`: clap arguments → [`crate::map::MapOptions`]; the job ([`crate::map::map_runs`]:
+//! the voxel-downsampled world map of `register` outputs written as `.ply`, `.pcd` or `.npy`),
+//! its summary printed.
 
 use std::path::PathBuf;
 
-use anyhow::{Result, bail};
+use anyhow::Result;
 use clap::{Args, ValueEnum};
 
-use crate::evaluate::registered_log;
-use crate::io::atomic_file::{check_target, same_file};
-use crate::io::cloud_file::CloudFileFormat;
-use crate::map::{MapOptions, TrajectoryChoice, build_map_of_runs, write_map};
+use crate::map::{MapOptions, TrajectoryChoice, map_runs};
 
 /// `--trajectory` of `mireg map` ([`TrajectoryChoice`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -80,46 +77,7 @@ impl MapArgs {
 /// Runs `mireg map`.
 pub(super) fn run_map(args: &MapArgs) -> Result<()> {
     let out = &args.output;
-    let format = CloudFileFormat::from_path(out)?;
-    if args.inputs.iter().any(|i| same_file(i, out)) {
-        bail!(
-            "output {} is the input; mireg never writes over its input",
-            out.display()
-        );
-    }
-    // Fail before reading the whole log, not after.
-    check_target(out, args.force)?;
-    for input in &args.inputs {
-        registered_log(input, "map", false)?;
-    }
-    let (map, summary) = build_map_of_runs(&args.inputs, &args.options())?;
-    let input = args
-        .inputs
-        .iter()
-        .map(|p| p.display().to_string())
-        .collect::<Vec<_>>()
-        .join(", ");
-    if map.is_empty() && summary.clouds_used > 0 && summary.points_out_of_range > 0 {
-        bail!(
-            "{}: every point of the {} clouds with a pose ({} points) is out of the map's voxel \
-             grid at voxel {} m: choose a larger --voxel",
-            input,
-            summary.clouds_used,
-            summary.points_out_of_range,
-            summary.voxel_m
-        );
-    }
-    if map.is_empty() {
-        bail!(
-            "{}: no cloud on {} has a pose on {} ({} clouds without one): the map would be empty",
-            input,
-            summary.cloud_topic,
-            summary.pose_topic,
-            summary.clouds_without_pose
-        );
-    }
-    // Written beside the target and moved into place when complete.
-    write_map(map, summary.intensity, format, out, args.force)?;
+    let summary = map_runs(&args.inputs, out, args.force, &args.options())?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else {

@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use super::inputs::registered_log;
 use super::job::run_topics;
-use crate::io::atomic_file::PendingFile;
+use crate::io::atomic_file::{PendingFile, check_target, same_file};
 use crate::trajectory::{self, Trajectory};
 use crate::{Error, Result};
 
@@ -63,6 +63,26 @@ pub fn read_export(opts: &ExportOptions) -> Result<(String, Trajectory)> {
         });
     }
     Ok((topic, t))
+}
+
+/// The export job with an output file: the trajectory `opts` asks for ([`read_export`]) written
+/// to `path` ([`write_export`]). Returns the topic and the poses written.
+///
+/// # Errors
+/// [`Error::InvalidInput`] for a `path` that is the input, and [`check_target`]'s errors for
+/// one in a missing folder, both before the input is read; then [`read_export`]'s and
+/// [`write_export`]'s.
+pub fn export_to_file(opts: &ExportOptions, path: &Path) -> Result<(String, usize)> {
+    if same_file(&opts.input, path) {
+        return Err(Error::InvalidInput(format!(
+            "output {} is the input; mireg never writes over its input",
+            path.display()
+        )));
+    }
+    check_target(path, true)?;
+    let (topic, t) = read_export(opts)?;
+    write_export(&t, opts.format, path)?;
+    Ok((topic, t.len()))
 }
 
 /// Writes `t` in `format` to `out`; a write error names [`trajectory::OUTPUT_STREAM`].

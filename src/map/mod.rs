@@ -18,10 +18,12 @@ use nalgebra::{Isometry3, Point3};
 use crate::hash::FastHash;
 
 mod build;
+mod job;
 
 pub use build::{
     MapOptions, MapSummary, TrajectoryChoice, build_map, build_map_of_runs, write_map,
 };
+pub use job::map_runs;
 
 /// One occupied voxel's running sums.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
