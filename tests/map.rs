@@ -547,9 +547,14 @@ fn the_map_and_export_jobs_refuse_an_output_that_is_an_input_before_reading() {
     assert_eq!(std::fs::read(&input).unwrap(), b"not a run");
     let missing = dir.path().join("no_such_folder/map.ply");
     let absent = dir.path().join("absent.mcap");
-    let e = map_runs(&[absent.clone()], &missing, false, &MapOptions::default())
-        .unwrap_err()
-        .to_string();
+    let e = map_runs(
+        std::slice::from_ref(&absent),
+        &missing,
+        false,
+        &MapOptions::default(),
+    )
+    .unwrap_err()
+    .to_string();
     assert!(e.contains("no_such_folder"), "{e}");
     let opts = ExportOptions {
         input: absent,
