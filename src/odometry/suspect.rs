@@ -6,7 +6,6 @@
 //! wrong: on real logs a frame "succeeded" 0.66–2.9 m off. The rules below flag what the frame's
 //! own registration shows of that; they do not change its pose.
 
-use nalgebra::Vector6;
 use serde::{Deserialize, Serialize};
 
 use super::FrameEstimate;
@@ -114,15 +113,8 @@ pub fn judge(est: &mut FrameEstimate, last_map_fitness: Option<f64>, max_hypothe
             .filter(|r| m.used && r.fitness >= AMBIGUOUS_FITNESS_RATIO * m.fitness)
     });
     if let (Some(r), Some(omega)) = (ambiguous, est.information.as_mut()) {
-        let xi = Vector6::from_iterator(
-            r.offset
-                .rotation
-                .scaled_axis()
-                .iter()
-                .chain(r.offset.translation.vector.iter())
-                .copied(),
-        );
-        *omega = with_spread(omega, &xi);
+        // The offset in the graph's tangent coordinates (its edges' residuals are `log`s).
+        *omega = with_spread(omega, &crate::graph::se3::log(&r.offset));
     }
     est.suspect = if degenerate {
         Some(Suspect::Degenerate)

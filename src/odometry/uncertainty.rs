@@ -71,7 +71,8 @@ pub fn registration_information(
 
 /// `omega` (a step's information, (rotation, translation) order) with the spread of a rival
 /// estimate added to its covariance: `(Ω⁻¹ + ξξᵀ)⁻¹`, where `ξ` is the rival's offset from the
-/// step's pose as a right perturbation (rotation vector \[rad\], translation \[m\]). By the
+/// step's pose as a right perturbation, `log` of it (rotation vector \[rad\], translation
+/// part \[m\]: [`crate::graph::se3::log`], the pose graph's coordinates). By the
 /// Sherman–Morrison formula, `Ω − Ωξ (Ωξ)ᵀ / (1 + ξᵀΩξ)`: the information along `ξ` falls to
 /// about `1/|ξ|²` where it was larger, and is unchanged across it.
 #[must_use]
