@@ -354,6 +354,8 @@ pub struct Odometry {
     /// How far the prediction was from each of the last [`retry::RECENT_MISSES`] frames
     /// accepted on the map \[m\], oldest first.
     prediction_misses: std::collections::VecDeque<f64>,
+    /// The coarse retry's prepared frames, kept for the next retry.
+    coarse_frames: retry::CoarseFrames,
 }
 
 impl Odometry {
@@ -393,6 +395,7 @@ impl Odometry {
             retired: None,
             last_map_fitness: None,
             prediction_misses: std::collections::VecDeque::with_capacity(retry::RECENT_MISSES),
+            coarse_frames: retry::CoarseFrames::default(),
         })
     }
 
@@ -500,7 +503,7 @@ impl Odometry {
         // fit is it refined frame to frame, as without a map.
         if let Some(target) = &target
             && let Some(fit) = self.global_on_map(
-                &frame,
+                (index, &frame),
                 prev,
                 *target,
                 &mut pair,

@@ -23,7 +23,7 @@ impl Odometry {
     /// frame to frame instead.
     pub(super) fn global_on_map(
         &self,
-        frame: &PreparedFrame,
+        (index, frame): (usize, &PreparedFrame),
         prev: &PreparedFrame,
         target: (&IcpTarget, f64),
         pair: &mut PairResult,
@@ -63,6 +63,7 @@ impl Odometry {
         let inputs = RetryInputs {
             frame,
             prev,
+            indices: (index, self.previous_index),
             target,
             world_from_prev,
             predicted,

@@ -12,7 +12,9 @@
 //! gap the default failed every seed and 0.5 none (docs/ODOMETRY.md): no one scale is right,
 //! so a doubtful frame is registered at a second one.
 
-use nalgebra::Isometry3;
+use std::sync::{Arc, Mutex, PoisonError};
+
+use nalgebra::{Isometry3, Point3};
 
 use super::map_fit::within;
 use super::{
@@ -68,10 +70,49 @@ fn stream(seed: u64, round: u64) -> u64 {
 pub(super) struct RetryInputs<'a> {
     pub frame: &'a PreparedFrame,
     pub prev: &'a PreparedFrame,
+    /// The frames' indices in the stream (`frame`'s, `prev`'s), naming their coarse clouds in
+    /// [`CoarseFrames`].
+    pub indices: (usize, usize),
     pub target: (&'a IcpTarget, f64),
     pub world_from_prev: &'a Isometry3<f64>,
     /// The frame's constant-velocity prediction.
     pub predicted: &'a Isometry3<f64>,
+}
+
+/// The frames the coarse retry prepared ([`Odometry::coarse_opinion`]), by index in the stream:
+/// those of the last retry only, so that the rounds of one frame prepare once and a frame
+/// retried after its predecessor prepares itself alone. Preparing depends on the points and the
+/// voxel only (not the seed: the coarse retry draws no fine points), so a frame kept is the
+/// frame prepared again, and the poses are the same.
+#[derive(Debug, Default)]
+pub(super) struct CoarseFrames(Mutex<Vec<(usize, Arc<PreparedFrame>)>>);
+
+impl CoarseFrames {
+    /// The frames `(index, ICP cloud)` prepared with `config` (its feature voxel the coarse
+    /// retry's), each kept one or prepared now (the missing ones side by side); they are then the
+    /// frames kept.
+    fn get_or_prepare(
+        &self,
+        [a, b]: [(usize, &[Point3<f64>]); 2],
+        config: &PairConfig,
+    ) -> Result<[Arc<PreparedFrame>; 2]> {
+        let kept = |index: usize| {
+            let frames = self.0.lock().unwrap_or_else(PoisonError::into_inner);
+            frames
+                .iter()
+                .find(|(i, _)| *i == index)
+                .map(|(_, f)| Arc::clone(f))
+        };
+        let prepare = |(index, points): (usize, &[Point3<f64>])| match kept(index) {
+            Some(frame) => Ok(frame),
+            None => prepare_frame(points, config).map(Arc::new),
+        };
+        let (fa, fb) = rayon::join(|| prepare(a), || prepare(b));
+        let (fa, fb) = (fa?, fb?);
+        let mut frames = self.0.lock().unwrap_or_else(PoisonError::into_inner);
+        *frames = vec![(a.0, Arc::clone(&fa)), (b.0, Arc::clone(&fb))];
+        Ok([fa, fb])
+    }
 }
 
 /// A retry's outcome: the pair result it came from, the refined pose and its fit to the map.
@@ -164,11 +205,14 @@ impl Odometry {
         config.icp = false;
         config.icp_fine = false;
         config.seed = stream(config.seed, round);
-        let (a, b) = rayon::join(
-            || prepare_frame(source.points(), &config),
-            || prepare_frame(prev_icp.points(), &config),
-        );
-        let pair = register_prepared_coarse(&a?, &b?, &config)?;
+        let [a, b] = self.coarse_frames.get_or_prepare(
+            [
+                (inputs.indices.0, source.points()),
+                (inputs.indices.1, prev_icp.points()),
+            ],
+            &config,
+        )?;
+        let pair = register_prepared_coarse(&a, &b, &config)?;
         self.opinion_on_map(pair, inputs, InitialGuess::CoarseGlobal)
     }
 
