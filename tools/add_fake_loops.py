@@ -19,7 +19,7 @@ The ``mireg`` metadata record gains ``pose_optimized_topic`` and ``loops_topic``
 already has either topic is refused (exit 3): it has real loop-closure output.
 
 Usage:
-    tools/.venv-python/bin/python tools/add_fake_loops.py /tmp/out.mcap /tmp/out_loops.mcap
+    python3 tools/toolbox.py add-fake-loops /tmp/out.mcap /tmp/out_loops.mcap
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ and result conversion included). Checks both give the same transformation, bit f
 
 Usage:
     tools/.venv-peers/bin/pip install ./python       # any venv with numpy
-    tools/.venv-peers/bin/python tools/bench_python_pair.py [--mireg target/release/mireg] [--runs 15]
+    python3 tools/toolbox.py bench-python-pair [--mireg target/release/mireg] [--runs 15]
 Clouds: the ICL-NUIM fixture pair (fixtures/icl_nuim/rgbd5_00004.ply -> rgbd5_00000.ply).
 """
 

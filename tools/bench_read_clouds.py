@@ -7,7 +7,7 @@ of each and their ratio, after checking that both give the same points (float64,
 
 Usage:
     bash tools/setup_venv.sh rosbags && tools/.venv-rosbags/bin/pip install ./python
-    tools/.venv-rosbags/bin/python tools/bench_read_clouds.py fixtures/ouster_os1_ros1.mcap /tmp/kaist03.mcap
+    python3 tools/toolbox.py bench-read-clouds fixtures/ouster_os1_ros1.mcap /tmp/kaist03.mcap
 """
 
 import argparse

@@ -16,7 +16,7 @@ Timings are wall-clock seconds of each command on this machine. Logs: the ICL fi
 given, logs from tools/make_loop_logs.py (out-and-back: the halves are the way out and the way
 back, different scans of the same places).
 
-Usage: tools/.venv-merge/bin/python tools/bench_sessions.py [--mireg BIN] [--work DIR] LOG...
+Usage: python3 tools/toolbox.py bench-sessions [--mireg BIN] [--work DIR] LOG...
 (venv: `bash tools/setup_venv.sh merge`).
 """
 

@@ -21,7 +21,7 @@ load hits every row; ratios are taken within a round and the table shows the med
 
 Usage:
     bash tools/setup_venv.sh odometry
-    tools/.venv-odometry/bin/python tools/bench_speed.py LOG.mcap... [--rounds 3]
+    python3 tools/toolbox.py bench-speed LOG.mcap... [--rounds 3]
         [--variant=--track-first] [--mireg target/release/mireg] [--reference-topic T]
 
 The logs docs/BENCHMARKS.md uses: the KITTI replay (`cargo run --release --example

@@ -18,8 +18,8 @@ the median real step error.
 
 Usage (a registered output, or a log to register with ``--register``):
     bash tools/setup_venv.sh mcap
-    tools/.venv-mcap/bin/python tools/calibrate_covariance.py OUT.mcap [OUT2.mcap ...]
-    tools/.venv-mcap/bin/python tools/calibrate_covariance.py --register fixtures/icl_livingroom1.mcap \\
+    python3 tools/toolbox.py calibrate-covariance OUT.mcap [OUT2.mcap ...]
+    python3 tools/toolbox.py calibrate-covariance --register fixtures/icl_livingroom1.mcap \\
         /tmp/loop_micro211_s4.mcap /tmp/loop_kaist03.mcap
 The reference topic is ``/ground_truth/pose`` (``--reference`` sets it); covariance topic
 ``/mireg/pose_cov``.

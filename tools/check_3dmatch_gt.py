@@ -3,7 +3,7 @@
 
 Usage (from the repository root, after ``bash tools/setup_venv.sh peers``):
 
-    tools/.venv-peers/bin/python tools/check_3dmatch_gt.py [DATA_DIR]
+    python3 tools/toolbox.py check-3dmatch-gt [DATA_DIR]
 
 DATA_DIR defaults to ../shared/data/3dmatch_redkitchen_0_6 (src.npy, ref.npy, gt.npy; gt.npy maps
 src → ref). Prints:

@@ -29,10 +29,10 @@ Checks (each failure is printed; exit status 1 if any, 0 if none, 2 on usage err
 
 Usage:
     bash tools/setup_venv.sh rosbags
-    tools/.venv-rosbags/bin/python tools/check_bag_output.py fixtures/bags/icl4_lz4.bag out.mcap \\
+    python3 tools/toolbox.py check-bag-output fixtures/bags/icl4_lz4.bag out.mcap \\
         --expect-topic /mireg/pose --ros1
-    tools/.venv-rosbags/bin/python tools/check_bag_output.py fixtures/bags/icl4_db3 out.mcap
-    tools/.venv-rosbags/bin/python tools/check_bag_output.py fixtures/icl_livingroom1.mcap \\
+    python3 tools/toolbox.py check-bag-output fixtures/bags/icl4_db3 out.mcap
+    python3 tools/toolbox.py check-bag-output fixtures/icl_livingroom1.mcap \\
         fixtures/icl_livingroom1.mcap      # trivial self-check, passes
 """
 

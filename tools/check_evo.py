@@ -10,7 +10,7 @@ association within --t_max_diff), and compares evo's APE RMSE with `ate_rmse_m` 
 
 Usage (evo: the `evo` group of tools/pyproject.toml):
     bash tools/setup_venv.sh evo
-    tools/.venv-evo/bin/python tools/check_evo.py /tmp/out.mcap --mireg target/release/mireg
+    python3 tools/toolbox.py check-evo /tmp/out.mcap --mireg target/release/mireg
 """
 
 import argparse

@@ -3,7 +3,7 @@
 
 Usage (from the repository root, after ``bash tools/setup_venv.sh peers``):
 
-    tools/.venv-peers/bin/python tools/check_kitti_reference.py [DATA_DIR] [--compare-json FILE]
+    python3 tools/toolbox.py check-kitti-reference [DATA_DIR] [--compare-json FILE]
 
 DATA_DIR defaults to ../shared/data/kitti_pair (000000.bin, 000001.bin). The pair has no ground
 truth; compare_open3d.py uses dense point-to-plane ICP of the full clouds (target normals radius

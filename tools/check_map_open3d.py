@@ -6,7 +6,7 @@ maps of one log in several formats disagree on the point count.
 
 Usage:
     bash tools/setup_venv.sh map        # unless tools/.venv-loops exists
-    tools/.venv-map/bin/python tools/check_map_open3d.py map.ply map.pcd map.npy
+    python3 tools/toolbox.py check-map-open3d map.ply map.pcd map.npy
 """
 
 import sys

@@ -22,9 +22,9 @@ index are cross-checked against the linear pass. Exit status: 0 if all checks pa
 
 Usage:
     bash tools/setup_venv.sh mcap
-    tools/.venv-mcap/bin/python tools/check_mcap.py fixtures/icl_livingroom1.mcap \\
+    python3 tools/toolbox.py check-mcap fixtures/icl_livingroom1.mcap \\
         --expect-topic /camera/depth/points --expect-topic /ground_truth/pose
-    tools/.venv-mcap/bin/python tools/check_mcap.py out.mcap --compare-input in.mcap
+    python3 tools/toolbox.py check-mcap out.mcap --compare-input in.mcap
 """
 
 import argparse

@@ -35,7 +35,7 @@ The optimum does not depend on the retraction.
 Usage:
     bash tools/setup_venv.sh gtsam
     cargo build --release --example pose_graph_g2o
-    tools/.venv-gtsam/bin/python tools/check_pose_graph_gtsam.py [--binary PATH] [--workdir DIR]
+    python3 tools/toolbox.py check-pose-graph-gtsam [--binary PATH] [--workdir DIR]
         [--default-tolerances]
 """
 

@@ -23,7 +23,7 @@ and exits 1 if any check failed.
 Usage:
     bash tools/setup_venv.sh rosbags
     cargo build --release
-    tools/.venv-rosbags/bin/python tools/check_salvage.py --mireg target/release/mireg \\
+    python3 tools/toolbox.py check-salvage --mireg target/release/mireg \\
         fixtures/icl_livingroom1.mcap fixtures/ouster_os1_ros1.mcap \\
         fixtures/bags/icl4_none.bag fixtures/bags/icl4_lz4.bag fixtures/bags/icl4_bz2.bag
 """

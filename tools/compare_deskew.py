@@ -7,8 +7,8 @@ also depends on which instant of the sweep the reference's poses refer to (docs/
 
 Usage:
     bash tools/setup_venv.sh mcap && cargo build --release
-    tools/.venv-mcap/bin/python tools/make_kaist03_mcap.py --ouster-time --out /tmp/kaist03_t.mcap
-    tools/.venv-mcap/bin/python tools/compare_deskew.py /tmp/kaist03_t.mcap [--mireg BIN] [-- MIREG_ARGS]
+    python3 tools/toolbox.py make-kaist03-mcap --ouster-time --out /tmp/kaist03_t.mcap
+    python3 tools/toolbox.py compare-deskew /tmp/kaist03_t.mcap [--mireg BIN] [-- MIREG_ARGS]
 """
 
 import argparse

@@ -10,7 +10,7 @@ ratio is taken within a round. No reference poses are needed: this is speed only
 
 Usage:
     bash tools/setup_venv.sh odometry
-    tools/.venv-odometry/bin/python tools/compare_fps.py LOG.mcap [--rounds 3] [--topic T]
+    python3 tools/toolbox.py compare-fps LOG.mcap [--rounds 3] [--topic T]
         [--mireg target/release/mireg] [-- MIREG_ARGS]
 """
 

@@ -12,7 +12,7 @@ from its JSON summary. The same ATE/RPE code scores both, from poses associated 
 
 Usage:
     bash tools/setup_venv.sh odometry
-    tools/.venv-odometry/bin/python tools/compare_kiss_icp.py LOG.mcap [--mireg target/release/mireg]
+    python3 tools/toolbox.py compare-kiss-icp LOG.mcap [--mireg target/release/mireg]
         [--reference-topic /ground_truth/pose] [--topic T] [--frames 0-3,8-10] [-- MIREG_ARGS]
 
 `--frames` keeps only those cloud indices for both (irregular gaps, as when messages are dropped);

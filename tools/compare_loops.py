@@ -57,7 +57,7 @@ how far apart they lie, and how much of their error against the reference they s
 
 Usage:
     bash tools/setup_venv.sh loops
-    tools/.venv-loops/bin/python tools/compare_loops.py /tmp/loop_micro211_s4.mcap /tmp/loop_kaist03.mcap \\
+    python3 tools/toolbox.py compare-loops /tmp/loop_micro211_s4.mcap /tmp/loop_kaist03.mcap \\
         --mireg target/release/mireg [--tools mireg,kiss-slam,open3d] [--voxel V]
         [--kiss-local-map M] [--json-out rows.json] [-- MIREG_REGISTER_ARGS]
 """

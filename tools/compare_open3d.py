@@ -4,9 +4,9 @@
 
 Usage (from the repository root, after `bash tools/setup_venv.sh peers` and `cargo build --release`):
 
-    tools/.venv-peers/bin/python tools/compare_open3d.py                      # all pairs, 10 poses each
-    tools/.venv-peers/bin/python tools/compare_open3d.py --pairs 3dmatch icl --poses 3 --skip-mireg
-    tools/.venv-peers/bin/python tools/compare_open3d.py --mireg target/release/mireg \\
+    python3 tools/toolbox.py compare-open3d                      # all pairs, 10 poses each
+    python3 tools/toolbox.py compare-open3d --pairs 3dmatch icl --poses 3 --skip-mireg
+    python3 tools/toolbox.py compare-open3d --mireg target/release/mireg \\
         --mireg-variant levy= --mireg-variant uniform="--sampler uniform" --json-out /tmp/cmp.json
 
 Protocol

@@ -2,8 +2,8 @@
 """Compare mireg's voxel grid, normals and FPFH with Open3D's on one cloud, and time both.
 
 Usage (after `bash tools/setup_venv.sh peers` and `cargo build --release --example fpfh_dump`):
-    tools/.venv-peers/bin/python tools/fpfh_vs_open3d.py --cloud ../shared/data/3dmatch_redkitchen_0_6/ref.npy --voxel 0.05
-    tools/.venv-peers/bin/python tools/fpfh_vs_open3d.py --cloud ../shared/data/bunny/bun000.ply --voxel 0.005
+    python3 tools/toolbox.py fpfh-vs-open3d --cloud ../shared/data/3dmatch_redkitchen_0_6/ref.npy --voxel 0.05
+    python3 tools/toolbox.py fpfh-vs-open3d --cloud ../shared/data/bunny/bun000.ply --voxel 0.005
 
 Each stage is compared in isolation: normals and FPFH both run on Open3D's downsampled points, and
 FPFH on both sides uses Open3D's normals. Parameters follow Open3D's registration recipe:

@@ -6,7 +6,7 @@ the same place. An error both legs share at that place leaves every such edge sa
 pose graph cannot see it; only the legs' *differential* error is loop closure's to remove. This
 splits the ATE of each estimate of `mireg register` outputs accordingly:
 
-    tools/.venv-loops/bin/python tools/leg_error.py OUT.mcap... [--mireg BIN]
+    python3 tools/toolbox.py leg-error OUT.mcap... [--mireg BIN]
 
 For each frame, after SE(3) alignment (Umeyama, positions matched by stamp) to
 ``/ground_truth/pose``: its error e, and that of the frame of the other half of the log nearest

@@ -10,7 +10,7 @@ rotation maximum, the frames per status, and for comparison the prior's own ATE 
 its own poses' RMSE against the reference from its first frame (unaligned, as the localised
 poses are scored).
 
-Usage: tools/.venv-merge/bin/python tools/localize_error.py OUT.mcap PRIOR.mcap [--json]
+Usage: python3 tools/toolbox.py localize-error OUT.mcap PRIOR.mcap [--json]
 (venv: `bash tools/setup_venv.sh merge`).
 """
 

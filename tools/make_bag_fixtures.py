@@ -44,7 +44,7 @@ names the rosbags version; the sqlite files depend on the stdlib sqlite3 library
 
 Usage (from anywhere; paths default relative to the repository root):
     bash tools/setup_venv.sh rosbags
-    tools/.venv-rosbags/bin/python tools/make_bag_fixtures.py
+    python3 tools/toolbox.py make-bag-fixtures
 It replaces the fixture files/directories it writes (and only those) under ``--out``.
 """
 

@@ -3,7 +3,7 @@ and poses of fixtures/bags/icl4_none.bag plus BALLAST incompressible messages of
 (std_msgs/UInt8MultiArray with random bytes) on /ballast, interleaved with the clouds, written by
 rosbags with uncompressed chunks (rosbag record's default).
 
-    tools/.venv-rosbags/bin/python tools/make_big_bag.py /tmp/big.bag --ballast 1000 --mb 1
+    python3 tools/toolbox.py make-big-bag /tmp/big.bag --ballast 1000 --mb 1
 """
 import argparse
 import os

@@ -29,8 +29,8 @@ equal to the float32 inputs bit for bit, poses equal to the computed ones.
 
 Usage (any working directory; paths default relative to the repository root):
     bash tools/setup_venv.sh mcap
-    tools/.venv-mcap/bin/python tools/make_fixture_mcap.py
-    tools/.venv-mcap/bin/python tools/make_fixture_mcap.py --frame-stride 3 --pixel-stride 8 \\
+    python3 tools/toolbox.py make-fixture-mcap
+    python3 tools/toolbox.py make-fixture-mcap --frame-stride 3 --pixel-stride 8 \\
         --data ../shared/data/icl_nuim_livingroom1/micro211 --out fixtures/icl_livingroom1.mcap
 """
 
@@ -302,7 +302,7 @@ def fixture_metadata(args, frames):
 def command_line(args):
     """The command that reproduces the file from the repository root (paths left at defaults)."""
     return (
-        "bash tools/setup_venv.sh mcap && tools/.venv-mcap/bin/python tools/make_fixture_mcap.py "
+        "bash tools/setup_venv.sh mcap && python3 tools/toolbox.py make-fixture-mcap "
         f"--frame-stride {args.frame_stride} --pixel-stride {args.pixel_stride} "
         f"--first {args.first} --last {args.last} --start-sec {args.start_sec}"
     )

@@ -5,7 +5,7 @@ fpfh_open3d_small.npy: a synthetic cloud with Open3D normals and FPFH.
 voxel_open3d_small.npy: VOXEL_INPUT_POINTS random points followed by Open3D's voxel_down_sample
   (VOXEL_M) centroids; float64 rows of xyz, the first row holding (n_input, n_output, VOXEL_M).
 
-Usage: tools/.venv-peers/bin/python tools/make_fpfh_golden.py   (Open3D version pinned in the `peers` group of tools/pyproject.toml)
+Usage: python3 tools/toolbox.py make-fpfh-golden   (Open3D version pinned in the `peers` group of tools/pyproject.toml)
 
 The shape (no licensed data): 260 points on a bumpy sphere of radius ~1 m centred at z = 0.2,
 and 140 points on the square z = -1 m below it, drawn with numpy's default_rng(20261123).

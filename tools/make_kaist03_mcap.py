@@ -22,8 +22,8 @@ motion; compare with and without deskewing on this same log (``--deskew on|off``
 
 Usage:
     bash tools/setup_venv.sh mcap
-    tools/.venv-mcap/bin/python tools/make_kaist03_mcap.py --out /tmp/kaist03.mcap
-    tools/.venv-mcap/bin/python tools/make_kaist03_mcap.py --frames 0-3,8-10,16-20 --out /tmp/kaist03_gaps.mcap
+    python3 tools/toolbox.py make-kaist03-mcap --out /tmp/kaist03.mcap
+    python3 tools/toolbox.py make-kaist03-mcap --frames 0-3,8-10,16-20 --out /tmp/kaist03_gaps.mcap
 """
 
 import argparse

@@ -6,13 +6,13 @@ tag filtering and deskewing.
 
 Usage (from the repository root; the pinned packages come from `bash tools/setup_venv.sh rosbags`):
 
-  tools/.venv-rosbags/bin/python tools/make_livox_log.py --out-dir /tmp/livox
+  python3 tools/toolbox.py make-livox-log --out-dir /tmp/livox
       Avia, KAIST03 world, 80 frames, skewed: /tmp/livox/livox_avia_kaist03/ (rosbag2 dir, one
       zstd MCAP), /tmp/livox/livox_avia_kaist03.bag (ROS 1, lz4) and .../livox_avia_kaist03_poses.tum
-  tools/.venv-rosbags/bin/python tools/make_livox_log.py --out-dir /tmp/livox --no-skew
+  python3 tools/toolbox.py make-livox-log --out-dir /tmp/livox --no-skew
       the same rays and noise, every point measured from the pose at the frame stamp (_noskew)
-  tools/.venv-rosbags/bin/python tools/make_livox_log.py --out-dir /tmp/livox --model mid360
-  tools/.venv-rosbags/bin/python tools/make_livox_log.py --fixture --out-dir /tmp/livox/fixture
+  python3 tools/toolbox.py make-livox-log --out-dir /tmp/livox --model mid360
+  python3 tools/toolbox.py make-livox-log --fixture --out-dir /tmp/livox/fixture
       small committable log from the ICL-NUIM fixture (world icl, avia, 10 frames, 2500 rays):
       icl_livox.bag (ROS 1, bz2), icl_livox_ros2/ (rosbag2 dir, one MCAP, zstd level 19),
       icl_livox_poses.tum and icl_livox_expected.bin (see write_expected)

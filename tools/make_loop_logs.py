@@ -39,25 +39,25 @@ ICL-NUIM is CC BY 3.0.
 
 Usage:
     bash tools/setup_venv.sh mcap
-    tools/.venv-mcap/bin/python tools/make_loop_logs.py --source micro211 --kind out-and-back \\
+    python3 tools/toolbox.py make-loop-logs --source micro211 --kind out-and-back \\
         --frame-stride 4 --out /tmp/loop_micro211_s4.mcap
-    tools/.venv-mcap/bin/python tools/make_loop_logs.py --source kaist03 --kind out-and-back \\
+    python3 tools/toolbox.py make-loop-logs --source kaist03 --kind out-and-back \\
         --out /tmp/loop_kaist03.mcap
-    tools/.venv-mcap/bin/python tools/make_loop_logs.py --source kaist03 --kind gap --gap-start 4 \\
+    python3 tools/toolbox.py make-loop-logs --source kaist03 --kind gap --gap-start 4 \\
         --gap-len 2 --out /tmp/loop_kaist03_gap.mcap
-    tools/.venv-mcap/bin/python tools/make_loop_logs.py --source kaist03 --kind out-and-back \\
+    python3 tools/toolbox.py make-loop-logs --source kaist03 --kind out-and-back \\
         --repeat 10 --out /tmp/loop_kaist03_x10.mcap
-    tools/.venv-mcap/bin/python tools/make_loop_logs.py --source kaist03 --kind out-and-back \\
+    python3 tools/toolbox.py make-loop-logs --source kaist03 --kind out-and-back \\
         --cone 70 --out /tmp/loop_kaist03_cone70.mcap   # a Livox-like 70 deg field of view
-    tools/.venv-mcap/bin/python tools/make_loop_logs.py --source kaist03 --kind out-and-back \\
+    python3 tools/toolbox.py make-loop-logs --source kaist03 --kind out-and-back \\
         --degenerate 5,14 --out /tmp/loop_kaist03_degenerate.mcap   # two frames of road alone
-    tools/.venv-mcap/bin/python tools/make_loop_logs.py --source kaist03 --kind out-and-back \
+    python3 tools/toolbox.py make-loop-logs --source kaist03 --kind out-and-back \
         --cone 25 --out /tmp/loop_kaist03_cone25.mcap   # a narrow view whose features repeat
-    tools/.venv-mcap/bin/python tools/make_loop_logs.py --source kaist03 --kind gap --cone 40 \
+    python3 tools/toolbox.py make-loop-logs --source kaist03 --kind gap --cone 40 \
         --gap-len 3 --out /tmp/loop_kaist03_cone40_gap3.mcap   # ... and a jump of 9 m
-    tools/.venv-mcap/bin/python tools/make_loop_logs.py --source kaist03 --kind gap --cone 25 \
+    python3 tools/toolbox.py make-loop-logs --source kaist03 --kind gap --cone 25 \
         --out /tmp/loop_kaist03_cone25_gap.mcap   # the narrowest view, and a jump of 7 m
-    tools/.venv-mcap/bin/python tools/make_loop_logs.py --all --out-dir /tmp   # the set above + micro211 gap/x10
+    python3 tools/toolbox.py make-loop-logs --all --out-dir /tmp   # the set above + micro211 gap/x10
 """
 
 import argparse

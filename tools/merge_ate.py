@@ -15,7 +15,7 @@ paired by header stamp. Printed:
 * the links: every accepted link on `…/session_links` against the reference's relative pose of
   its two frames; a link more than 0.5 m or 2 deg off counts as wrong.
 
-Usage: tools/.venv-merge/bin/python tools/merge_ate.py DIR [--reference-topic T] [--json]
+Usage: python3 tools/toolbox.py merge-ate DIR [--reference-topic T] [--json]
 (venv: `bash tools/setup_venv.sh merge`).
 """
 

@@ -5,7 +5,7 @@ One row per dataset, one panel per metric (recall, precision) against −μ (log
 for Lévy sampling; uniform and PROSAC are drawn per ranking on the right of each panel for comparison.
 
     mireg sweep LOG --csv > a.csv     # or: mireg sweep CLOUD_DIR --gt-log gt.log --csv > b.csv
-    tools/.venv-peers/bin/python tools/plot_sweep.py a.csv b.csv -o docs/sweep.png
+    python3 tools/toolbox.py plot-sweep a.csv b.csv -o docs/sweep.png
 
 The commands behind docs/sweep.png are in docs/REPRODUCTION.md.
 

@@ -7,7 +7,7 @@ number of frames. Only the cloud and pose topics are kept (`/tf` and statistics 
 
 Usage:
     bash tools/setup_venv.sh mcap
-    tools/.venv-mcap/bin/python tools/repeat_log.py IN.mcap OUT.mcap --times 10
+    python3 tools/toolbox.py repeat-log IN.mcap OUT.mcap --times 10
 """
 
 import argparse

@@ -3,7 +3,7 @@
 ATE (the loop-closed trajectory where there is one, SE(3)-aligned, against /ground_truth/pose) and
 the accepted loops within 0.5 m and 2 deg of the reference's relative pose (loop precision).
 
-Usage: tools/.venv-odometry/bin/python tools/seed_logs.py BIN LOG... [-- REGISTER_FLAG...] (venv:
+Usage: python3 tools/toolbox.py seed-logs BIN LOG... [-- REGISTER_FLAG...] (venv:
 `bash tools/setup_venv.sh odometry`; logs from tools/make_loop_logs.py and the fixture). Flags after
 `--` go to every `mireg register` run, e.g. `-- --voxel 0.5`.
 """

@@ -3,8 +3,8 @@
 
 Usage (from the repository root, after ``bash tools/setup_venv.sh peers`` and ``cargo build --release``):
 
-    tools/.venv-peers/bin/python tools/seed_sweep.py --pair 3dmatch --poses 30 --seeds 10
-    tools/.venv-peers/bin/python tools/seed_sweep.py --pair 3dmatch --poses 30 --seeds 10 -- --max-hypotheses 100000
+    python3 tools/toolbox.py seed-sweep --pair 3dmatch --poses 30 --seeds 10
+    python3 tools/toolbox.py seed-sweep --pair 3dmatch --poses 30 --seeds 10 -- --max-hypotheses 100000
 
 The posed sources are exactly compare_open3d.py's (same pose generator, seeded by --pose-seed and
 the pair); each is registered with ``--seed 1..SEEDS`` plus any arguments after ``--``. A run
