@@ -54,23 +54,18 @@ use writer::Writer;
 use std::sync::mpsc::sync_channel;
 use std::time::Instant;
 
-use crate::io::atomic_file::{check_target, same_file};
+use crate::Result;
+use crate::io::atomic_file::{check_not_an_input, check_target};
 use crate::io::mcap::log::OutputLog;
 use crate::loops::LoopConfig;
 use crate::odometry::Odometry;
-use crate::{Error, Result};
 
 /// Runs the whole job: the stages `plan.rs` → `reader.rs` → `prepare.rs` → `registrar.rs` →
 /// `writer.rs`, then loop closure (`closure.rs`) over the whole trajectory (docs/ARCHITECTURE.md).
 /// On any error the output path is left untouched.
 pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
     let start = Instant::now();
-    if same_file(&opts.input, &opts.output) {
-        return Err(Error::InvalidInput(format!(
-            "output {} is the input; mireg never writes over its input",
-            opts.output.display()
-        )));
-    }
+    check_not_an_input(&opts.output, [opts.input.as_path()], "the input")?;
     // Before the input is opened: a missing folder or an existing output fails at once.
     check_target(&opts.output, opts.force)?;
     let plan = Plan::new(opts)?;

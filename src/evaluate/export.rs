@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use super::inputs::registered_log;
 use super::job::run_topics;
-use crate::io::atomic_file::{PendingFile, check_target, same_file};
+use crate::io::atomic_file::{PendingFile, check_not_an_input, check_target};
 use crate::trajectory::{self, Trajectory};
 use crate::{Error, Result};
 
@@ -73,12 +73,7 @@ pub fn read_export(opts: &ExportOptions) -> Result<(String, Trajectory)> {
 /// one in a missing folder, both before the input is read; then [`read_export`]'s and
 /// [`write_export`]'s.
 pub fn export_to_file(opts: &ExportOptions, path: &Path) -> Result<(String, usize)> {
-    if same_file(&opts.input, path) {
-        return Err(Error::InvalidInput(format!(
-            "output {} is the input; mireg never writes over its input",
-            path.display()
-        )));
-    }
+    check_not_an_input(path, [opts.input.as_path()], "the input")?;
     check_target(path, true)?;
     let (topic, t) = read_export(opts)?;
     write_export(&t, opts.format, path)?;

@@ -70,6 +70,22 @@ fn check_folder(target: &Path) -> Result<()> {
     )))
 }
 
+/// Fails when `output` is one of `inputs` ([`same_file`]): mireg never writes over what it reads.
+/// `inputs_are` names them in the error ("the input", "one of the inputs", ...).
+pub fn check_not_an_input<'a>(
+    output: &Path,
+    inputs: impl IntoIterator<Item = &'a Path>,
+    inputs_are: &str,
+) -> Result<()> {
+    if inputs.into_iter().any(|input| same_file(input, output)) {
+        return Err(Error::InvalidInput(format!(
+            "output {} is {inputs_are}; mireg never writes over its input",
+            output.display()
+        )));
+    }
+    Ok(())
+}
+
 /// Whether `a` and `b` are the same file (same device and inode; same canonical path elsewhere).
 /// False when either does not exist.
 pub fn same_file(a: &Path, b: &Path) -> bool {

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use super::build::{MapOptions, MapSummary, build_map_of_runs, write_map};
 use crate::evaluate::registered_log;
-use crate::io::atomic_file::{check_target, same_file};
+use crate::io::atomic_file::{check_not_an_input, check_target};
 use crate::io::cloud_file::CloudFileFormat;
 use crate::{Error, Result};
 
@@ -27,12 +27,7 @@ pub fn map_runs(
     opts: &MapOptions,
 ) -> Result<MapSummary> {
     let format = CloudFileFormat::from_path(output)?;
-    if inputs.iter().any(|i| same_file(i, output)) {
-        return Err(Error::InvalidInput(format!(
-            "output {} is the input; mireg never writes over its input",
-            output.display()
-        )));
-    }
+    check_not_an_input(output, inputs.iter().map(PathBuf::as_path), "the input")?;
     // Fail before reading the whole log, not after.
     check_target(output, force)?;
     for input in inputs {

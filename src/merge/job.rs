@@ -14,7 +14,7 @@ use super::links::{
 use super::session::{Session, prepare_sessions};
 use super::write::{LinkRecord, Verdict, write_report, write_session};
 use super::{Join, MergeConfig, graph::solve_group, group_sessions};
-use crate::io::atomic_file::{check_target, same_file};
+use crate::io::atomic_file::{check_not_an_input, check_target};
 use crate::loops::{LoopConfig, verify};
 use crate::odometry::uncertainty::registration_information;
 use crate::pipeline::{PairConfig, PreparedFrame};
@@ -301,12 +301,7 @@ fn check_outputs(opts: &MergeOptions) -> Result<Vec<PathBuf>> {
         targets.push(target);
     }
     for t in &targets {
-        if opts.runs.iter().any(|r| same_file(r, t)) {
-            return Err(Error::InvalidInput(format!(
-                "output {} is one of the runs; mireg never writes over its input",
-                t.display()
-            )));
-        }
+        check_not_an_input(t, opts.runs.iter().map(PathBuf::as_path), "one of the runs")?;
     }
     if !dir.exists() {
         std::fs::create_dir(dir).map_err(|e| crate::io::io_err(dir, e))?;

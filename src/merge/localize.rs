@@ -39,7 +39,8 @@ use super::links::Track;
 use super::map_prior::{MAP_MIN_REVERSE_FITNESS, is_map_file, map_session, read_map, tiling_for};
 use super::session::{Session, prepare_sessions};
 use super::write::{LinkRecord, session_links_json_schema, write_links};
-use crate::io::atomic_file::{check_target, same_file};
+use crate::Result;
+use crate::io::atomic_file::{check_not_an_input, check_target};
 use crate::io::codec::Time;
 use crate::io::input_log::InputLog;
 use crate::io::mcap::log::OutputLog;
@@ -49,7 +50,6 @@ use crate::pipeline::PairConfig;
 use crate::register::{
     CloudKind, RegisterOptions, StampedPose, encode_pose, pose_channels, register_log,
 };
-use crate::{Error, Result};
 
 /// What [`localize`] needs.
 #[derive(Debug, Clone)]
@@ -141,14 +141,8 @@ struct Placed {
 /// log that does not localise is not an error: its frames are `lost`.
 pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
     let t0 = Instant::now();
-    for input in [&opts.log, &opts.prior] {
-        if same_file(input, &opts.output) {
-            return Err(Error::InvalidInput(format!(
-                "output {} is one of the inputs; mireg never writes over its input",
-                opts.output.display()
-            )));
-        }
-    }
+    let inputs = [opts.log.as_path(), opts.prior.as_path()];
+    check_not_an_input(&opts.output, inputs, "one of the inputs")?;
     check_target(&opts.output, opts.force)?;
     // The prior first, so that a bad one fails before the log is registered.
     let prior = if is_map_file(&opts.prior) {

@@ -24,7 +24,7 @@ use super::clouds::{CloudKind, choose_topic};
 use super::frames::Estimate;
 use super::output::{StampedPose, Topics};
 use super::writer::PoseWriter;
-use crate::io::atomic_file::{check_target, same_file};
+use crate::io::atomic_file::{check_not_an_input, check_target};
 use crate::io::codec::{Time, cdr, pose_stamped_decoder, ros1};
 use crate::io::format_err;
 use crate::io::input_log::InputLog;
@@ -226,12 +226,8 @@ pub fn stitch(
             "stitch needs at least one segment".into(),
         ));
     }
-    if same_file(log, output) || segments.iter().any(|s| same_file(s, output)) {
-        return Err(Error::InvalidInput(format!(
-            "output {} is one of the inputs; mireg never writes over its input",
-            output.display()
-        )));
-    }
+    let inputs = std::iter::once(log).chain(segments.iter().map(PathBuf::as_path));
+    check_not_an_input(output, inputs, "one of the inputs")?;
     // Before any segment is read: a missing folder or an existing output fails at once.
     check_target(output, force)?;
     let mut segs = segments
