@@ -313,6 +313,12 @@ pub struct FrameEstimate {
 impl FrameEstimate {
     /// Frame `index` before registration: a success at the identity until found otherwise.
     fn new(index: usize, frame: &PreparedFrame) -> Self {
+        Self::with_counts(index, frame.num_points, frame.points.len())
+    }
+
+    /// [`Self::new`] for a frame of `num_points` input points, `num_points_downsampled` after
+    /// downsampling.
+    fn with_counts(index: usize, num_points: usize, num_points_downsampled: usize) -> Self {
         Self {
             index,
             world_from_frame: Isometry3::identity(),
@@ -322,8 +328,8 @@ impl FrameEstimate {
             fallback: None,
             pair: None,
             fallback_icp_iterations: 0,
-            num_points: frame.num_points,
-            num_points_downsampled: frame.points.len(),
+            num_points,
+            num_points_downsampled,
             map: None,
             information: None,
             suspect: None,

@@ -162,20 +162,9 @@ mod tests {
             rival,
         };
         FrameEstimate {
-            index: 3,
-            world_from_frame: Isometry3::identity(),
-            prev_from_curr: Isometry3::identity(),
-            success: true,
-            failure: None,
-            fallback: None,
-            pair: None,
-            fallback_icp_iterations: 0,
-            num_points: 1000,
-            num_points_downsampled: 500,
             map: Some(fit),
             information: Some(Matrix6::from_diagonal_element(1e4)),
-            suspect: None,
-            map_range_m: None,
+            ..FrameEstimate::with_counts(3, 1000, 500)
         }
     }
 
