@@ -378,7 +378,10 @@ fn correspondence_pass(
     kernel: Option<RobustKernel>,
 ) -> PassSums {
     let max_squared = max_distance_m * max_distance_m;
-    let normals = target.normals();
+    // Only a pass that linearises reads the normals: asking for them estimates deferred ones
+    // (all of a frame's ICP cloud), which a fitness alone (`evaluate_registration`, the loop's
+    // overlap the other way on the query frame) does not need.
+    let normals = kernel.and_then(|_| target.normals());
     let partials: Vec<PassSums> = source
         .par_chunks(CHUNK_POINTS)
         .map(|chunk| {

@@ -419,10 +419,22 @@ fn deferred_normals_answer_as_given_ones() {
     let source: Vec<_> = scene.iter().map(|p| ground_truth().inverse() * p).collect();
     let init = ground_truth() * perturbation(&mut rng, 3.0, 0.05);
     let config = IcpConfig::new(0.3);
+    // A fitness alone needs no normals: evaluating against the target leaves them unestimated
+    // (the loop's overlap the other way, on query frames that are never a target).
+    assert!(deferred.pending_normal_bytes() > 0);
+    assert_eq!(
+        evaluate_registration(&source, &deferred, &init, 0.3).unwrap(),
+        evaluate_registration(&source, &given, &init, 0.3).unwrap()
+    );
+    assert!(
+        deferred.pending_normal_bytes() > 0,
+        "evaluation estimated the normals"
+    );
     assert_eq!(
         registration_icp_point_to_plane(&source, &deferred, &init, &config).unwrap(),
         registration_icp_point_to_plane(&source, &given, &init, &config).unwrap()
     );
+    assert_eq!(deferred.pending_normal_bytes(), 0, "ICP estimated them");
     assert_eq!(deferred.normals().unwrap(), &normals[..]);
     assert_eq!(deferred.normals_at(&at).unwrap(), picked);
     // An index outside the cloud has no normal; a target without normals has none at all.
