@@ -13,7 +13,9 @@ use super::{
 use crate::Result;
 use crate::pipeline::refine::{FineInputs, fine_stage};
 use crate::pipeline::{PairConfig, PairResult, PreparedFrame};
-use crate::refine::icp::{IcpConfig, IcpTarget, registration_icp_point_to_plane};
+use crate::refine::icp::{
+    IcpConfig, IcpResult, IcpTarget, evaluate_with_hessian, registration_icp_point_to_plane,
+};
 use crate::refine::local_map::LocalMap;
 
 impl Odometry {
@@ -192,6 +194,12 @@ impl Odometry {
         };
         let fine: Option<Vec<Point3<f64>>> = (self.config.map_fine && !frame.fine.is_empty())
             .then(|| map_fine_points(frame).copied().collect());
+        // A stage whose last pose the next stage measures skips the pass that would only
+        // measure it: the coarse start always (the ICP cloud's first pass does), the ICP cloud
+        // where the fine stage follows (it measures its final pose on that cloud at that
+        // distance). On the KITTI replay log, a fifth of the map ICP's instructions (callgrind).
+        let coarse_icp = dense_icp.measure_final_pose(false);
+        let finish_icp = finish_icp.measure_final_pose(fine.is_none());
         Ok(Some(MapIcpPlan {
             target,
             target_s,
@@ -201,7 +209,7 @@ impl Odometry {
             coarse,
             fine,
             distance,
-            dense_icp,
+            coarse_icp,
             finish_icp,
         }))
     }
@@ -222,7 +230,7 @@ struct MapIcpPlan<'a> {
     fine: Option<Vec<Point3<f64>>>,
     /// The correspondence distance \[m\]; the fine stage uses half.
     distance: f64,
-    dense_icp: IcpConfig,
+    coarse_icp: IcpConfig,
     finish_icp: IcpConfig,
 }
 
@@ -232,7 +240,7 @@ impl MapIcpPlan<'_> {
         let target = self.target;
         let (start, coarse_iterations) = match self.coarse.as_deref() {
             Some(points) => {
-                let r = registration_icp_point_to_plane(points, target, start, &self.dense_icp)?;
+                let r = registration_icp_point_to_plane(points, target, start, &self.coarse_icp)?;
                 (r.target_from_source, r.iterations)
             }
             None => (*start, 0),
@@ -247,11 +255,24 @@ impl MapIcpPlan<'_> {
                 distance_m: 0.5 * self.distance,
                 max_iterations: MAP_FINE_MAX_ITERATIONS,
             };
-            if let Some(f) = fine_stage(&inputs, self.icp_points, target, &r, self.distance)? {
-                r.target_from_source = f.target_from_source;
-                r.fitness = f.fitness;
-                r.inlier_rmse_m = f.inlier_rmse_m;
-                fine_iterations = f.iterations;
+            match fine_stage(&inputs, self.icp_points, target, &r, self.distance)? {
+                Some(f) => {
+                    fine_iterations = f.iterations;
+                    r = IcpResult {
+                        iterations: r.iterations,
+                        ..f
+                    };
+                }
+                // The ICP cloud's pose stands, measured (its last pass was skipped).
+                None => {
+                    let (e, hessian) = evaluate_with_hessian(
+                        self.icp_points,
+                        target,
+                        &r.target_from_source,
+                        self.distance,
+                    )?;
+                    (r.fitness, r.inlier_rmse_m, r.hessian) = (e.fitness, e.inlier_rmse_m, hessian);
+                }
             }
         }
         let fit = MapFit {

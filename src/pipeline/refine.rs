@@ -192,7 +192,7 @@ pub(crate) fn fine_stage(
         .min_update(FINE_MIN_UPDATE.0 * fine.distance_m, FINE_MIN_UPDATE.1)
         // The pose is measured below at the coarse stage's distance: a pass that would only
         // measure it at this one is skipped (a quarter of the stage's searches on the bunny).
-        .evaluate_after_min_update(false);
+        .measure_final_pose(false);
     let f = registration_icp_point_to_plane(
         fine.points,
         fine.target,
@@ -243,7 +243,13 @@ pub(super) fn refine<'a>(
         return Ok(());
     };
     let distance = c.icp_max_distance_m.unwrap();
-    let icp_config = IcpConfig::new(distance).max_iterations(c.icp_max_iterations);
+    let fine_runs = c.icp_fine && !source.fine.is_empty();
+    // The fine stage measures its final pose on this stage's cloud and distance: the pass
+    // that would only measure this stage's last pose is skipped, and made below only if the
+    // fine stage finds nothing.
+    let icp_config = IcpConfig::new(distance)
+        .max_iterations(c.icp_max_iterations)
+        .measure_final_pose(!fine_runs);
     let thinned = c
         .icp_max_source_points
         .and_then(|max| thin(src_icp.points(), max));
@@ -254,7 +260,7 @@ pub(super) fn refine<'a>(
     out.inlier_rmse_m = r.inlier_rmse_m;
     out.icp_iterations = r.iterations;
     out.icp_hessian = Some(r.hessian);
-    if !c.icp_fine || source.fine.is_empty() {
+    if !fine_runs {
         return Ok(());
     }
     // NOTE: beyond Open3D's and the paper's single ICP. ICP on voxel centroids converges to an
@@ -272,6 +278,11 @@ pub(super) fn refine<'a>(
     };
     let fine = fine_stage(&inputs, src_points, tgt_icp, &r, distance)?;
     let Some(f) = fine else {
+        let (e, hessian) =
+            evaluate_with_hessian(src_points, tgt_icp, &r.target_from_source, distance)?;
+        out.fitness = e.fitness;
+        out.inlier_rmse_m = e.inlier_rmse_m;
+        out.icp_hessian = Some(hessian);
         return Ok(());
     };
     out.target_from_source = f.target_from_source;

@@ -109,11 +109,12 @@ pub struct IcpConfig {
     /// `.1` \[rad\] (KISS-ICP's criterion, on the update itself). Default: `None` (Open3D's
     /// criteria only).
     pub min_update: Option<(f64, f64)>,
-    /// Whether the correspondence pass after an update below [`Self::min_update`] still runs.
-    /// That pass only measures the final pose; without it the result's fitness and RMSE are
-    /// those of the pose before the last (small) update, and the pose is the same. For callers
-    /// that measure the final pose themselves (the fine stage). Default: `true`.
-    pub evaluate_after_min_update: bool,
+    /// Whether the correspondence pass after the last update still runs: after an update below
+    /// [`Self::min_update`], or after the [`Self::max_iterations`]-th. That pass only measures
+    /// the final pose; without it the result's fitness, RMSE and Hessian are those of the pose
+    /// before the last update, and the pose is the same. For callers that measure the final
+    /// pose themselves (the fine stage, and the stages a fine stage follows). Default: `true`.
+    pub measure_final_pose: bool,
 }
 
 impl IcpConfig {
@@ -126,7 +127,7 @@ impl IcpConfig {
             relative_rmse: DEFAULT_RELATIVE_RMSE_M,
             robust_kernel: RobustKernel::L2,
             min_update: None,
-            evaluate_after_min_update: true,
+            measure_final_pose: true,
         }
     }
 
@@ -158,10 +159,10 @@ impl IcpConfig {
         self
     }
 
-    /// Sets [`Self::evaluate_after_min_update`]. Default: `true`.
+    /// Sets [`Self::measure_final_pose`]. Default: `true`.
     #[must_use]
-    pub fn evaluate_after_min_update(mut self, evaluate: bool) -> Self {
-        self.evaluate_after_min_update = evaluate;
+    pub fn measure_final_pose(mut self, measure: bool) -> Self {
+        self.measure_final_pose = measure;
         self
     }
 
@@ -210,8 +211,8 @@ pub struct IcpResult {
     /// Whether the fitness/RMSE changes fell below the thresholds before `max_iterations`.
     pub converged: bool,
     /// The point-to-plane normal equations of the last correspondence pass (at
-    /// `target_from_source`, or at the pose one small update before it when
-    /// [`IcpConfig::evaluate_after_min_update`] is off): what the pose's covariance follows from.
+    /// `target_from_source`, or at the pose one update before it when
+    /// [`IcpConfig::measure_final_pose`] is off): what the pose's covariance follows from.
     pub hessian: IcpHessian,
 }
 
@@ -591,8 +592,9 @@ pub fn registration_icp_point_to_plane(
         let small_update = config.min_update.is_some_and(|(t, r)| {
             x.fixed_rows::<3>(3).norm() < t && x.fixed_rows::<3>(0).norm() < r
         });
-        if small_update && !config.evaluate_after_min_update {
-            converged = true;
+        let last = small_update || iterations == config.max_iterations;
+        if last && !config.measure_final_pose {
+            converged = small_update;
             break;
         }
         sums = pass(&target_from_source);

@@ -340,7 +340,7 @@ fn a_minimum_update_stops_early_and_bad_values_are_rejected() {
 }
 
 #[test]
-fn skipping_the_pass_after_a_small_update_keeps_the_pose_and_measures_the_pose_before_it() {
+fn skipping_the_pass_after_the_last_update_keeps_the_pose_and_measures_the_pose_before_it() {
     let (scene, scene_normals) = corner_and_sphere();
     let target = IcpTarget::new(&scene, &scene_normals).unwrap();
     let mut rng = Pcg64Mcg::seed_from_u64(9);
@@ -348,7 +348,7 @@ fn skipping_the_pass_after_a_small_update_keeps_the_pose_and_measures_the_pose_b
     let init = ground_truth() * perturbation(&mut rng, 3.0, 0.05);
     let measured = IcpConfig::new(0.4).min_update(1e-3, 1e-3);
     let with = registration_icp_point_to_plane(&source, &target, &init, &measured).unwrap();
-    let skipped = measured.evaluate_after_min_update(false);
+    let skipped = measured.measure_final_pose(false);
     let without = registration_icp_point_to_plane(&source, &target, &init, &skipped).unwrap();
     assert!(with.iterations >= 2 && with.converged, "{with:?}");
     assert_eq!(without.target_from_source, with.target_from_source);
@@ -368,6 +368,26 @@ fn skipping_the_pass_after_a_small_update_keeps_the_pose_and_measures_the_pose_b
         (without.inlier_rmse_m - e.inlier_rmse_m).abs() < 1e-12,
         "{without:?} {e:?}"
     );
+    assert_ne!(without.inlier_rmse_m, with.inlier_rmse_m);
+    // Stopped by the iteration cap instead: the same pose as the measured run, measured one
+    // update earlier (oracle: the run capped one update sooner), and not converged.
+    let capped = IcpConfig::new(0.4).max_iterations(2);
+    let with = registration_icp_point_to_plane(&source, &target, &init, &capped).unwrap();
+    let without =
+        registration_icp_point_to_plane(&source, &target, &init, &capped.measure_final_pose(false))
+            .unwrap();
+    assert_eq!((with.iterations, with.converged), (2, false), "{with:?}");
+    assert_eq!(without.target_from_source, with.target_from_source);
+    assert_eq!((without.iterations, without.converged), (2, false));
+    let once = IcpConfig::new(0.4).max_iterations(1);
+    let before = registration_icp_point_to_plane(&source, &target, &init, &once).unwrap();
+    let (e, hessian) =
+        evaluate_with_hessian(&source, &target, &before.target_from_source, 0.4).unwrap();
+    assert_eq!(
+        (without.fitness, without.inlier_rmse_m),
+        (e.fitness, e.inlier_rmse_m)
+    );
+    assert_eq!(without.hessian, hessian);
     assert_ne!(without.inlier_rmse_m, with.inlier_rmse_m);
 }
 
