@@ -12,6 +12,7 @@ use mcap::records::Record;
 use mireg::io::cloud_file::write_npy;
 use mireg::io::mcap::log::for_each_record;
 use mireg::io::poses::read_mcap_pose_topic;
+use mireg::merge::MergeConfig;
 use mireg::trajectory::Trajectory;
 use nalgebra::Isometry3;
 
@@ -123,6 +124,29 @@ fn the_log_localizes_in_priors_that_start_elsewhere() {
             rmse < 0.035 && max < 0.07,
             "prior from {start}: RMSE {rmse:.4} m, max {max:.4} m"
         );
+        // A keyframe of the log stops at its first LOCALIZE_LINKS_PER_KEYFRAME verified
+        // appearance links: no more are accepted, and one that has them tried no candidate
+        // after them (all are tried where the first ones fail).
+        let links = json_messages(&out, "/mireg/session_links");
+        let mut by_frame: std::collections::BTreeMap<u64, Vec<bool>> = Default::default();
+        for l in links.iter().filter(|l| l["found_by"] == "appearance") {
+            let frame = l["frame_b"].as_u64().unwrap();
+            by_frame
+                .entry(frame)
+                .or_default()
+                .push(l["verdict"] == "accepted");
+        }
+        let wanted = mireg::merge::LOCALIZE_LINKS_PER_KEYFRAME;
+        assert!(by_frame.values().any(|v| v.len() > 1), "{by_frame:?}");
+        for (frame, verdicts) in &by_frame {
+            let accepted = verdicts.iter().filter(|&&a| a).count();
+            let stopped = accepted == wanted && verdicts.last() == Some(&true);
+            let all_tried = verdicts.len() == MergeConfig::default().appearance_per_keyframe;
+            assert!(
+                accepted <= wanted && (stopped || all_tried),
+                "frame {frame}: {verdicts:?}"
+            );
+        }
     }
 }
 
@@ -279,10 +303,7 @@ fn a_map_file_localizes_alike_when_no_tile_fits_the_memory_budget() {
     let run = prior(dir.path(), 30);
     let map = map_file(dir.path(), &run, "prior_30.ply");
     let mut runs = Vec::new();
-    for budget in [
-        mireg::merge::MergeConfig::default().keyframe_memory_bytes,
-        0,
-    ] {
+    for budget in [MergeConfig::default().keyframe_memory_bytes, 0] {
         let out = dir.path().join(format!("loc_{budget}.mcap"));
         let opts = mireg::merge::LocalizeOptions {
             log: fixture(),
@@ -290,7 +311,7 @@ fn a_map_file_localizes_alike_when_no_tile_fits_the_memory_budget() {
             output: out.clone(),
             force: false,
             seed: 0,
-            config: mireg::merge::MergeConfig {
+            config: MergeConfig {
                 keyframe_memory_bytes: budget,
                 ..Default::default()
             },

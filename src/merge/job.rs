@@ -323,6 +323,9 @@ pub(super) struct Linker<'s> {
     pub(super) loops: &'s LoopConfig,
     pub(super) agreement: AgreementConfig,
     pub(super) config: &'s MergeConfig,
+    /// Verified appearance links after which a keyframe of the later session stops
+    /// ([`Linker::links_per_keyframe`]); `None`: all its candidates are verified.
+    pub(super) links_per_keyframe: Option<usize>,
 }
 
 /// One pair of sessions linked: its report and, when they join, the join and the agreeing links
@@ -349,6 +352,22 @@ impl<'s> Linker<'s> {
             loops,
             agreement: AgreementConfig::for_voxel(sessions[0].voxel_m),
             config,
+            links_per_keyframe: None,
+        }
+    }
+
+    /// Each keyframe of the later session verifies its appearance candidates best first, a
+    /// round at a time, until `links` of them have passed; once aligned, only the keyframes
+    /// without an agreeing link get place candidates. For `mireg localize`, where each keyframe
+    /// of the log needs a fix in the map, not every one it could have.
+    ///
+    /// NOTE: a merge verifies every candidate: its joint trajectory is scored against one log
+    /// registered whole, and each extra link is a constraint. Localising KAIST03 in its second
+    /// half verified 64 candidates, 3 per keyframe, all accepted (docs/SESSIONS.md).
+    pub(super) fn links_per_keyframe(self, links: usize) -> Self {
+        Self {
+            links_per_keyframe: Some(links),
+            ..self
         }
     }
 
@@ -390,14 +409,17 @@ impl<'s> Linker<'s> {
             .into_iter()
             .map(|(ka, i)| (ka, subset[i]))
             .collect();
-            let tried: Vec<Candidate> = found.iter().map(|&(ka, kb)| (ka, kb, None)).collect();
-            attempts.extend(self.verify_candidates((a, b), &tried, LinkSource::Appearance)?);
-            by_look.extend(found);
+            by_look.extend(self.verify_appearance((a, b), &found, attempts)?);
             agreeing = self.agreeing(attempts, first, (a, b));
         }
         let mut place = 0;
         if let Some(align) = joining_alignment(attempts, &agreeing, self.tracks, self.config) {
-            let tried = self.place_candidates((a, b), &align, &by_look);
+            let mut tried = self.place_candidates((a, b), &align, &by_look);
+            if self.links_per_keyframe.is_some() {
+                let linked: BTreeSet<usize> =
+                    agreeing.iter().map(|&k| attempts[k].link.frame_b).collect();
+                tried.retain(|&(_, kb, _)| !linked.contains(&sb.keyframes[kb]));
+            }
             place = tried.len();
             attempts.extend(self.verify_candidates((a, b), &tried, LinkSource::Place)?);
             agreeing = self.agreeing(attempts, first, (a, b));
@@ -444,6 +466,54 @@ impl<'s> Linker<'s> {
             )
         });
         Ok(PairOutcome { report, join })
+    }
+
+    /// Verifies the appearance candidates `found` (`(keyframe_a, keyframe_b)`, best first)
+    /// between sessions `a` and `b`, appending the attempts; returns the pairs tried. All at
+    /// once, or with [`Linker::links_per_keyframe`] in rounds: the k-th candidate of each
+    /// keyframe of `b` that has fewer verified links than wanted.
+    fn verify_appearance(
+        &self,
+        (a, b): (usize, usize),
+        found: &[(usize, usize)],
+        attempts: &mut Vec<Attempt>,
+    ) -> Result<Vec<(usize, usize)>> {
+        let Some(wanted) = self.links_per_keyframe else {
+            let tried: Vec<Candidate> = found.iter().map(|&(ka, kb)| (ka, kb, None)).collect();
+            attempts.extend(self.verify_candidates((a, b), &tried, LinkSource::Appearance)?);
+            return Ok(found.to_vec());
+        };
+        // Each keyframe's candidates in the order found, the keyframes in order of their best.
+        let mut queues: Vec<(usize, Vec<usize>)> = Vec::new();
+        for &(ka, kb) in found {
+            match queues.iter_mut().find(|(k, _)| *k == kb) {
+                Some((_, q)) => q.push(ka),
+                None => queues.push((kb, vec![ka])),
+            }
+        }
+        // Verified links per frame of `b`.
+        let keyframes = &self.sessions[b].keyframes;
+        let mut linked: BTreeMap<usize, usize> = BTreeMap::new();
+        let mut done = Vec::new();
+        for round in 0.. {
+            let tried: Vec<Candidate> = queues
+                .iter()
+                .filter(|(kb, q)| {
+                    round < q.len() && linked.get(&keyframes[*kb]).is_none_or(|&n| n < wanted)
+                })
+                .map(|(kb, q)| (q[round], *kb, None))
+                .collect();
+            if tried.is_empty() {
+                break;
+            }
+            let verified = self.verify_candidates((a, b), &tried, LinkSource::Appearance)?;
+            for t in verified.iter().filter(|t| t.verified) {
+                *linked.entry(t.link.frame_b).or_default() += 1;
+            }
+            attempts.extend(verified);
+            done.extend(tried.iter().map(|&(ka, kb, _)| (ka, kb)));
+        }
+        Ok(done)
     }
 
     /// The agreeing links among the verified attempts from `first` on (indices into

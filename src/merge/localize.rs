@@ -51,6 +51,14 @@ use crate::register::{
     CloudKind, RegisterOptions, StampedPose, encode_pose, pose_channels, register_log,
 };
 
+/// Verified appearance links after which a keyframe of the log stops trying its candidates: 2.
+///
+/// NOTE: one link a keyframe (of 3 candidates) halved the verifications, but where the robust
+/// solve down-weighted that link its frame fell back to `tracking` (KAIST03 in its second half:
+/// 18 of 21 localised instead of 21); with two, the sessions bench localised as many frames as
+/// with every candidate verified, at the same errors (docs/SESSIONS.md).
+pub const LOCALIZE_LINKS_PER_KEYFRAME: usize = 2;
+
 /// What [`localize`] needs.
 #[derive(Debug, Clone)]
 pub struct LocalizeOptions {
@@ -170,7 +178,8 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
         .map_or_else(|| "log".to_string(), |s| s.to_string_lossy().into_owned());
     let (sessions, loops, pair) = prior.with_log(log, opts)?;
     let tracks: Vec<Track<'_>> = sessions.iter().map(Session::track).collect();
-    let linker = Linker::new(&sessions, &tracks, &pair, &loops, &opts.config);
+    let linker = Linker::new(&sessions, &tracks, &pair, &loops, &opts.config)
+        .links_per_keyframe(LOCALIZE_LINKS_PER_KEYFRAME);
     let mut attempts = Vec::new();
     let outcome = linker.link_pair((0, 1), &mut attempts)?;
     let (placed, weights) = place(&sessions, &attempts, outcome.join.as_ref(), &loops)?;

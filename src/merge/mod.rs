@@ -35,7 +35,8 @@ mod write;
 pub use job::{MergeOptions, MergeSummary, PairReport, SessionReport, merge};
 pub use links::{AgreementConfig, LinkSource, SessionLink};
 pub use localize::{
-    FrameStatus, LocalizeOptions, LocalizeSummary, localization_json_schema, localize,
+    FrameStatus, LOCALIZE_LINKS_PER_KEYFRAME, LocalizeOptions, LocalizeSummary,
+    localization_json_schema, localize,
 };
 pub use map_prior::{MAP_MIN_REVERSE_FITNESS, MAX_TILES, MIN_TILE_POINTS};
 
