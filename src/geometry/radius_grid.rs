@@ -129,8 +129,10 @@ impl RadiusGrid {
         let dims = [n0 as usize, n1 as usize];
         let n2 = cells(2) as usize;
         let cell_of = |p: &Point3<f64>| -> (usize, u32) {
-            // p − min ≥ 0, where truncation is floor (and needs no libm call).
-            let c = |k: usize, n: usize| (((p[axes[k]] - min[k]) / edge) as usize).min(n - 1);
+            // p − min ≥ 0, where truncation is floor (and needs no libm call); through i64,
+            // one instruction on x86 (the count of cells bounds it far below 2⁶³).
+            let c =
+                |k: usize, n: usize| ((((p[axes[k]] - min[k]) / edge) as i64) as usize).min(n - 1);
             (c(0, dims[0]) * dims[1] + c(1, dims[1]), c(2, n2) as u32)
         };
         storage.cell.clear();

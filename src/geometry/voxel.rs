@@ -89,10 +89,11 @@ fn downsample(
         let rel = (p.coords - origin) / voxel_size_m;
         [
             // rel >= 0 on every axis, where truncation equals Open3D's floor (and needs no
-            // libm call).
-            rel.x as u64,
-            rel.y as u64,
-            rel.z as u64,
+            // libm call). Through i64: below i32::MAX (checked above), the same value, and x86
+            // truncates to a signed integer in one instruction, to an unsigned one in several.
+            rel.x as i64 as u64,
+            rel.y as i64 as u64,
+            rel.z as i64 as u64,
         ]
     };
     let last = index(&max);
