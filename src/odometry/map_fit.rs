@@ -13,9 +13,7 @@ use super::{
 use crate::Result;
 use crate::pipeline::refine::{FineInputs, fine_stage};
 use crate::pipeline::{PairConfig, PairResult, PreparedFrame};
-use crate::refine::icp::{
-    IcpConfig, IcpResult, IcpTarget, evaluate_with_hessian, registration_icp_point_to_plane,
-};
+use crate::refine::icp::{IcpConfig, IcpResult, IcpTarget, registration_icp_point_to_plane};
 use crate::refine::local_map::LocalMap;
 
 impl Odometry {
@@ -196,8 +194,9 @@ impl Odometry {
             .then(|| map_fine_points(frame).copied().collect());
         // A stage whose last pose the next stage measures skips the pass that would only
         // measure it: the coarse start always (the ICP cloud's first pass does), the ICP cloud
-        // where the fine stage follows (it measures its final pose on that cloud at that
-        // distance). On the KITTI replay log, a fifth of the map ICP's instructions (callgrind).
+        // where the fine stage follows (it measures the final pose on that cloud at that
+        // distance, the ICP cloud's own where it finds nothing). On the KITTI replay log, a
+        // fifth of the map ICP's instructions (callgrind).
         let coarse_icp = dense_icp.measure_final_pose(false);
         let finish_icp = finish_icp.measure_final_pose(fine.is_none());
         Ok(Some(MapIcpPlan {
@@ -255,25 +254,12 @@ impl MapIcpPlan<'_> {
                 distance_m: 0.5 * self.distance,
                 max_iterations: MAP_FINE_MAX_ITERATIONS,
             };
-            match fine_stage(&inputs, self.icp_points, target, &r, self.distance)? {
-                Some(f) => {
-                    fine_iterations = f.iterations;
-                    r = IcpResult {
-                        iterations: r.iterations,
-                        ..f
-                    };
-                }
-                // The ICP cloud's pose stands, measured (its last pass was skipped).
-                None => {
-                    let (e, hessian) = evaluate_with_hessian(
-                        self.icp_points,
-                        target,
-                        &r.target_from_source,
-                        self.distance,
-                    )?;
-                    (r.fitness, r.inlier_rmse_m, r.hessian) = (e.fitness, e.inlier_rmse_m, hessian);
-                }
-            }
+            let f = fine_stage(&inputs, self.icp_points, target, &r, self.distance)?;
+            fine_iterations = f.iterations;
+            r = IcpResult {
+                iterations: r.iterations,
+                ..f
+            };
         }
         let fit = MapFit {
             guess,

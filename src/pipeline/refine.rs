@@ -172,20 +172,40 @@ pub(crate) struct FineInputs<'a> {
 
 /// The fine stage after a converged ICP `coarse` of `icp_points` (at `distance`) against
 /// `target`: point-to-plane ICP of `fine.points` against `fine.target` from its pose, stopping
-/// also on [`FINE_MIN_UPDATE`]. The result's fitness and RMSE are measured as the coarse stage
-/// measures them (`icp_points` against `target` at `distance`), so acceptance thresholds keep
-/// their meaning; its iterations are the fine stage's. `None` when `coarse` or the fine stage
-/// found no correspondence (the coarse pose stands). Serves the pairwise refinement and the
-/// odometry's map ICP.
+/// also on [`FINE_MIN_UPDATE`]. Its pose, or `coarse`'s where `coarse` or the fine stage found no
+/// correspondence, measured as the coarse stage measures it (`icp_points` against `target` at
+/// `distance`: fitness, RMSE and Hessian), so acceptance thresholds keep their meaning and
+/// `coarse` need not measure its own last pose ([`IcpConfig::measure_final_pose`]); the
+/// iterations are the fine stage's (0 where its pose did not stand). Serves the pairwise
+/// refinement and the odometry's map ICP.
 pub(crate) fn fine_stage(
     fine: &FineInputs<'_>,
     icp_points: &[Point3<f64>],
     target: &IcpTarget,
     coarse: &IcpResult,
     distance: f64,
-) -> Result<Option<IcpResult>> {
+) -> Result<IcpResult> {
+    let measured = |result: IcpResult| -> Result<IcpResult> {
+        let (e, hessian) = if target.has_normals() {
+            evaluate_with_hessian(icp_points, target, &result.target_from_source, distance)?
+        } else {
+            let e =
+                evaluate_registration(icp_points, target, &result.target_from_source, distance)?;
+            (e, IcpHessian::ZERO)
+        };
+        Ok(IcpResult {
+            fitness: e.fitness,
+            inlier_rmse_m: e.inlier_rmse_m,
+            hessian,
+            ..result
+        })
+    };
+    let coarse_stands = IcpResult {
+        iterations: 0,
+        ..*coarse
+    };
     if coarse.fitness == 0.0 {
-        return Ok(None);
+        return measured(coarse_stands);
     }
     let config = IcpConfig::new(fine.distance_m)
         .max_iterations(fine.max_iterations)
@@ -199,22 +219,7 @@ pub(crate) fn fine_stage(
         &coarse.target_from_source,
         &config,
     )?;
-    if f.fitness == 0.0 {
-        return Ok(None);
-    }
-    // The Hessian too, as the coarse stage measures it: its cloud and distance, at the final pose.
-    let (e, hessian) = if target.has_normals() {
-        evaluate_with_hessian(icp_points, target, &f.target_from_source, distance)?
-    } else {
-        let e = evaluate_registration(icp_points, target, &f.target_from_source, distance)?;
-        (e, IcpHessian::ZERO)
-    };
-    Ok(Some(IcpResult {
-        fitness: e.fitness,
-        inlier_rmse_m: e.inlier_rmse_m,
-        hessian,
-        ..f
-    }))
+    measured(if f.fitness == 0.0 { coarse_stands } else { f })
 }
 
 /// ICP of `source` to `target` from `out.ransac_target_from_source`, then the fine stage when
@@ -244,9 +249,8 @@ pub(super) fn refine<'a>(
     };
     let distance = c.icp_max_distance_m.unwrap();
     let fine_runs = c.icp_fine && !source.fine.is_empty();
-    // The fine stage measures its final pose on this stage's cloud and distance: the pass
-    // that would only measure this stage's last pose is skipped, and made below only if the
-    // fine stage finds nothing.
+    // The fine stage measures the final pose on this stage's cloud and distance: the pass
+    // that would only measure this stage's last pose is skipped.
     let icp_config = IcpConfig::new(distance)
         .max_iterations(c.icp_max_iterations)
         .measure_final_pose(!fine_runs);
@@ -276,15 +280,7 @@ pub(super) fn refine<'a>(
         distance_m: c.icp_fine_distance_m.unwrap(),
         max_iterations: c.icp_max_iterations,
     };
-    let fine = fine_stage(&inputs, src_points, tgt_icp, &r, distance)?;
-    let Some(f) = fine else {
-        let (e, hessian) =
-            evaluate_with_hessian(src_points, tgt_icp, &r.target_from_source, distance)?;
-        out.fitness = e.fitness;
-        out.inlier_rmse_m = e.inlier_rmse_m;
-        out.icp_hessian = Some(hessian);
-        return Ok(());
-    };
+    let f = fine_stage(&inputs, src_points, tgt_icp, &r, distance)?;
     out.target_from_source = f.target_from_source;
     out.fitness = f.fitness;
     out.inlier_rmse_m = f.inlier_rmse_m;
