@@ -283,13 +283,11 @@ impl LocalMap {
                     id
                 }
             };
-            let voxel = &mut self.voxels[id as usize];
-            if voxel.held < cap {
-                voxel.held += 1;
-                self.waiting.push((id, w));
-                kept.push(i as u32);
-                self.points += 1;
-            }
+            // Not full: an entry without FULL holds fewer than `cap` points.
+            self.voxels[id as usize].held += 1;
+            self.waiting.push((id, w));
+            kept.push(i as u32);
+            self.points += 1;
         }
         let origin = Point3::from(world_from_frame.translation.vector);
         let max_sq = max_distance_m * max_distance_m;
