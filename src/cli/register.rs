@@ -53,11 +53,15 @@ pub struct RegisterArgs {
     /// scripts written when it was opt-in still run).
     #[arg(long)]
     pub map_fine: bool,
-    /// Refine each frame on the local map from the constant-velocity prediction first; run
-    /// global registration (features matched, MI-RANSAC) only when that fit is doubtful (below
-    /// 0.9× the previous frame's map fitness). Faster where the motion is smooth
-    /// (docs/ODOMETRY.md has the measured rates and ATE); off by default.
-    #[arg(long)]
+    /// Register every frame globally (features matched, MI-RANSAC), as the paper registers every
+    /// pair. By default each frame is first refined on the local map from the constant-velocity
+    /// prediction, and registered globally only where that fit is doubtful (below 0.9× the
+    /// previous frame's map fitness, or weakly constrained in some direction);
+    /// docs/ODOMETRY.md has the measured rates and ATE.
+    #[arg(long, conflicts_with = "track_first")]
+    pub global_every_frame: bool,
+    /// Tracking first: the default (kept so that scripts written when it was opt-in still run).
+    #[arg(long, hide = true)]
     pub track_first: bool,
     /// Motion-compensate clouds with per-point times (Ouster t, Velodyne time, Hesai timestamp,
     /// Livox offset_time, time_stamp): auto when the field is present, on (required), off.
@@ -160,6 +164,7 @@ impl RegisterArgs {
             no_local_map: self.no_local_map,
             no_map_fine: self.no_map_fine,
             map_fine: self.map_fine,
+            global_every_frame: self.global_every_frame,
             track_first: self.track_first,
             deskew: self.deskew.into(),
             output_messages: self.output_messages.into(),

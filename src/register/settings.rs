@@ -43,8 +43,11 @@ pub struct RegisterSettings {
     /// The map ICP's last stage on each frame's own points: the default, kept for old callers;
     /// no effect. Default `false`.
     pub map_fine: bool,
-    /// Refine on the local map from the constant-velocity prediction first; global registration
-    /// only when that fit is doubtful. Default `false`.
+    /// Register every frame globally (features, matching, MI-RANSAC) instead of refining it on
+    /// the local map from the constant-velocity prediction first and registering globally only
+    /// where that fit is doubtful ([`OdometryConfig::track_first`]). Default `false`.
+    pub global_every_frame: bool,
+    /// Tracking first: the default, kept for old callers; no effect. Default `false`.
     pub track_first: bool,
     /// Motion compensation of clouds with per-point times. Default [`DeskewMode::Auto`].
     pub deskew: DeskewMode,
@@ -100,6 +103,7 @@ impl Default for RegisterSettings {
             no_local_map: false,
             no_map_fine: false,
             map_fine: false,
+            global_every_frame: false,
             track_first: false,
             deskew: DeskewMode::Auto,
             output_messages: OutputMessages::Auto,
@@ -182,7 +186,7 @@ impl RegisterSettings {
             map_fine: !self.no_map_fine,
             map_max_points_per_voxel: self.map_points_per_voxel,
             feature_points: self.feature_points,
-            track_first: self.track_first,
+            track_first: !self.global_every_frame,
         };
         let opts = RegisterOptions {
             input: input.to_path_buf(),

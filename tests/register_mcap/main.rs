@@ -472,6 +472,45 @@ fn foxglove_point_clouds_get_foxglove_poses() {
     }
 }
 
+/// Tracking first is the default (per-frame statistics `map_guess` `"tracked"` on the fixture,
+/// whose depth camera moves smoothly), `--global-every-frame` registers every frame globally
+/// (no frame tracked, each refined from a global start), and `--track-first` (the old opt-in)
+/// changes nothing but conflicts with `--global-every-frame`.
+#[test]
+fn cli_tracks_first_by_default_and_can_register_every_frame_globally() {
+    let dir = tempfile::tempdir().unwrap();
+    let guesses = |extra: &[&str]| -> Vec<String> {
+        let out = dir.path().join("guess.mcap");
+        let (input, output) = (fixture(), out.to_str().unwrap().to_string());
+        let mut args = vec!["register", input.to_str().unwrap(), "-o", &output];
+        args.extend(["--force", "--quiet", "--no-loops"]);
+        args.extend(extra);
+        mireg_ok(&args);
+        let c = contents(&out);
+        (c.messages.iter().filter(|m| m.0 == "/mireg/stats"))
+            .filter_map(|m| {
+                let v: serde_json::Value = serde_json::from_slice(&m.3).unwrap();
+                v["map_guess"].as_str().map(str::to_string)
+            })
+            .collect()
+    };
+    let default = guesses(&[]);
+    let tracked = default.iter().filter(|g| *g == "tracked").count();
+    assert!(tracked > default.len() / 2, "{default:?}");
+    assert_eq!(guesses(&["--track-first"]), default);
+    let global = guesses(&["--global-every-frame"]);
+    assert_eq!(global.len(), default.len());
+    assert!(global.iter().all(|g| g.ends_with("global")), "{global:?}");
+    let input = fixture();
+    let both = mireg(&[
+        "register",
+        input.to_str().unwrap(),
+        "--track-first",
+        "--global-every-frame",
+    ]);
+    assert_eq!(both.status.code(), Some(2));
+}
+
 /// The map's fine stage runs by default, `--no-map-fine` turns it off (per-frame statistics
 /// `map_fine_icp_iterations`), and `--map-fine` with `--no-map-fine` is a usage error.
 #[test]
