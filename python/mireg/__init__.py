@@ -184,15 +184,17 @@ def localize(log: PathLike, map: PathLike, output: Optional[PathLike] = None,
 
 class Odometry:
     """``mireg register``'s odometry, one cloud at a time, like KISS-ICP's Python pipeline: each
-    frame is registered prior-free (MI-RANSAC) and refined against a local map; clouds with
-    per-point times are deskewed. The same clouds in the same order give ``mireg register``'s
+    frame is tracked on a local map from the motion so far where that fit holds up, registered
+    prior-free (MI-RANSAC) where it is in doubt (``track_first=False``: on every frame), and
+    refined against the local map; clouds with per-point times are deskewed. The same clouds in the same order give ``mireg register``'s
     poses (``--no-loops``; loop closure needs the whole log: use :func:`register_log`).
 
     ``voxel``: metres; default ``None`` sizes it from the first cloud's median range as
     ``register`` does. ``deskew``: deskew clouds given ``timestamps`` (default ``True``).
     ``seed``: the RNG seed (default 0). Other keyword arguments are fields of the odometry
     configuration (``min_inliers``, ``min_fitness``, ``local_map``, ``map_max_points_per_voxel``,
-    ``feature_points``, ``map_fine``) or of the pair configuration (docs/CONFIG.md).
+    ``feature_points``, ``map_fine``, ``track_first``) or of the pair configuration
+    (docs/CONFIG.md).
     """
 
     def __init__(self, voxel: Optional[float] = None, deskew: bool = True, seed: int = 0,
