@@ -3,7 +3,7 @@
 one run, frames/s and ATE side by side, as docs/BENCHMARKS.md quotes it.
 
 Per log and round, in this order: mireg with its defaults, mireg with each `--variant` (e.g.
-`--track-first`), KISS-ICP 1.3, GenZ-ICP 0.3. Rounds alternate so that a change in the machine's
+`--global-every-frame`), KISS-ICP 1.3, GenZ-ICP 0.3. Rounds alternate so that a change in the machine's
 load hits every row; ratios are taken within a round and the table shows the median over rounds
 (and the range of the ratio).
 
@@ -22,7 +22,7 @@ load hits every row; ratios are taken within a round and the table shows the med
 Usage:
     bash tools/setup_venv.sh odometry
     python3 tools/toolbox.py bench-speed LOG.mcap... [--rounds 3]
-        [--variant=--track-first] [--mireg target/release/mireg] [--reference-topic T]
+        [--variant=--global-every-frame] [--mireg target/release/mireg] [--reference-topic T]
 
 The logs docs/BENCHMARKS.md uses: the KITTI replay (`cargo run --release --example
 make_lidar_mcap -- 40 /tmp/k40.mcap`), and from `tools/make_loop_logs.py --all --out-dir /tmp`
@@ -96,7 +96,7 @@ def main(argv):
     ap.add_argument("--reference-topic", default="/ground_truth/pose")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--variant", action="append", default=[],
-                    help="extra mireg flags for one more row, e.g. --variant=--track-first")
+                    help="extra mireg flags for one more row, e.g. --variant=--global-every-frame")
     args = ap.parse_args(argv)
     rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     print(f"mireg {args.mireg} at {rev or '?'}, {os.cpu_count()} CPUs")
