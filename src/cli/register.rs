@@ -273,11 +273,23 @@ fn print_summary(s: &RegisterSummary) {
             s.feature_voxel_m, s.feature_points
         );
     }
+    // The first frame is neither tracked nor registered: it defines the world.
+    let global = s.frames.saturating_sub(1 + s.tracked_frames);
+    if s.tracked_frames > 0 {
+        println!(
+            "tracked {} frames on the local map from the motion so far, registered {global} globally (MI-RANSAC, mean inliers {:.1}; --global-every-frame registers all)",
+            s.tracked_frames, s.mean_inliers
+        );
+    } else {
+        println!(
+            "registered {global} frames globally (MI-RANSAC, mean inliers {:.1})",
+            s.mean_inliers
+        );
+    }
     println!(
-        "failed frames {} ({:.1} %), mean inliers {:.1}, {:.2} frames/s ({:.2} s), {} input messages copied, poses on {} and {}",
+        "failed frames {} ({:.1} %), {:.2} frames/s ({:.2} s), {} input messages copied, poses on {} and {}",
         s.failed_frames,
         100.0 * s.failed_frames as f64 / s.frames.max(1) as f64,
-        s.mean_inliers,
         s.frames_per_s,
         s.elapsed_s,
         s.messages_copied,

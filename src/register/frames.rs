@@ -85,7 +85,9 @@ pub(super) struct FrameOut {
 pub(super) struct Estimate {
     pub(super) world_from_frame: Isometry3<f64>,
     pub(super) success: bool,
-    pub(super) inliers: usize,
+    /// MI-RANSAC inliers of its global registration; `None` where none ran (tracked frames,
+    /// the first).
+    pub(super) inliers: Option<usize>,
     /// The cloud's header (stamp and frame id), log and publish times.
     pub(super) header: codec::Header,
     pub(super) log_time: u64,

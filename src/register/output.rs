@@ -34,9 +34,13 @@ pub fn stats_json_schema() -> serde_json::Value {
             "failure_detail": {"type": ["string", "null"]}, "fallback": {"type": ["string", "null"]},
             "num_points": int, "num_dropped_non_finite": int, "num_dropped_far": int, "num_dropped_zero": int,
             "num_dropped_livox_tag": int, "num_dropped_time": int,
-            "num_points_downsampled": int, "num_correspondences": int,
-            "num_inliers": int, "inlier_ratio": num, "hypotheses": int,
-            "best_found_at": {"type": ["integer", "null"]}, "fitness": num, "inlier_rmse_m": num,
+            "num_points_downsampled": int,
+            "num_correspondences": {"type": ["integer", "null"], "description": "Feature correspondences of the frame's global registration (null: none ran, the frame was tracked, or it is the first)"},
+            "num_inliers": {"type": ["integer", "null"], "description": "MI-RANSAC inliers among them (null: no global registration)"},
+            "inlier_ratio": {"type": ["number", "null"]}, "hypotheses": {"type": ["integer", "null"]},
+            "best_found_at": {"type": ["integer", "null"]},
+            "fitness": {"type": ["number", "null"], "description": "ICP fitness of the frame-to-frame refinement of the global registration (null: no global registration; map_fitness is the fit to the local map)"},
+            "inlier_rmse_m": {"type": ["number", "null"]},
             "icp_iterations": int,
             "deskewed": {"type": "boolean"}, "time_field": {"type": ["string", "null"]},
             "map_guess": {"type": ["string", "null"], "enum": ["global", "constant_velocity", "second_global", "coarse_global", "tracked", null]},
@@ -67,8 +71,10 @@ fn frame_stats(out: &FrameOut, u: &PoseUncertainty) -> serde_json::Value {
     let e = &out.est;
     let p = e.pair.as_ref();
     let t = p.map(|p| p.timings_s).unwrap_or_default();
-    let num_corr = p.map_or(0, |p| p.num_correspondences);
-    let num_inl = p.map_or(0, |p| p.num_inliers);
+    // A frame without a global registration (tracked, or the first) has none of its figures:
+    // null, not 0, so that plots and means do not read them as a registration that found none.
+    let num_corr = p.map(|p| p.num_correspondences);
+    let num_inl = p.map(|p| p.num_inliers);
     let rival = e.map.and_then(|m| m.rival);
     json!({
         "frame": e.index,
@@ -89,11 +95,15 @@ fn frame_stats(out: &FrameOut, u: &PoseUncertainty) -> serde_json::Value {
         "num_points_downsampled": e.num_points_downsampled,
         "num_correspondences": num_corr,
         "num_inliers": num_inl,
-        "inlier_ratio": if num_corr > 0 { num_inl as f64 / num_corr as f64 } else { 0.0 },
-        "hypotheses": p.map_or(0, |p| p.hypotheses),
+        "inlier_ratio": p.map(|p| if p.num_correspondences > 0 {
+            p.num_inliers as f64 / p.num_correspondences as f64
+        } else {
+            0.0
+        }),
+        "hypotheses": p.map(|p| p.hypotheses),
         "best_found_at": p.and_then(|p| p.best_found_at),
-        "fitness": p.map_or(0.0, |p| p.fitness),
-        "inlier_rmse_m": p.map_or(0.0, |p| p.inlier_rmse_m),
+        "fitness": p.map(|p| p.fitness),
+        "inlier_rmse_m": p.map(|p| p.inlier_rmse_m),
         "icp_iterations": p.map_or(0, |p| p.icp_iterations) + e.fallback_icp_iterations,
         "deskewed": out.cloud.deskewed(),
         "time_field": out.cloud.time_field,

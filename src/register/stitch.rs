@@ -605,7 +605,7 @@ fn close_stitched(
             Estimate {
                 world_from_frame: f.pose,
                 success: f.stats["success"].as_bool().unwrap_or(true),
-                inliers: f.stats["num_inliers"].as_u64().unwrap_or(0) as usize,
+                inliers: f.stats["num_inliers"].as_u64().map(|n| n as usize),
                 header: crate::io::codec::Header {
                     stamp: Time::from_ns(f.stamp_ns).unwrap_or_default(),
                     frame_id: f.child_frame.clone(),

@@ -109,7 +109,11 @@ pub struct RegisterSummary {
     pub suspect_frames: usize,
     /// The first [`FLAGGED_FRAMES_LISTED`] failed or suspect frames, in frame order, with why.
     pub flagged: Vec<FlaggedFrame>,
-    /// Mean RANSAC inliers over registered frames.
+    /// Frames accepted by tracking: refined on the local map from the constant-velocity
+    /// prediction, without global registration ([`crate::odometry::OdometryConfig::track_first`]).
+    pub tracked_frames: usize,
+    /// Mean MI-RANSAC inliers over the frames registered globally (tracked frames have none);
+    /// 0 without such a frame.
     pub mean_inliers: f64,
     /// Input messages copied.
     pub messages_copied: u64,

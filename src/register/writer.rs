@@ -10,6 +10,7 @@ use nalgebra::Isometry3;
 use crate::Result;
 use crate::io::mcap::log::{ChannelInfo, OutputLog};
 use crate::loops::LoopConfig;
+use crate::odometry::InitialGuess;
 use crate::trajectory::{FrameErrors, Trajectory, evaluate};
 
 use super::closure::LoopOutcome;
@@ -42,6 +43,8 @@ pub(super) struct Writer<'a> {
     flagged: Vec<FlaggedFrame>,
     /// Registered frames flagged suspect.
     suspect_frames: usize,
+    /// Frames accepted by tracking ([`crate::odometry::InitialGuess::Tracked`]).
+    tracked_frames: usize,
 }
 
 impl<'a> Writer<'a> {
@@ -74,6 +77,7 @@ impl<'a> Writer<'a> {
             reference: Vec::new(),
             flagged: Vec::new(),
             suspect_frames: 0,
+            tracked_frames: 0,
         }
     }
 
@@ -99,10 +103,15 @@ impl<'a> Writer<'a> {
             }
         }
         let deskew_motion = out.cloud.deskew_motion();
+        let tracked = out
+            .est
+            .map
+            .is_some_and(|m| m.guess == InitialGuess::Tracked);
+        self.tracked_frames += usize::from(tracked);
         self.estimates.push(Estimate {
             world_from_frame: out.est.world_from_frame,
             success: out.est.success,
-            inliers: out.est.pair.as_ref().map_or(0, |p| p.num_inliers),
+            inliers: out.est.pair.as_ref().map(|p| p.num_inliers),
             header: out.cloud.header,
             log_time: out.cloud.log_time,
             publish_time: out.cloud.publish_time,
@@ -183,11 +192,12 @@ impl<'a> Writer<'a> {
         let estimates = &self.estimates;
         let frames = estimates.len();
         let failed_frames = estimates.iter().filter(|e| !e.success).count();
+        // Over the frames registered globally: a tracked frame has no RANSAC inliers.
         let registered: Vec<usize> = estimates
             .iter()
             .skip(1)
             .filter(|e| e.success)
-            .map(|e| e.inliers)
+            .filter_map(|e| e.inliers)
             .collect();
         let mean_inliers = if registered.is_empty() {
             0.0
@@ -223,6 +233,7 @@ impl<'a> Writer<'a> {
             frames,
             failed_frames,
             suspect_frames: self.suspect_frames,
+            tracked_frames: self.tracked_frames,
             flagged: std::mem::take(&mut self.flagged),
             mean_inliers,
             messages_copied: copied,

@@ -475,32 +475,56 @@ fn foxglove_point_clouds_get_foxglove_poses() {
 /// Tracking first is the default (per-frame statistics `map_guess` `"tracked"` on the fixture,
 /// whose depth camera moves smoothly), `--global-every-frame` registers every frame globally
 /// (no frame tracked, each refined from a global start), and `--track-first` (the old opt-in)
-/// changes nothing but conflicts with `--global-every-frame`.
+/// changes nothing but conflicts with `--global-every-frame`. A tracked frame has no global
+/// registration: its RANSAC figures are null, not 0, and the summary counts it as tracked and
+/// leaves it out of the mean inliers.
 #[test]
 fn cli_tracks_first_by_default_and_can_register_every_frame_globally() {
     let dir = tempfile::tempdir().unwrap();
-    let guesses = |extra: &[&str]| -> Vec<String> {
+    // Per frame after the first: the map guess and the RANSAC inliers; and the summary.
+    let run = |extra: &[&str]| -> (Vec<(String, Option<u64>)>, serde_json::Value) {
         let out = dir.path().join("guess.mcap");
         let (input, output) = (fixture(), out.to_str().unwrap().to_string());
         let mut args = vec!["register", input.to_str().unwrap(), "-o", &output];
-        args.extend(["--force", "--quiet", "--no-loops"]);
+        args.extend(["--force", "--quiet", "--no-loops", "--json"]);
         args.extend(extra);
-        mireg_ok(&args);
+        let summary: serde_json::Value = serde_json::from_slice(&mireg_ok(&args).stdout).unwrap();
         let c = contents(&out);
-        (c.messages.iter().filter(|m| m.0 == "/mireg/stats"))
+        let frames = (c.messages.iter().filter(|m| m.0 == "/mireg/stats"))
             .filter_map(|m| {
                 let v: serde_json::Value = serde_json::from_slice(&m.3).unwrap();
-                v["map_guess"].as_str().map(str::to_string)
+                let guess = v["map_guess"].as_str()?.to_string();
+                Some((guess, v["num_inliers"].as_u64()))
             })
-            .collect()
+            .collect();
+        (frames, summary)
     };
-    let default = guesses(&[]);
-    let tracked = default.iter().filter(|g| *g == "tracked").count();
-    assert!(tracked > default.len() / 2, "{default:?}");
-    assert_eq!(guesses(&["--track-first"]), default);
-    let global = guesses(&["--global-every-frame"]);
+    let (default, summary) = run(&[]);
+    let tracked: Vec<_> = default.iter().filter(|(g, _)| g == "tracked").collect();
+    assert!(tracked.len() > default.len() / 2, "{default:?}");
+    assert!(tracked.iter().all(|(_, n)| n.is_none()), "{default:?}");
+    let global: Vec<u64> = default
+        .iter()
+        .filter(|(g, _)| g != "tracked")
+        .map(|(g, n)| n.unwrap_or_else(|| panic!("a {g} frame without inliers")))
+        .collect();
+    assert_eq!(
+        summary["tracked_frames"].as_u64(),
+        Some(tracked.len() as u64)
+    );
+    let mean = global.iter().sum::<u64>() as f64 / global.len() as f64;
+    let reported = summary["mean_inliers"].as_f64().unwrap();
+    assert!((reported - mean).abs() < 1e-9, "{reported} against {mean}");
+    assert_eq!(run(&["--track-first"]).0, default);
+    let (global, summary) = run(&["--global-every-frame"]);
     assert_eq!(global.len(), default.len());
-    assert!(global.iter().all(|g| g.ends_with("global")), "{global:?}");
+    assert!(
+        global
+            .iter()
+            .all(|(g, n)| g.ends_with("global") && n.is_some_and(|n| n > 0)),
+        "{global:?}"
+    );
+    assert_eq!(summary["tracked_frames"].as_u64(), Some(0));
     let input = fixture();
     let both = mireg(&[
         "register",

@@ -46,7 +46,8 @@ Entity paths
 ``log/failures``                  TextLog (WARN) per failed frame: reason and fallback
 ``stats/inliers``, ``stats/correspondences``, ``stats/inlier_ratio``, ``stats/hypotheses``,
 ``stats/best_found_at``, ``stats/fitness``, ``stats/inlier_rmse_m``, ``stats/icp_iterations``
-                                  Scalars, one per ``/mireg/stats`` message (null fields are skipped)
+                                  Scalars, one per ``/mireg/stats`` message (null fields are skipped:
+                                  a frame tracked on the local map has no global registration)
 ``stats/timings_ms/<stage>``      Scalars per stage of ``timings_s`` (decode, downsample, normals,
                                   features, matching, ranking, ransac, icp, register), in ms
 ``world/pair/target`` (white), ``world/pair/source`` (magenta), ``world/pair/correspondences``

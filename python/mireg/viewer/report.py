@@ -4,7 +4,8 @@ Panels:
   1. trajectory top view: estimate (``/mireg/pose``) vs reference (``/ground_truth/pose``, if the
      log has it, aligned to the estimate as ``mireg evaluate --odometry`` aligns it), projected on the plane orthogonal to "up" (−y for ``*optical_frame`` clouds, whose
      world is the first sensor frame: x right / z forward; +z otherwise); failed frames as red x;
-  2. per-frame RANSAC inliers and correspondences (``/mireg/stats``), failed frames shaded red;
+  2. per-frame RANSAC inliers and correspondences (``/mireg/stats``; none on frames tracked on the
+     local map, which skip global registration), failed frames shaded red;
   3. per-frame relative pose error (RPE) translation [cm] and
   4. rotation [deg] of the estimate against the reference, computed here as
      ``E_k = (ref_{k−1}⁻¹ ref_k)⁻¹ (est_{k−1}⁻¹ est_k)``: translation error ‖t(E_k)‖, rotation error
