@@ -126,14 +126,18 @@ impl Default for OdometryConfig {
     }
 }
 
-/// Whether a registration's information `omega` constrains every direction: its smallest over
-/// largest eigenvalue (translation and rotation blocks, [`uncertainty::degeneracy`]) at least
-/// [`TRACK_MIN_DEGENERACY`]; `false` without one.
-fn constrained(omega: Option<&Matrix6<f64>>) -> bool {
-    omega.is_some_and(|omega| {
-        let (t, r) = uncertainty::degeneracy(omega);
-        t.min(r) >= TRACK_MIN_DEGENERACY
-    })
+/// Whether a fit lets tracking go on ([`OdometryConfig::track_first`]): ICP moved the
+/// prediction by `miss` \[m\], at most [`TRACK_MAX_CORRECTION_DISTANCES`] map distances
+/// (`distance` \[m\]), and the registration's information `omega` constrains every direction
+/// (smallest over largest eigenvalue of the translation and rotation blocks,
+/// [`uncertainty::degeneracy`], at least [`TRACK_MIN_DEGENERACY`]; `false` without one). The
+/// rule a tracked fit must meet, and the one that lets the next frame try tracking.
+fn tracks_on(miss: f64, distance: f64, omega: Option<&Matrix6<f64>>) -> bool {
+    miss <= TRACK_MAX_CORRECTION_DISTANCES * distance
+        && omega.is_some_and(|omega| {
+            let (t, r) = uncertainty::degeneracy(omega);
+            t.min(r) >= TRACK_MIN_DEGENERACY
+        })
 }
 
 /// How a failed frame's pose was obtained.
@@ -530,7 +534,8 @@ impl Odometry {
             // The map first: the prediction refined on it may make global registration needless.
             let target = map_target(map, map_pending, &frame, prev, &world_from_prev, distance);
             if let Some(s) = target.as_ref().ok().copied().flatten()
-                && let Some(tracked) = self.track(&frame, s, &predicted, last_map_fitness)?
+                && let Some(tracked) =
+                    self.track(&frame, s, (&predicted, distance), last_map_fitness)?
             {
                 return Ok(self.accept_map_fit(est, frame, tracked, &world_from_prev, distance));
             }
@@ -589,12 +594,13 @@ impl Odometry {
     }
 
     /// With [`OdometryConfig::track_first`]: the prediction refined on the built map target
-    /// (built in `target_s` seconds), if it fits well enough to skip global registration.
+    /// (built in `target_s` seconds; `distance` \[m\] the map's correspondence distance), if it
+    /// fits well enough to skip global registration.
     fn track(
         &self,
         frame: &PreparedFrame,
         target_s: f64,
-        predicted: &Isometry3<f64>,
+        (predicted, distance): (&Isometry3<f64>, f64),
         last_map_fitness: Option<f64>,
     ) -> Result<Option<(Isometry3<f64>, MapFit)>> {
         let (Some(target), Some(last)) = (
@@ -607,13 +613,14 @@ impl Odometry {
         else {
             return Ok(None);
         };
-        let distance = map_icp_distance(&self.config.pair)?;
         let good = fit.used
             && fit.fitness >= DOUBTFUL_MAP_FITNESS
             && fit.fitness >= TRACK_FITNESS_RATIO * last
-            && retry::prediction_miss(&pose, predicted)
-                <= TRACK_MAX_CORRECTION_DISTANCES * distance
-            && constrained(uncertainty::registration_information(&fit.hessian, &pose).as_ref());
+            && tracks_on(
+                retry::prediction_miss(&pose, predicted),
+                distance,
+                uncertainty::registration_information(&fit.hessian, &pose).as_ref(),
+            );
         Ok(good.then_some((
             pose,
             MapFit {
@@ -636,21 +643,21 @@ impl Odometry {
     ) -> FrameEstimate {
         let last_map_fitness = self.last_map_fitness;
         // The first step's prediction is the identity, not a measured motion: not a miss.
-        let mut followed = false;
+        let mut miss = None;
         if last_map_fitness.is_some() {
             let predicted = world_from_prev * self.velocity;
             if self.prediction_misses.len() == retry::RECENT_MISSES {
                 self.prediction_misses.pop_front();
             }
-            let miss = retry::prediction_miss(&pose, &predicted);
-            self.prediction_misses.push_back(miss);
-            followed = miss <= TRACK_MAX_CORRECTION_DISTANCES * distance;
+            let m = retry::prediction_miss(&pose, &predicted);
+            self.prediction_misses.push_back(m);
+            miss = Some(m);
         }
         est.prev_from_curr = world_from_prev.inverse() * pose;
         self.velocity = est.prev_from_curr;
         est.world_from_frame = pose;
         est.information = uncertainty::registration_information(&fit.hessian, &pose);
-        self.track_next = followed && constrained(est.information.as_ref());
+        self.track_next = miss.is_some_and(|m| tracks_on(m, distance, est.information.as_ref()));
         est.map = Some(fit);
         suspect::judge(&mut est, last_map_fitness, self.config.pair.max_hypotheses);
         self.last_map_fitness = Some(fit.fitness);

@@ -525,14 +525,7 @@ fn cli_tracks_first_by_default_and_can_register_every_frame_globally() {
         "{global:?}"
     );
     assert_eq!(summary["tracked_frames"].as_u64(), Some(0));
-    let input = fixture();
-    let both = mireg(&[
-        "register",
-        input.to_str().unwrap(),
-        "--track-first",
-        "--global-every-frame",
-    ]);
-    assert_eq!(both.status.code(), Some(2));
+    assert_usage_error(&["--track-first", "--global-every-frame"]);
 }
 
 /// The map's fine stage runs by default, `--no-map-fine` turns it off (per-frame statistics
@@ -563,12 +556,14 @@ fn cli_map_fine_is_on_by_default_and_can_be_turned_off() {
     assert_eq!(fine_iterations(&["--map-fine"]), on);
     let off = fine_iterations(&["--no-map-fine"]);
     assert!(!off.is_empty() && off.iter().all(|&n| n == 0), "{off:?}");
+    assert_usage_error(&["--map-fine", "--no-map-fine"]);
+}
+
+/// `mireg register` of the fixture with `flags` exits with clap's usage error (2).
+fn assert_usage_error(flags: &[&str]) {
     let input = fixture();
-    let both = mireg(&[
-        "register",
-        input.to_str().unwrap(),
-        "--map-fine",
-        "--no-map-fine",
-    ]);
-    assert_eq!(both.status.code(), Some(2));
+    let mut args = vec!["register", input.to_str().unwrap()];
+    args.extend(flags);
+    let run = mireg(&args);
+    assert_eq!(run.status.code(), Some(2), "{flags:?}");
 }
