@@ -7,9 +7,9 @@
 //! of a column are one contiguous run of points: a query scans 9 runs, against a kd-tree descent with a
 //! result heap (dense scoring on the bunny feature clouds, ~1250 queries against ~1400 points:
 //! 52–102 ns per query against 510–547 ns with the kd-tree, `DIAG_BENCH=1 examples/pair_diag.rs`
-//! on a busy 2-core machine). Memory grows with the cloud's extent over the radius squared (one entry per
-//! column): [`RadiusGrid::new`] declines clouds that would need more than a cap of columns, and the
-//! caller falls back to a kd-tree.
+//! on a busy 2-core machine). Memory grows with the cloud's extent over the radius squared (a bit
+//! per column, an entry per occupied one where most are empty): [`RadiusGrid::new`] declines
+//! clouds that would need more than a cap of columns, and the caller falls back to a kd-tree.
 
 use nalgebra::Point3;
 
@@ -30,10 +30,15 @@ pub fn default_max_columns(points: usize) -> usize {
 
 /// A cloud bucketed for "nearest point strictly within `radius`" queries.
 ///
-/// Layout: the cloud's two longest axes span a dense 2-D array of columns; along the shortest axis
-/// each column stores only the cells between its lowest and highest occupied one. A LiDAR scan
-/// (160 m × 160 m × 20 m at a 0.75 m radius: 1.8 M cells, ~45 k columns) thus costs about one
-/// entry per column plus one per occupied height, not the full box.
+/// Layout: the cloud's two longest axes span a 2-D array of columns; along the shortest axis
+/// each column stores only the cells between its lowest and highest occupied one. Only the
+/// occupied columns have an entry; a bit per column ([`Occupancy`]) finds it. A LiDAR scan
+/// (160 m × 160 m × 20 m at a 0.75 m radius: 1.8 M cells, ~45 k columns) thus costs a bit per
+/// column plus an entry per occupied column and height, not the full box.
+///
+/// NOTE: an entry for every column, empty or not (8 bytes, and 8 more while building), made a
+/// grid over a 16 k-point KAIST03 scan at 0.37 m 10–14 MB, built in 4–9 ms, mostly zeroing and
+/// faulting in its column table; a loop verification builds one or two (docs/SESSIONS.md).
 #[derive(Debug, Clone)]
 pub struct RadiusGrid {
     /// Axis indices: `axes[0]`, `axes[1]` span the columns, `axes[2]` runs along them.
@@ -48,8 +53,10 @@ pub struct RadiusGrid {
     slack: f64,
     /// Cells along the two column axes.
     dims: [usize; 2],
-    /// Per column `(first occupied cell along the column, offset into starts)`; an empty column
-    /// has `offset == next column's offset`.
+    /// Which columns hold points, and the entry in `columns` of each that does.
+    occupied: Occupancy,
+    /// Per occupied column, in column order, `(first occupied cell along the column, offset
+    /// into starts)`, then one entry past the last whose offset ends the last column.
     columns: Vec<(u32, u32)>,
     /// For the cells `lo ..= hi` of a column at `offset`: `starts[offset + k]` is the first point
     /// of cell `lo + k`, `starts[offset + hi − lo + 1]` the end of the column's points.
@@ -66,6 +73,81 @@ pub struct RadiusGrid {
     scratch: Box<Scratch>,
 }
 
+/// Which columns of a grid have an entry in its column table. Dense: every column has one (an
+/// empty column's offset is the next one's). Sparse: only the occupied ones; one bit per column
+/// (row-major over the two column axes) tells which, with the count of set bits before each
+/// 64-bit word, so an occupied column's rank among them is its entry. A word and its count share
+/// 16 bytes: one cache line answers a lookup.
+///
+/// NOTE: dense when the table is small beside the points ([`SPARSE_COLUMNS_PER_ENTRY`]): a
+/// lookup there is one read, where the bits take a popcount and a second read (nearest-point
+/// queries on a KITTI scan at 0.375 m, 160 k columns for 25 k points: 3.0 ms dense, 3.4 ms
+/// sparse, `examples/radius_grid_bench.rs`).
+#[derive(Debug, Clone, Default)]
+pub(super) struct Occupancy {
+    sparse: bool,
+    /// Sparse: per 64 columns, their bits and the set bits before them.
+    words: Vec<(u64, u64)>,
+}
+
+/// A grid keeps an entry for occupied columns only ([`Occupancy`]) when it has more than this
+/// many columns per entry of its points (point or cell): 16.
+pub const SPARSE_COLUMNS_PER_ENTRY: usize = 16;
+
+impl Occupancy {
+    /// An entry per column.
+    pub(super) fn dense(&mut self) {
+        self.sparse = false;
+        self.words.clear();
+    }
+
+    /// Sparse over `columns` columns, none occupied yet.
+    pub(super) fn sparse(&mut self, columns: usize) {
+        self.sparse = true;
+        self.words.clear();
+        self.words.resize(columns.div_ceil(64), (0, 0));
+    }
+
+    /// Marks column `col` occupied (sparse).
+    #[inline]
+    pub(super) fn set(&mut self, col: usize) {
+        self.words[col / 64].0 |= 1 << (col % 64);
+    }
+
+    /// After the last [`Occupancy::set`]: the ranks, and how many columns are occupied.
+    pub(super) fn finish(&mut self) -> usize {
+        let mut total = 0u64;
+        for (bits, rank) in &mut self.words {
+            *rank = total;
+            total += u64::from(bits.count_ones());
+        }
+        total as usize
+    }
+
+    /// The entry of column `col`; sparse, `None` when it holds no point.
+    #[inline(always)]
+    fn entry(&self, col: usize) -> Option<usize> {
+        if !self.sparse {
+            return Some(col);
+        }
+        let (bits, rank) = self.words[col / 64];
+        let b = col % 64;
+        (bits >> b & 1 == 1)
+            .then(|| rank as usize + (bits & ((1u64 << b) - 1)).count_ones() as usize)
+    }
+
+    /// The entry of an occupied column `col` (sparse).
+    #[inline]
+    pub(super) fn entry_of_occupied(&self, col: usize) -> usize {
+        let (bits, rank) = self.words[col / 64];
+        rank as usize + (bits & ((1u64 << (col % 64)) - 1)).count_ones() as usize
+    }
+
+    fn heap_bytes(&self) -> usize {
+        self.words.capacity() * 16
+    }
+}
+
 #[derive(Debug, Clone, Default)]
 struct Scratch {
     cell: Vec<(usize, u32)>,
@@ -77,6 +159,7 @@ struct Scratch {
 /// building another grid without allocating ([`RadiusGrid::new_reusing`]).
 #[derive(Debug, Default)]
 pub struct GridStorage {
+    occupied: Occupancy,
     columns: Vec<(u32, u32)>,
     starts: Vec<u32>,
     xyz: [Vec<f64>; 3],
@@ -262,6 +345,7 @@ impl RadiusGrid {
     pub fn into_storage(self) -> GridStorage {
         let Scratch { cell, range, next } = *self.scratch;
         GridStorage {
+            occupied: self.occupied,
             columns: self.columns,
             starts: self.starts,
             xyz: self.xyz,
@@ -461,14 +545,10 @@ impl RadiusGrid {
         }
         for x in (c[0] - 1).max(0)..=(c[0] + 1).min(n0 - 1) {
             let row = x as usize * self.dims[1];
-            // Column y's entry and the next one's offset (its end): the table has one entry
-            // past the last column.
-            let columns = &self.columns[row + y_lo as usize..=row + y_hi as usize + 1];
-            for pair in columns.windows(2) {
-                let ((z_lo, off), end) = (pair[0], pair[1].1);
-                if off == end {
+            for y in y_lo..=y_hi {
+                let Some((z_lo, off, end)) = self.column(row + y as usize) else {
                     continue;
-                }
+                };
                 let z_hi = z_lo as i64 + (end - off) as i64 - 2;
                 let (a, b) = ((c[2] - 1).max(z_lo as i64), (c[2] + 1).min(z_hi));
                 if a > b {
@@ -481,6 +561,16 @@ impl RadiusGrid {
         }
     }
 
+    /// Column `col`'s first cell along it, its offset into `starts` and its end there (the next
+    /// entry's offset: the table has one entry past the last column); `None` when it holds no
+    /// point.
+    #[inline(always)]
+    fn column(&self, col: usize) -> Option<(u32, u32, u32)> {
+        let k = self.occupied.entry(col)?;
+        let ((z_lo, off), end) = (self.columns[k], self.columns[k + 1].1);
+        (off != end).then_some((z_lo, off, end))
+    }
+
     /// Storage range of the points in cells `c[2] − 1 ..= c[2] + 1` of column
     /// `(c[0] + dx, c[1] + dy)`, or `None` when that column is outside the grid or holds none.
     #[inline]
@@ -489,12 +579,7 @@ impl RadiusGrid {
         if x < 0 || y < 0 || x >= self.dims[0] as i64 || y >= self.dims[1] as i64 {
             return None;
         }
-        let col = x as usize * self.dims[1] + y as usize;
-        let (z_lo, off) = self.columns[col];
-        let end = self.columns[col + 1].1;
-        if off == end {
-            return None;
-        }
+        let (z_lo, off, end) = self.column(x as usize * self.dims[1] + y as usize)?;
         let z_hi = z_lo as i64 + (end - off) as i64 - 2;
         let (a, b) = ((c[2] - 1).max(z_lo as i64), (c[2] + 1).min(z_hi));
         if a > b {
@@ -537,11 +622,18 @@ impl RadiusGrid {
     /// any scratch kept for a rebuild (capacities, not lengths).
     pub fn heap_bytes(&self) -> usize {
         let Scratch { cell, range, next } = &*self.scratch;
-        self.columns.capacity() * std::mem::size_of::<(u32, u32)>()
+        self.occupied.heap_bytes()
+            + self.columns.capacity() * std::mem::size_of::<(u32, u32)>()
             + (self.starts.capacity() + self.index.capacity() + next.capacity()) * 4
             + self.xyz.iter().map(|v| v.capacity() * 8).sum::<usize>()
             + cell.capacity() * std::mem::size_of::<(usize, u32)>()
             + range.capacity() * std::mem::size_of::<(u32, u32)>()
+    }
+
+    /// Whether only the occupied columns have an entry ([`Occupancy`]).
+    #[cfg(test)]
+    fn is_sparse(&self) -> bool {
+        self.occupied.sparse
     }
 
     /// Whether the grid holds no points (never: [`RadiusGrid::new`] declines empty clouds).

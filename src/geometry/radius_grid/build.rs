@@ -3,7 +3,7 @@
 
 use nalgebra::Point3;
 
-use super::{GridStorage, RadiusGrid, Scratch, lattice_axes};
+use super::{GridStorage, Occupancy, RadiusGrid, SPARSE_COLUMNS_PER_ENTRY, Scratch, lattice_axes};
 
 /// The layout of a grid over lattice keys between `lo` and `hi`; `None` beyond `max_columns`
 /// columns or keys beyond ±2³⁰ (where the cell edge no longer covers rounding).
@@ -56,7 +56,7 @@ pub(super) struct Tables {
 
 impl Layout {
     /// The grid of this layout with these tables.
-    fn into_grid(self, tables: Tables, scratch: Scratch) -> RadiusGrid {
+    fn into_grid(self, tables: Tables, occupied: Occupancy, scratch: Scratch) -> RadiusGrid {
         let Tables {
             columns,
             starts,
@@ -72,6 +72,7 @@ impl Layout {
             // (p − min) / edge is off by a few ulps of p's magnitude; 1e-6 of the edge on top.
             slack: 1e-6 * self.edge + 64.0 * f64::EPSILON * self.max_abs,
             dims: self.dims,
+            occupied,
             columns,
             starts,
             xyz,
@@ -91,17 +92,32 @@ pub(super) fn assemble(
     run: impl Fn(usize) -> std::ops::Range<usize>,
 ) -> Option<RadiusGrid> {
     let GridStorage {
+        mut occupied,
         mut columns,
         mut starts,
         mut xyz,
         mut index,
-        cell,
+        mut cell,
         mut range,
         mut next,
     } = storage;
     let dims = layout.dims;
+    let mut num_columns = dims[0] * dims[1];
+    if num_columns > SPARSE_COLUMNS_PER_ENTRY * cell.len() {
+        // The occupied columns, and each entry's column replaced by its rank among them: the
+        // tables below cover those alone.
+        occupied.sparse(num_columns);
+        for &(col, _) in &cell {
+            occupied.set(col);
+        }
+        num_columns = occupied.finish();
+        for (col, _) in &mut cell {
+            *col = occupied.entry_of_occupied(*col);
+        }
+    } else {
+        occupied.dense();
+    }
     // Occupied range of each column.
-    let num_columns = dims[0] * dims[1];
     range.clear();
     range.resize(num_columns, (u32::MAX, 0u32));
     for &(col, z) in &cell {
@@ -110,7 +126,7 @@ pub(super) fn assemble(
         r.1 = r.1.max(z);
     }
     // Each column's offset: a running sum of the occupied columns' widths (cells + 1 end entry).
-    // One branch-free pass: a local map's grid has ~10⁶ columns, most of them empty.
+    // One branch-free pass: a dense table may hold many empty columns.
     columns.clear();
     let mut offset = 0u64;
     columns.extend(range.iter().map(|&(z_lo, z_hi)| {
@@ -164,7 +180,7 @@ pub(super) fn assemble(
         index,
         index_is_storage_order: false,
     };
-    Some(layout.into_grid(tables, Scratch { cell, range, next }))
+    Some(layout.into_grid(tables, occupied, Scratch { cell, range, next }))
 }
 
 /// [`assemble`] for points already in storage order, `cells` (key, points) in lattice order
@@ -178,6 +194,7 @@ pub(super) fn assemble_sorted(
     lo: [i64; 3],
 ) -> Option<RadiusGrid> {
     let GridStorage {
+        mut occupied,
         mut columns,
         mut starts,
         mut xyz,
@@ -190,10 +207,16 @@ pub(super) fn assemble_sorted(
     let at = |key: &[i64; 3], k: usize| (key[axes[k]] - lo[axes[k]]) as usize;
     let column_of = |key: &[i64; 3]| at(key, 0) * dims[1] + at(key, 1);
     let num_columns = dims[0] * dims[1];
+    let sparse = num_columns > SPARSE_COLUMNS_PER_ENTRY * cells.len();
+    if sparse {
+        occupied.sparse(num_columns);
+    } else {
+        occupied.dense();
+        columns.reserve(num_columns + 1);
+    }
     columns.clear();
-    columns.reserve(num_columns + 1);
     starts.clear();
-    // An empty column: no cells, its offset that of the next one.
+    // An empty column of a dense table: no cells, its offset that of the next one.
     let empty = |starts: &Vec<u32>| (u32::MAX, starts.len() as u32);
     let mut total = 0u32;
     let mut rest = cells;
@@ -201,7 +224,11 @@ pub(super) fn assemble_sorted(
         let col = column_of(first);
         let len = rest.iter().take_while(|(k, _)| column_of(k) == col).count();
         let (here, after) = rest.split_at(len);
-        columns.resize(col, empty(&starts));
+        if sparse {
+            occupied.set(col);
+        } else {
+            columns.resize(col, empty(&starts));
+        }
         // The column's cells z_lo ..= z_hi: each one's first point (an empty cell's is the next
         // one's), then the end of the column's points.
         let z_lo = at(first, 2) as u32;
@@ -218,7 +245,11 @@ pub(super) fn assemble_sorted(
         starts.push(total);
         rest = after;
     }
-    columns.resize(num_columns, empty(&starts));
+    if sparse {
+        occupied.finish();
+    } else {
+        columns.resize(num_columns, empty(&starts));
+    }
     if starts.len() > u32::MAX as usize {
         return None;
     }
@@ -236,5 +267,5 @@ pub(super) fn assemble_sorted(
         index,
         index_is_storage_order: true,
     };
-    Some(layout.into_grid(tables, Scratch { cell, range, next }))
+    Some(layout.into_grid(tables, occupied, Scratch { cell, range, next }))
 }

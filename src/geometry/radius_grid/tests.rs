@@ -83,11 +83,17 @@ fn equals_brute_force_inside_around_and_far_from_the_cloud() {
             .map(|p| Point3::new(p[perm[0]], p[perm[1]], p[perm[2]]))
             .collect()
     };
+    // Both column tables answer alike: at the smallest radius the 2 m × 2 m cloud spans more
+    // than 16 columns per point (only occupied columns have an entry), at the others fewer.
+    let mut sparse = std::collections::BTreeSet::new();
     for perm in [[0, 1, 2], [2, 0, 1], [1, 2, 0]] {
         let points = permuted(perm);
         check_cloud(&points, &mut rng, |radius| {
-            let grid = RadiusGrid::new(&points, radius, usize::MAX);
-            (grid.unwrap().unwrap(), points.clone())
+            let grid = RadiusGrid::new(&points, radius, usize::MAX)
+                .unwrap()
+                .unwrap();
+            sparse.insert((radius.to_bits(), grid.is_sparse()));
+            (grid, points.clone())
         });
         // The same queries on grids whose cells are a lattice of voxels given by the caller:
         // of the cell edge, and 2.5 times larger.
@@ -97,6 +103,14 @@ fn equals_brute_force_inside_around_and_far_from_the_cloud() {
             });
         }
     }
+    let sparse_at = |r: f64| {
+        sparse
+            .iter()
+            .filter(move |(b, _)| *b == r.to_bits())
+            .map(|x| x.1)
+    };
+    assert!(sparse_at(0.01).all(|s| s), "{sparse:?}");
+    assert!(sparse_at(0.2).all(|s| !s), "{sparse:?}");
 }
 
 /// [`RadiusGrid::from_lattice`] over `points` grouped by voxel of edge `edge`, and the points
@@ -172,7 +186,7 @@ fn from_lattice_takes_a_repeated_key_as_one_cell() {
 fn check_cloud(
     points: &[Point3<f64>],
     rng: &mut Pcg64,
-    build: impl Fn(f64) -> (RadiusGrid, Vec<Point3<f64>>),
+    mut build: impl FnMut(f64) -> (RadiusGrid, Vec<Point3<f64>>),
 ) {
     let (lo, hi) = bounds(points);
     for radius in [0.01, 0.05, 0.2, 3.0] {
@@ -337,7 +351,12 @@ fn a_sorted_lattice_gives_the_grid_of_the_unsorted_one() {
     let mut rng = Pcg64::seed_from_u64(31);
     // A flat scene (z the short axis) and one long along y (the axes then differ from x, y, z),
     // with voxels of 1 to 6 points and columns holding cells with gaps along them.
-    for (span, edge) in [([20.0, 12.0, 2.0], 0.5), ([3.0, 25.0, 9.0], 0.7)] {
+    // The third spans 16 columns per cell and more: only its occupied columns have an entry.
+    for (span, edge) in [
+        ([20.0, 12.0, 2.0], 0.5),
+        ([3.0, 25.0, 9.0], 0.7),
+        ([300.0, 200.0, 2.0], 0.5),
+    ] {
         let points: Vec<Point3<f64>> = (0..3000)
             .map(|_| {
                 Point3::from(std::array::from_fn(|a| {
@@ -368,6 +387,8 @@ fn a_sorted_lattice_gives_the_grid_of_the_unsorted_one() {
         )
         .unwrap()
         .unwrap();
+        assert_eq!(sorted.is_sparse(), span[0] > 100.0);
+        assert_eq!(unsorted.is_sparse(), span[0] > 100.0);
         assert!(sorted.points_in_storage_order().eq(ordered.iter().copied()));
         assert!(
             sorted
