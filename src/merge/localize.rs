@@ -169,7 +169,19 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
     ropts.derive_voxel = true;
     ropts.topic.clone_from(&opts.topic);
     ropts.config.pair.seed = opts.seed;
-    register_log(&ropts)?;
+    // A run prior's keyframes are prepared at its own settings, while the log registers: the
+    // registration leaves part of two cores idle (it waits on its preparing thread, and that
+    // one on it).
+    let (registration, prior) = std::thread::scope(|scope| {
+        let prior = scope.spawn(|| prior.prepared(opts));
+        let registration = register_log(&ropts);
+        let prior = prior
+            .join()
+            .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+        (registration, prior)
+    });
+    registration?;
+    let prior = prior?;
     let mut log = Session::read(&registered)?;
     // Links name the log by its own file, not the temporary one.
     log.name = opts
@@ -217,25 +229,42 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
 enum Prior {
     /// A `register` (or `merge`) output.
     Run(Box<Session>),
+    /// A run with its keyframes prepared, and the loop and registration settings they were
+    /// prepared with.
+    PreparedRun(Box<(Session, LoopConfig, PairConfig)>),
     /// The points of a map file.
     Map(Vec<Point3<f64>>),
 }
 
 impl Prior {
+    /// A run's keyframes prepared as a merge prepares its first session (its voxel sets the
+    /// settings); a map file as it is (tiled to the log's reach, it waits for the log).
+    fn prepared(self, opts: &LocalizeOptions) -> Result<Self> {
+        let Prior::Run(run) = self else {
+            return Ok(self);
+        };
+        let mut sessions = [*run];
+        let budget = opts.config.keyframe_memory_bytes;
+        let (loops, pair) = prepare_sessions(&mut sessions, budget, opts.seed)?;
+        let [run] = sessions;
+        Ok(Prior::PreparedRun(Box::new((run, loops, pair))))
+    }
+
     /// The prior and the log as the two sessions to link, prepared, with the loop and
     /// registration settings: a run's voxel sets them as in a merge; a map file is tiled to the
     /// log's reach and prepared at the log's voxel ([`super::map_prior`]).
     fn with_log(
         self,
-        log: Session,
+        mut log: Session,
         opts: &LocalizeOptions,
     ) -> Result<([Session; 2], LoopConfig, PairConfig)> {
         let budget = opts.config.keyframe_memory_bytes;
         match self {
-            Prior::Run(prior) => {
-                let mut sessions = [*prior, log];
-                let (loops, pair) = prepare_sessions(&mut sessions, budget, opts.seed)?;
-                Ok((sessions, loops, pair))
+            Prior::Run(_) => self.prepared(opts)?.with_log(log, opts),
+            Prior::PreparedRun(prepared) => {
+                let (prior, loops, pair) = *prepared;
+                log.prepare_keyframes(&loops, &pair)?;
+                Ok(([prior, log], loops, pair))
             }
             Prior::Map(points) => {
                 let mut only = [log];
