@@ -66,8 +66,10 @@ impl PreparedFrame {
     /// have been built (the matching target counted at
     /// [`MatchTarget::APPROX_BYTES_PER_DESCRIPTOR`]). Capacities, not lengths. What a frame kept
     /// idle costs once [`PreparedFrame::drop_search_structures`] has run: for a KAIST03 scan at a
-    /// 0.37 m voxel 0.67 MB before its first use, and 14–15 MB more once it has served as a
-    /// target (its ICP normals, which stay, its ICP grid and matching target).
+    /// 0.37 m voxel 0.67 MB before its first use, and more once it has served as a target (its
+    /// ICP normals, which stay, its ICP grid and matching target): the grid is 1.3 MB of that
+    /// since it keeps entries for occupied columns only (until 2026-12-07 10–14 MB, and the
+    /// whole 14–15 MB).
     pub fn heap_bytes(&self) -> usize {
         let point = std::mem::size_of::<Point3<f64>>();
         let features =
