@@ -31,14 +31,16 @@ pub fn default_max_columns(points: usize) -> usize {
 /// A cloud bucketed for "nearest point strictly within `radius`" queries.
 ///
 /// Layout: the cloud's two longest axes span a 2-D array of columns; along the shortest axis
-/// each column stores only the cells between its lowest and highest occupied one. Only the
-/// occupied columns have an entry; a bit per column ([`Occupancy`]) finds it. A LiDAR scan
-/// (160 m × 160 m × 20 m at a 0.75 m radius: 1.8 M cells, ~45 k columns) thus costs a bit per
-/// column plus an entry per occupied column and height, not the full box.
+/// each column stores only the cells between its lowest and highest occupied one. A LiDAR scan
+/// (160 m × 160 m × 20 m at a 0.75 m radius: 1.8 M cells, ~45 k columns) thus costs about one
+/// entry per column plus one per occupied height, not the full box. Where most columns are empty
+/// (more than [`SPARSE_COLUMNS_PER_ENTRY`] columns per point or cell), only the occupied ones
+/// have an entry, and a bit per column finds it.
 ///
 /// NOTE: an entry for every column, empty or not (8 bytes, and 8 more while building), made a
-/// grid over a 16 k-point KAIST03 scan at 0.37 m 10–14 MB, built in 4–9 ms, mostly zeroing and
-/// faulting in its column table; a loop verification builds one or two (docs/SESSIONS.md).
+/// grid over a 16 k-point KAIST03 scan at 0.37 m (~900 k columns) 10–14 MB, built in 4–9 ms,
+/// mostly zeroing and faulting in its column table; a loop verification builds one or two
+/// (docs/SESSIONS.md). With entries for the occupied columns only: 1.3 MB, 0.5–0.7 ms.
 #[derive(Debug, Clone)]
 pub struct RadiusGrid {
     /// Axis indices: `axes[0]`, `axes[1]` span the columns, `axes[2]` runs along them.
@@ -55,8 +57,10 @@ pub struct RadiusGrid {
     dims: [usize; 2],
     /// Which columns hold points, and the entry in `columns` of each that does.
     occupied: Occupancy,
-    /// Per occupied column, in column order, `(first occupied cell along the column, offset
-    /// into starts)`, then one entry past the last whose offset ends the last column.
+    /// Per column with an entry ([`Occupancy`]: every column, or the occupied ones), in column
+    /// order, `(first occupied cell along the column, offset into starts)`, then one entry past
+    /// the last whose offset ends the last column. An empty column of a dense table has
+    /// `offset == next entry's offset`.
     columns: Vec<(u32, u32)>,
     /// For the cells `lo ..= hi` of a column at `offset`: `starts[offset + k]` is the first point
     /// of cell `lo + k`, `starts[offset + hi − lo + 1]` the end of the column's points.
@@ -90,8 +94,9 @@ pub(super) struct Occupancy {
     words: Vec<(u64, u64)>,
 }
 
-/// A grid keeps an entry for occupied columns only ([`Occupancy`]) when it has more than this
-/// many columns per entry of its points (point or cell): 16.
+/// A [`RadiusGrid`] keeps column-table entries for its occupied columns only, found by a bit per
+/// column, when it has more than this many columns per entry of its points (point or lattice
+/// cell): 16. Below, every column has an entry: one read per lookup.
 pub const SPARSE_COLUMNS_PER_ENTRY: usize = 16;
 
 impl Occupancy {
@@ -155,8 +160,8 @@ struct Scratch {
     next: Vec<u32>,
 }
 
-/// The vectors of a [`RadiusGrid`] (its cells and the temporaries of building it), emptied, for
-/// building another grid without allocating ([`RadiusGrid::new_reusing`]).
+/// The vectors of a [`RadiusGrid`] (its cells and the temporaries of building it), for building
+/// another grid without allocating ([`RadiusGrid::new_reusing`]): each build clears them first.
 #[derive(Debug, Default)]
 pub struct GridStorage {
     occupied: Occupancy,
@@ -535,7 +540,7 @@ impl RadiusGrid {
     /// Calls `f` with the storage range of the points in cells `c[2] − 1 ..= c[2] + 1` of each
     /// column `(c[0] + dx, c[1] + dy)`, dx, dy ∈ {−1, 0, 1}, that is inside the grid and holds
     /// some, in storage order. [`Self::column_run`] for the 3 × 3 block, with one bounds check
-    /// per row and the row's column entries read as one slice.
+    /// per row.
     #[inline]
     fn for_each_run(&self, c: [i64; 3], mut f: impl FnMut(std::ops::Range<usize>)) {
         let (n0, n1) = (self.dims[0] as i64, self.dims[1] as i64);
@@ -618,8 +623,8 @@ impl RadiusGrid {
         self.index.len()
     }
 
-    /// The heap this grid holds \[bytes\]: its columns, cell starts, coordinates, indices and
-    /// any scratch kept for a rebuild (capacities, not lengths).
+    /// The heap this grid holds \[bytes\]: its column bits (sparse), columns, cell starts,
+    /// coordinates, indices and any scratch kept for a rebuild (capacities, not lengths).
     pub fn heap_bytes(&self) -> usize {
         let Scratch { cell, range, next } = &*self.scratch;
         self.occupied.heap_bytes()

@@ -66,7 +66,7 @@ pub struct LocalizeOptions {
     pub log: PathBuf,
     /// The prior: a `mireg register` (or `merge`) output (its clouds and best trajectory), or a
     /// map file (`.ply`, `.pcd`, `.npy`, as `mireg map` writes them; told by extension), cut
-    /// into tiles ([`super::map_prior`]).
+    /// into tiles (the module `merge::map_prior`).
     pub prior: PathBuf,
     /// The output MCAP: the log's messages, its poses in the prior's world, the status per frame.
     pub output: PathBuf,
@@ -144,9 +144,9 @@ struct Placed {
 /// Localises `opts.log` in `opts.prior`; see the module doc.
 ///
 /// # Errors
-/// [`Error::InvalidInput`] when the output is an input or exists without `force`, the prior is
-/// not a `register` output (naming it); `register`'s errors on the log; the writers' errors. A
-/// log that does not localise is not an error: its frames are `lost`.
+/// [`crate::Error::InvalidInput`] when the output is an input or exists without `force`, the
+/// prior is not a `register` output (naming it); `register`'s errors on the log; the writers'
+/// errors. A log that does not localise is not an error: its frames are `lost`.
 pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
     let t0 = Instant::now();
     let inputs = [opts.log.as_path(), opts.prior.as_path()];

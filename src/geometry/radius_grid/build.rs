@@ -185,7 +185,8 @@ pub(super) fn assemble(
 
 /// [`assemble`] for points already in storage order, `cells` (key, points) in lattice order
 /// under `layout.axes` and `lo` the keys' lower bounds: the same tables, written in one pass
-/// over the cells (and the empty columns between them) instead of a counting sort.
+/// over the cells (and, in a dense table, the empty columns between them) instead of a counting
+/// sort.
 pub(super) fn assemble_sorted(
     points: &[Point3<f64>],
     layout: Layout,
@@ -208,13 +209,13 @@ pub(super) fn assemble_sorted(
     let column_of = |key: &[i64; 3]| at(key, 0) * dims[1] + at(key, 1);
     let num_columns = dims[0] * dims[1];
     let sparse = num_columns > SPARSE_COLUMNS_PER_ENTRY * cells.len();
+    columns.clear();
     if sparse {
         occupied.sparse(num_columns);
     } else {
         occupied.dense();
         columns.reserve(num_columns + 1);
     }
-    columns.clear();
     starts.clear();
     // An empty column of a dense table: no cells, its offset that of the next one.
     let empty = |starts: &Vec<u32>| (u32::MAX, starts.len() as u32);

@@ -281,21 +281,78 @@ fn a_grid_built_in_reused_storage_answers_as_a_new_one() {
             .map(|_| Point3::from(std::array::from_fn(|_| rng.random_range(0.0..size))))
             .collect()
     };
-    // Storage of a larger and of a smaller cloud, at another radius.
-    for (n, size) in [(5000, 30.0), (200, 2.0)] {
+    // Storage of a larger and of a smaller cloud, at another radius, and of a grid whose table
+    // has entries for occupied columns only (300 points over 200 m: sparse), into grids with a
+    // dense table and with a sparse one.
+    let mut modes = std::collections::BTreeSet::new();
+    for ((n, size), (m, span)) in [
+        ((5000, 30.0), (1500, 10.0)),
+        ((200, 2.0), (1500, 10.0)),
+        ((300, 200.0), (1500, 10.0)),
+        ((5000, 30.0), (300, 200.0)),
+    ] {
         let old = RadiusGrid::new(&cloud(&mut rng, n, size), 0.7, usize::MAX)
             .unwrap()
             .unwrap();
-        let points = cloud(&mut rng, 1500, 10.0);
+        let points = cloud(&mut rng, m, span);
         let fresh = RadiusGrid::new(&points, 0.4, usize::MAX).unwrap().unwrap();
+        modes.insert((old.is_sparse(), fresh.is_sparse()));
         let reused = RadiusGrid::new_reusing(&points, 0.4, usize::MAX, old.into_storage())
             .unwrap()
             .unwrap();
         for _ in 0..3000 {
-            let q = Point3::from(std::array::from_fn(|_| rng.random_range(-1.0..11.0)));
+            let p = points[rng.random_range(0..points.len())];
+            let q = p + nalgebra::Vector3::from_fn(|_, _| rng.random_range(-0.6..0.6));
             assert_eq!(reused.nearest_within(&q), fresh.nearest_within(&q));
             assert_eq!(reused.any_within(&q), fresh.any_within(&q));
         }
+    }
+    assert!(
+        modes.contains(&(true, false)) && modes.contains(&(false, true)),
+        "{modes:?}"
+    );
+}
+
+/// A local map's grid is rebuilt every frame in the storage of the last one: the same cells
+/// rebuilt there hold no more heap than the first build, dense or sparse.
+#[test]
+fn a_sorted_lattice_rebuilt_in_its_storage_holds_no_more() {
+    let mut rng = Pcg64::seed_from_u64(13);
+    for span in [10.0, 300.0] {
+        let points: Vec<Point3<f64>> = (0..2000)
+            .map(|_| {
+                Point3::new(
+                    rng.random_range(0.0..span),
+                    rng.random_range(0.0..span),
+                    1.0,
+                )
+            })
+            .collect();
+        let (mut grid, _) = lattice_grid(&points, 0.4, 0.5);
+        grid.index_by_storage_order();
+        let ordered: Vec<Point3<f64>> = grid.points_in_storage_order().collect();
+        let key = |p: &Point3<f64>| [p.x, p.y, p.z].map(|c| crate::geometry::floor_i64(c / 0.5));
+        let mut cells: Vec<([i64; 3], u32)> = Vec::new();
+        for p in &ordered {
+            match cells.last_mut() {
+                Some((k, n)) if *k == key(p) => *n += 1,
+                _ => cells.push((key(p), 1)),
+            }
+        }
+        let build = |storage| {
+            RadiusGrid::from_sorted_lattice(&ordered, &cells, 0.5, 0.4, usize::MAX, storage)
+                .unwrap()
+                .unwrap()
+        };
+        let first = build(GridStorage::default());
+        let bytes = first.heap_bytes();
+        let sparse = first.is_sparse();
+        let mut again = first;
+        for _ in 0..3 {
+            again = build(again.into_storage());
+            assert_eq!(again.heap_bytes(), bytes, "span {span}");
+        }
+        assert_eq!(sparse, span > 100.0);
     }
 }
 
