@@ -10,7 +10,9 @@ comparison. Then
 * `mireg localize LOG --map B` (the whole raw log in a prior map of its second half), scored by
   tools/localize_error.py: unaligned position error in the prior's world; and the same with the
   prior as a map file (`mireg map B -o B.ply`, cut into tiles by localize);
-* a foreign pair (the first log's first half with the last log's second half) must stay apart.
+* a foreign pair (the first log's first half with the last log's second half) must stay apart,
+  and the first log localised in the last one's second half (run and map file) must localise
+  no frame.
 
 Timings are wall-clock seconds of each command on this machine. Logs: the ICL fixture and, when
 given, logs from tools/make_loop_logs.py (out-and-back: the halves are the way out and the way
@@ -103,6 +105,15 @@ def main(argv):
         report = json.loads((fdir / "merge_report.json").read_text())
         foreign = {"pair": [halves[0][0].name, halves[-1][1].name], "groups": report["groups"],
                    "links_accepted": report["links_accepted"]}
+        # And the first log localised in the last one's map, as a run and as a map file: no
+        # frame may be localised (the target: 0 on a foreign map).
+        foreign["localize"] = []
+        for prior in (halves[-1][1], args.work / f"{args.logs[-1].stem}_b.ply"):
+            out = args.work / f"foreign_localized_{prior.suffix[1:]}.mcap"
+            _, js = run([m, "localize", args.logs[0], "--map", prior, "-o", out, "--force",
+                         "--json"])
+            summary = json.loads(js)
+            foreign["localize"].append((prior.name, summary["localized"], summary["frames"]))
     print("| log | clouds | merge: groups | joint ATE | one log's ATE | ratio | links (wrong) | "
           "merge s | localize: placed (localized) | unaligned RMSE | prior's own unaligned | "
           "localize s | register s |")
@@ -124,6 +135,9 @@ def main(argv):
     if foreign:
         print(f"\nforeign pair {foreign['pair']}: {foreign['groups']} groups, "
               f"{foreign['links_accepted']} links accepted")
+        for prior, localized, frames in foreign["localize"]:
+            print(f"{args.logs[0].name} localised in the foreign map {prior}: {localized} of "
+                  f"{frames} frames localized")
 
 
 if __name__ == "__main__":
