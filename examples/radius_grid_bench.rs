@@ -1,7 +1,7 @@
 //! Times nearest-within-radius queries on a real pair, as dense RANSAC verification and ICP ask
 //! them: every downsampled source point, moved by a pose, against the downsampled target's
-//! [`RadiusGrid`] at 1.5·voxel, and the grid's build. Prints a checksum of the answers so that a speed-up can be checked
-//! to leave them bit-identical.
+//! [`RadiusGrid`] at 1.5·voxel, and the grid's build. Prints a checksum of the answers so that a
+//! speed-up can be checked to leave them bit-identical.
 //!
 //! ```sh
 //! cargo run --release --example radius_grid_bench -- \

@@ -100,17 +100,16 @@ pub(super) struct Occupancy {
 pub const SPARSE_COLUMNS_PER_ENTRY: usize = 16;
 
 impl Occupancy {
-    /// An entry per column.
-    pub(super) fn dense(&mut self) {
-        self.sparse = false;
+    /// Starts a grid of `columns` columns over `entries` points or cells: sparse (none occupied
+    /// yet) when it has more than [`SPARSE_COLUMNS_PER_ENTRY`] columns per entry, else dense.
+    /// Returns whether sparse.
+    pub(super) fn reset(&mut self, columns: usize, entries: usize) -> bool {
+        self.sparse = columns > SPARSE_COLUMNS_PER_ENTRY * entries;
         self.words.clear();
-    }
-
-    /// Sparse over `columns` columns, none occupied yet.
-    pub(super) fn sparse(&mut self, columns: usize) {
-        self.sparse = true;
-        self.words.clear();
-        self.words.resize(columns.div_ceil(64), (0, 0));
+        if self.sparse {
+            self.words.resize(columns.div_ceil(64), (0, 0));
+        }
+        self.sparse
     }
 
     /// Marks column `col` occupied (sparse).

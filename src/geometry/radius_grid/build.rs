@@ -3,7 +3,7 @@
 
 use nalgebra::Point3;
 
-use super::{GridStorage, Occupancy, RadiusGrid, SPARSE_COLUMNS_PER_ENTRY, Scratch, lattice_axes};
+use super::{GridStorage, Occupancy, RadiusGrid, Scratch, lattice_axes};
 
 /// The layout of a grid over lattice keys between `lo` and `hi`; `None` beyond `max_columns`
 /// columns or keys beyond ±2³⁰ (where the cell edge no longer covers rounding).
@@ -103,10 +103,9 @@ pub(super) fn assemble(
     } = storage;
     let dims = layout.dims;
     let mut num_columns = dims[0] * dims[1];
-    if num_columns > SPARSE_COLUMNS_PER_ENTRY * cell.len() {
+    if occupied.reset(num_columns, cell.len()) {
         // The occupied columns, and each entry's column replaced by its rank among them: the
         // tables below cover those alone.
-        occupied.sparse(num_columns);
         for &(col, _) in &cell {
             occupied.set(col);
         }
@@ -114,8 +113,6 @@ pub(super) fn assemble(
         for (col, _) in &mut cell {
             *col = occupied.entry_of_occupied(*col);
         }
-    } else {
-        occupied.dense();
     }
     // Occupied range of each column.
     range.clear();
@@ -208,12 +205,9 @@ pub(super) fn assemble_sorted(
     let at = |key: &[i64; 3], k: usize| (key[axes[k]] - lo[axes[k]]) as usize;
     let column_of = |key: &[i64; 3]| at(key, 0) * dims[1] + at(key, 1);
     let num_columns = dims[0] * dims[1];
-    let sparse = num_columns > SPARSE_COLUMNS_PER_ENTRY * cells.len();
     columns.clear();
-    if sparse {
-        occupied.sparse(num_columns);
-    } else {
-        occupied.dense();
+    let sparse = occupied.reset(num_columns, cells.len());
+    if !sparse {
         columns.reserve(num_columns + 1);
     }
     starts.clear();
