@@ -258,3 +258,22 @@ fn normals_asked_for_the_kept_points_only_give_the_same_map() {
     assert_eq!(asked.iter().map(Vec::len).sum::<usize>(), all.len());
     assert!(asked[1].len() < frame.len() / 2, "{}", asked[1].len());
 }
+
+#[test]
+fn merging_in_place_gives_the_sorted_union() {
+    use rand::{RngExt, SeedableRng};
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+    for _ in 0..200 {
+        let mut draw = || -> Vec<i64> {
+            let n = rng.random_range(0..20);
+            let mut v: Vec<i64> = (0..n).map(|_| rng.random_range(-50..50)).collect();
+            v.sort_unstable();
+            v
+        };
+        let (mut order, fresh) = (draw(), draw());
+        let mut expected = [order.clone(), fresh.clone()].concat();
+        expected.sort();
+        super::merge_into(&mut order, &fresh, |x| *x);
+        assert_eq!(order, expected);
+    }
+}
