@@ -17,7 +17,7 @@ use crate::geometry::radius_grid::default_max_columns;
 use crate::{Error, Result};
 
 mod target;
-pub use target::IcpTarget;
+pub use target::{ESTIMATE_ALL_FRACTION, IcpTarget};
 
 /// Default [`IcpConfig::max_iterations`] (Open3D's `ICPConvergenceCriteria` default).
 pub const DEFAULT_MAX_ITERATIONS: usize = 30;

@@ -465,3 +465,24 @@ fn deferred_normals_answer_as_given_ones() {
     assert!(registration_icp_point_to_plane(&source, &bare, &init, &config).is_err());
     assert!(IcpTarget::with_deferred_normals(Vec::new(), estimate).is_err());
 }
+
+#[test]
+fn asking_for_most_deferred_normals_estimates_and_keeps_them_all() {
+    let (scene, _) = corner_and_sphere();
+    let estimate = NormalEstimate::new(0.1, 30, Some(Point3::new(0.2, 0.3, 2.0)), 1 << 20).unwrap();
+    let normals = estimate.estimate(&scene, None).unwrap();
+    let half = (ESTIMATE_ALL_FRACTION * scene.len() as f64).ceil() as usize;
+    let pick = |at: &[u32]| -> Vec<_> { at.iter().map(|&i| normals[i as usize]).collect() };
+    // One index fewer than the share: those alone, the rest still pending.
+    let fewer: Vec<u32> = (0..half as u32 - 1).rev().collect();
+    let deferred = IcpTarget::with_deferred_normals(scene.clone(), estimate).unwrap();
+    assert_eq!(deferred.normals_at(&fewer).unwrap(), pick(&fewer));
+    assert!(deferred.pending_normal_bytes() > 0);
+    // The share: every normal estimated and kept, the same values.
+    let most: Vec<u32> = (0..half as u32)
+        .map(|i| (i * 7) % scene.len() as u32)
+        .collect();
+    assert_eq!(deferred.normals_at(&most).unwrap(), pick(&most));
+    assert_eq!(deferred.pending_normal_bytes(), 0, "all of them estimated");
+    assert_eq!(deferred.normals().unwrap(), &normals[..]);
+}
