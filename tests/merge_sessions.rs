@@ -357,10 +357,115 @@ fn keyframes_prepared_again_give_the_same_poses() {
                 ..MergeConfig::default()
             },
             command_line: String::new(),
+            links_dir: None,
         };
         let summary = merge(&opts).unwrap();
         assert_eq!(summary.groups, 1);
         poses.push(merged(&out.path().join(name).join("b.mcap")).poses);
     }
     assert_eq!(poses[0], poses[1]);
+}
+
+/// Every message of `topic` in `path`, as bytes, in order.
+fn messages(path: &Path, topic: &str) -> Vec<Vec<u8>> {
+    let mut id = None;
+    let mut out = Vec::new();
+    for_each_record(path, |r| {
+        match r {
+            Record::Channel(c) if c.topic == topic => id = Some(c.id),
+            Record::Message { header, data } if Some(header.channel_id) == id => {
+                out.push(data.into_owned());
+            }
+            _ => {}
+        }
+        Ok(())
+    })
+    .unwrap();
+    out
+}
+
+#[test]
+fn pairs_linked_apart_merge_as_in_one_process() {
+    let out = tempfile::tempdir().unwrap();
+    let runs = [session("a"), session("t1"), session("t2")];
+    let whole = out.path().join("whole");
+    merge_into(&whole, &[&runs[0], &runs[1], &runs[2]]);
+    // Each pair on its own (as cluster tasks run them), then the merge from their files.
+    let links = out.path().join("links");
+    let l = links.to_str().unwrap();
+    for pair in ["0,1", "0,2", "1,2"] {
+        ok(&[
+            "merge", &runs[0], &runs[1], &runs[2], "--pair", pair, "--links", l,
+        ]);
+    }
+    for file in ["pair_0_1.json", "pair_0_2.json", "pair_1_2.json"] {
+        assert!(links.join(file).is_file(), "{file}");
+    }
+    let apart = out.path().join("apart");
+    let a = apart.to_str().unwrap();
+    ok(&["merge", &runs[0], &runs[1], &runs[2], "-o", a, "--links", l]);
+    for name in ["a", "t1", "t2"] {
+        let (p, q) = (
+            whole.join(format!("{name}.mcap")),
+            apart.join(format!("{name}.mcap")),
+        );
+        assert_eq!(merged(&p).poses, merged(&q).poses, "{name}");
+        let topic = "/mireg/session_links";
+        assert_eq!(messages(&p, topic), messages(&q, topic), "{name}");
+    }
+    let (mut r, mut s) = (report(&whole), report(&apart));
+    for v in [&mut r, &mut s] {
+        let o = v.as_object_mut().unwrap();
+        o.remove("elapsed_s");
+        o.remove("output_dir");
+        for session in o["sessions"].as_array_mut().unwrap() {
+            session.as_object_mut().unwrap().remove("output");
+        }
+    }
+    assert_eq!(r, s);
+    // A pair's accepted links are the accepted links the merged output carries for it.
+    let file: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(links.join("pair_0_1.json")).unwrap()).unwrap();
+    let in_file = file["join"]["agreeing"].as_array().unwrap().len();
+    let on_topic = accepted_links(&apart.join("t1.mcap"))
+        .iter()
+        .filter(|v| v["session_a"] == "a")
+        .count();
+    assert_eq!(in_file, on_topic);
+    assert!(in_file >= 2, "{file:#}");
+    // Files of other settings are refused, named with the field; nothing is written.
+    let other = out.path().join("other");
+    let o = mireg(&[
+        "merge",
+        &runs[0],
+        &runs[1],
+        &runs[2],
+        "-o",
+        other.to_str().unwrap(),
+        "--links",
+        l,
+        "--seed",
+        "1",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("pair_0_1.json") && err.contains("inputs.seed"),
+        "{err}"
+    );
+    assert!(!other.join("a.mcap").exists());
+    // Runs given in another order are other sessions.
+    let o = mireg(&[
+        "merge",
+        &runs[1],
+        &runs[0],
+        &runs[2],
+        "-o",
+        other.to_str().unwrap(),
+        "--links",
+        l,
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(err.contains("inputs.sessions"), "{err}");
 }

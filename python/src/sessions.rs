@@ -30,6 +30,7 @@ pub(crate) fn merge(
             ..MergeConfig::default()
         },
         command_line: std::env::args().collect::<Vec<_>>().join(" "),
+        links_dir: None,
     };
     let summary = py
         .detach(|| mireg::merge::merge(&opts))

@@ -15,8 +15,17 @@ pub struct MergeArgs {
     pub runs: Vec<PathBuf>,
     /// Output folder: one `NAME.mcap` per run (the run with `…/pose_merged`, `…/tf_merged`,
     /// `…/session_links` added) and `merge_report.json`; created when missing.
-    #[arg(short, long, value_name = "DIR")]
-    pub output: PathBuf,
+    #[arg(short, long, value_name = "DIR", required_unless_present = "pair")]
+    pub output: Option<PathBuf>,
+    /// Folder of each pair's verified links, `pair_A_B.json`: read where present instead of
+    /// linking that pair (checked against the runs and settings), written for the pairs linked.
+    /// Pairs linked apart (`--pair`, on other machines) are then merged from their files.
+    #[arg(long, value_name = "DIR")]
+    pub links: Option<PathBuf>,
+    /// Link runs A and B (indices from 0 in the order given) alone and write their file in the
+    /// `--links` folder; no merged output.
+    #[arg(long, value_name = "A,B", value_parser = parse_pair, requires = "links", conflicts_with = "output")]
+    pub pair: Option<(usize, usize)>,
     /// Agreeing links, at distinct keyframes, that join two sessions.
     #[arg(long, value_name = "N", default_value_t = crate::merge::DEFAULT_MIN_LINKS)]
     pub min_links: usize,
@@ -36,11 +45,19 @@ pub struct MergeArgs {
     pub json: bool,
 }
 
+/// `A,B` as two indices.
+fn parse_pair(s: &str) -> std::result::Result<(usize, usize), String> {
+    let parsed = s
+        .split_once(',')
+        .and_then(|(a, b)| Some((a.trim().parse().ok()?, b.trim().parse().ok()?)));
+    parsed.ok_or_else(|| format!("expected two run indices A,B (e.g. 0,1), got {s:?}"))
+}
+
 /// `mireg merge`.
 pub(super) fn run_merge(args: &MergeArgs) -> Result<()> {
     let opts = MergeOptions {
         runs: args.runs.clone(),
-        output_dir: args.output.clone(),
+        output_dir: args.output.clone().unwrap_or_default(),
         force: args.force,
         seed: args.seed,
         config: MergeConfig {
@@ -49,7 +66,26 @@ pub(super) fn run_merge(args: &MergeArgs) -> Result<()> {
             ..MergeConfig::default()
         },
         command_line: super::process::command_line(),
+        links_dir: args.links.clone(),
     };
+    if let Some(pair) = args.pair {
+        let (report, path) = crate::merge::link_pair_file(&opts, pair)?;
+        if args.json {
+            println!("{}", serde_json::to_string_pretty(&report)?);
+        } else {
+            let verdict = if report.joined { "joined" } else { "apart" };
+            println!(
+                "{} + {}: {verdict}: {} ({} + {} candidates) -> {}",
+                report.a,
+                report.b,
+                report.reason,
+                report.appearance_candidates,
+                report.place_candidates,
+                path.display()
+            );
+        }
+        return Ok(());
+    }
     let s = crate::merge::merge(&opts)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&s)?);

@@ -11,6 +11,7 @@ use super::links::{
     AgreementConfig, LinkSource, SessionLink, Track, agreeing_links, appearance_candidates,
     place_candidates,
 };
+use super::pair_links::{Inputs, read_pair_links, write_pair_links};
 use super::session::{Session, prepare_sessions};
 use super::write::{LinkRecord, Verdict, write_report, write_session};
 use super::{Join, MergeConfig, graph::solve_group, group_sessions};
@@ -37,6 +38,10 @@ pub struct MergeOptions {
     pub config: MergeConfig,
     /// Recorded in each output's metadata.
     pub command_line: String,
+    /// Folder of each pair's links (`pair_A_B.json`, [`crate::merge::link_pair_file`]): read
+    /// where present instead of linking that pair, written for the pairs linked. `None`: every
+    /// pair is linked, no file written.
+    pub links_dir: Option<PathBuf>,
 }
 
 /// One session in the report.
@@ -63,7 +68,7 @@ pub struct SessionReport {
 }
 
 /// One pair of sessions in the report.
-#[derive(Debug, Clone, serde::Serialize)]
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct PairReport {
     /// The earlier session's name.
     pub a: String,
@@ -136,9 +141,14 @@ pub fn merge(opts: &MergeOptions) -> Result<MergeSummary> {
     let mut pairs = Vec::new();
     let mut kept: BTreeSet<usize> = BTreeSet::new();
     let linker = Linker::new(&sessions, &tracks, &pair, &loops, &opts.config);
+    if let Some(dir) = &opts.links_dir
+        && !dir.is_dir()
+    {
+        std::fs::create_dir(dir).map_err(|e| crate::io::io_err(dir, e))?;
+    }
     for b in 1..sessions.len() {
         for a in 0..b {
-            let outcome = linker.link_pair((a, b), &mut attempts)?;
+            let outcome = link_or_read(&linker, opts, (a, b), &mut attempts)?;
             if let Some((join, agreeing)) = outcome.join {
                 joins.push(join);
                 kept.extend(agreeing);
@@ -172,6 +182,35 @@ pub fn merge(opts: &MergeOptions) -> Result<MergeSummary> {
         opts.force,
     )?;
     Ok(summary)
+}
+
+/// Sessions `a` and `b` linked, or their links read from `opts.links_dir` where that holds
+/// their file; linked ones are written there.
+fn link_or_read(
+    linker: &Linker<'_>,
+    opts: &MergeOptions,
+    (a, b): (usize, usize),
+    attempts: &mut Vec<Attempt>,
+) -> Result<PairOutcome> {
+    let Some(dir) = &opts.links_dir else {
+        return linker.link_pair((a, b), attempts);
+    };
+    let s = linker.sessions;
+    let inputs = Inputs::new(&s[0], [(a, &s[a]), (b, &s[b])], opts.seed, &opts.config);
+    if let Some(outcome) = read_pair_links(dir, &inputs, attempts, opts.force)? {
+        return Ok(outcome);
+    }
+    let first = attempts.len();
+    let outcome = linker.link_pair((a, b), attempts)?;
+    write_pair_links(
+        dir,
+        &inputs,
+        &attempts[first..],
+        first,
+        &outcome,
+        opts.force,
+    )?;
+    Ok(outcome)
 }
 
 /// Writes each session's merged output; returns the sessions' reports.

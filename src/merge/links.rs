@@ -15,7 +15,7 @@ use nalgebra::{Isometry3, Matrix6};
 use crate::loops::{Descriptor, maximum_clique};
 
 /// How a link's candidate was found.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum LinkSource {
     /// The two keyframes' descriptors were close, whatever the sessions' poses.

@@ -29,6 +29,7 @@ mod job;
 pub mod links;
 mod localize;
 mod map_prior;
+mod pair_links;
 mod session;
 mod write;
 
@@ -39,12 +40,13 @@ pub use localize::{
     localization_json_schema, localize,
 };
 pub use map_prior::{MAP_MIN_REVERSE_FITNESS, MAX_TILES, MIN_TILE_POINTS};
+pub use pair_links::{PAIR_LINKS_FORMAT, link_pair_file, pair_links_path};
 
 /// Default [`MergeConfig::min_links`]: 2.
 pub const DEFAULT_MIN_LINKS: usize = 2;
 
 /// How sessions are linked and joined.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct MergeConfig {
     /// Agreeing links, at distinct keyframes of each session, that join two sessions. Default
     /// [`DEFAULT_MIN_LINKS`] (2): one verified link can be a look-alike place; two at different

@@ -240,15 +240,26 @@ pub(super) fn prepare_sessions(
     keyframe_memory_bytes: usize,
     seed: u64,
 ) -> Result<(LoopConfig, PairConfig)> {
-    let loops = LoopConfig {
-        memory_budget_bytes: keyframe_memory_bytes,
-        ..LoopConfig::for_voxel(sessions[0].voxel_m)
-    };
-    let pair = merge_pair_config(&sessions[0], &loops, seed);
+    let (loops, pair) = merge_settings(&sessions[0], keyframe_memory_bytes, seed);
     for s in sessions.iter_mut() {
         s.prepare_keyframes(&loops, &pair)?;
     }
     Ok((loops, pair))
+}
+
+/// The loop and registration settings of a merge whose first session is `first`: at its voxel,
+/// keyframes kept within `keyframe_memory_bytes`, with `seed`.
+pub(super) fn merge_settings(
+    first: &Session,
+    keyframe_memory_bytes: usize,
+    seed: u64,
+) -> (LoopConfig, PairConfig) {
+    let loops = LoopConfig {
+        memory_budget_bytes: keyframe_memory_bytes,
+        ..LoopConfig::for_voxel(first.voxel_m)
+    };
+    let pair = merge_pair_config(first, &loops, seed);
+    (loops, pair)
 }
 
 /// The registration settings of a merge: a loop verification's at `session`'s voxels, with
