@@ -35,8 +35,9 @@ def parse(argv: list[str]):
                    help="an fsspec storage option for s3:// (or other) URLs, repeatable, e.g. "
                         "endpoint_url=http://127.0.0.1:9000 for an S3-compatible store")
     r.add_argument("--merge", metavar="DIR",
-                   help="then merge the outputs (`mireg merge`, on the driver) into DIR: the logs "
-                        "are sessions of one site; a local folder")
+                   help="then merge the outputs into DIR: the logs are sessions of one site; each "
+                        "pair of sessions is linked in a task (`mireg merge --pair`, files and "
+                        "manifest in DIR/links), the merge solved on the driver; a local folder")
     cluster(r)
     s = sub.add_parser("segments", help="register one long log in parallel segments and stitch")
     s.add_argument("log")

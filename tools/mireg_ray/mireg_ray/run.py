@@ -19,13 +19,12 @@ import glob
 import json
 import os
 import posixpath
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path, PurePosixPath
 
-from . import common, store
+from . import common, merge, store
 
 
 def expand(pattern: str) -> tuple[Path, list[Path]]:
@@ -214,24 +213,7 @@ def drive(args, mireg_args: list[str]) -> int:
             print(f"  {e['input']:<{width}}  {(e['error'] or '').splitlines()[0]}")
         return 1
     if getattr(args, "merge", None):
-        return merge(binary, [entries[key]["output"] for key, _, _ in inputs], args.merge)
+        return merge.merge(binary, [entries[key]["output"] for key, _, _ in inputs], args.merge,
+                           args)
     return 0
 
-
-def merge(binary: str, outputs: list[str], target: str) -> int:
-    """``mireg merge`` of the registered outputs (in the glob's order) into the folder
-    ``target``, on the driver; the registrations it reads are in the manifest, so a lost driver
-    re-runs only the merge."""
-    if store.is_remote(target) or any(store.is_remote(o) for o in outputs):
-        print("error: --merge needs local outputs and a local folder", file=sys.stderr)
-        return 2
-    if len(outputs) < 2:
-        print(f"nothing to merge: {len(outputs)} output(s)")
-        return 0
-    p = subprocess.run([binary, "merge", *outputs, "-o", target, "--force"],
-                       capture_output=True, text=True)
-    print(p.stdout, end="")
-    if p.returncode != 0:
-        print(f"merge failed: {p.stderr.strip()}", file=sys.stderr)
-        return 1
-    return 0

@@ -123,18 +123,52 @@ def test_symlinked_inputs_keep_their_place_under_the_root(tmp_path):
 
 
 def test_logs_of_one_site_are_registered_then_merged(tmp_path, monkeypatch, binary):
+    """Three copies of the fixture as sessions: each pair linked in its own task (one task's
+    worker killed once), the merge solved from the pairs' files, against `mireg merge` of the
+    same runs in one process; a re-run links nothing again."""
     logs = tmp_path / "logs"
     logs.mkdir()
-    for name in ("one.mcap", "two.mcap"):
+    for name in ("one.mcap", "two.mcap", "three.mcap"):
         shutil.copy(FIXTURE, logs / name)
     monkeypatch.chdir(tmp_path)
+    markers = tmp_path / "markers"
+    monkeypatch.setenv(common.KILL_ONCE_ENV, f"pair_0_2:{markers}")
     merged = tmp_path / "merged"
     args = ["run", "logs/*.mcap", "--out", str(tmp_path / "out"), "--local-cpus", "2",
             "--merge", str(merged)]
     assert cli.main(args) == 0
+    assert len(list(markers.iterdir())) == 1, "the pair_0_2 task's worker was killed once"
     report = json.loads((merged / "merge_report.json").read_text())
     assert report["groups"] == 1
-    assert [s["name"] for s in report["sessions"]] == ["one.mireg", "two.mireg"]
-    # The same log twice: the second session lands on the first (its world is the same frame).
-    t = report["sessions"][1]["alignment"]
-    assert max(abs(v) for v in t[:3]) < 0.01 and abs(abs(t[6]) - 1.0) < 1e-4
+    names = ["one.mireg", "three.mireg", "two.mireg"]  # the glob's order
+    assert [s["name"] for s in report["sessions"]] == names
+    # The same log thrice: every session lands on the first (its world is the same frame).
+    for s in report["sessions"][1:]:
+        t = s["alignment"]
+        assert max(abs(v) for v in t[:3]) < 0.01 and abs(abs(t[6]) - 1.0) < 1e-4
+    links = merged / "links"
+    pairs = manifest(links)
+    assert sorted(pairs) == ["pair_0_1", "pair_0_2", "pair_1_2"]
+    assert all(e["status"] == "done" and Path(e["file"]).is_file() for e in pairs.values())
+    # The oracle: the same runs merged in one process, no files.
+    runs = [str(tmp_path / "out" / f"{n}.mcap") for n in names]
+    whole = tmp_path / "whole"
+    subprocess.run([binary, "merge", *runs, "-o", str(whole)], check=True, capture_output=True)
+    for n in names:
+        assert poses_merged(binary, merged / f"{n}.mcap", tmp_path) == \
+            poses_merged(binary, whole / f"{n}.mcap", tmp_path), n
+    # A re-run: registrations and pairs up to date, the merge solved again from the files.
+    mtimes = {k: Path(e["file"]).stat().st_mtime_ns for k, e in pairs.items()}
+    assert cli.main(args) == 0
+    again = manifest(links)
+    for k, mtime in mtimes.items():
+        assert again[k]["status"] == "skipped"
+        assert Path(again[k]["file"]).stat().st_mtime_ns == mtime
+
+
+def poses_merged(binary: str, path: Path, tmp: Path) -> str:
+    """The TUM text of a merged output's `/mireg/pose_merged`."""
+    tum = tmp / "merged.tum"
+    subprocess.run([binary, "export", str(path), "--topic", "/mireg/pose_merged", "--format",
+                    "tum", "-o", str(tum)], check=True, capture_output=True)
+    return tum.read_text()
