@@ -152,16 +152,19 @@ def register_log(path: PathLike, output: Optional[PathLike] = None,
 
 
 def merge(runs: list, output_dir: PathLike, force: bool = False, seed: int = 0,
-          min_links: int = 2) -> dict:
+          min_links: int = 2, links_dir: Optional[PathLike] = None) -> dict:
     """``mireg merge RUN... -o OUTPUT_DIR``: ``register`` outputs of one site, each in its own
     frame, put into one (docs/SESSIONS.md). Each run is copied into ``output_dir`` with
     ``/mireg/pose_merged``, ``/mireg/tf_merged`` and ``/mireg/session_links``; returns the report
     (``merge_report.json``) as a dict: per session its group and alignment, per pair of sessions
     whether they joined and why. ``min_links``: agreeing links, at distinct keyframes, that join
-    two sessions. Bad input is a ``ValueError`` naming the file, an unreadable one ``OSError``.
+    two sessions. ``links_dir``: each pair of sessions' links read from ``pair_A_B.json`` there
+    where present (``mireg merge --pair A,B --links DIR`` writes one), written for the pairs
+    linked. Bad input is a ``ValueError`` naming the file, an unreadable one ``OSError``.
     """
+    links = None if links_dir is None else os.fspath(links_dir)
     return json.loads(_mireg.merge([os.fspath(r) for r in runs], os.fspath(output_dir),
-                                   force, seed, min_links))
+                                   force, seed, min_links, links))
 
 
 def localize(log: PathLike, map: PathLike, output: Optional[PathLike] = None,

@@ -8,10 +8,10 @@ use mireg::merge::{LocalizeOptions, MergeConfig, MergeOptions};
 
 use crate::py_err;
 
-/// `merge(runs, output_dir, force, seed, min_links) -> str`: `mireg merge RUN... -o DIR`;
-/// returns the report (`merge_report.json`) as JSON.
+/// `merge(runs, output_dir, force, seed, min_links, links_dir) -> str`: `mireg merge RUN... -o
+/// DIR [--links LINKS_DIR]`; returns the report (`merge_report.json`) as JSON.
 #[pyfunction]
-#[pyo3(signature = (runs, output_dir, force=false, seed=0, min_links=2))]
+#[pyo3(signature = (runs, output_dir, force=false, seed=0, min_links=2, links_dir=None))]
 pub(crate) fn merge(
     py: Python<'_>,
     runs: Vec<std::path::PathBuf>,
@@ -19,6 +19,7 @@ pub(crate) fn merge(
     force: bool,
     seed: u64,
     min_links: usize,
+    links_dir: Option<std::path::PathBuf>,
 ) -> PyResult<String> {
     let opts = MergeOptions {
         runs,
@@ -30,7 +31,7 @@ pub(crate) fn merge(
             ..MergeConfig::default()
         },
         command_line: std::env::args().collect::<Vec<_>>().join(" "),
-        links_dir: None,
+        links_dir,
     };
     let summary = py
         .detach(|| mireg::merge::merge(&opts))

@@ -47,6 +47,22 @@ def test_merge_is_the_cli(tmp_path, sessions):
         mireg.merge([a], tmp_path / "one")
 
 
+def test_merge_from_a_pair_linked_apart_is_the_merge(tmp_path, sessions):
+    a, b = sessions
+    links = tmp_path / "links"
+    subprocess.run([str(cli()), "merge", str(a), str(b), "--pair", "0,1", "--links", str(links)],
+                   check=True, capture_output=True)
+    assert (links / "pair_0_1.json").is_file()
+    mireg.merge([a, b], tmp_path / "files", links_dir=links)
+    mireg.merge([a, b], tmp_path / "whole")
+    for name in ("a.mcap", "b.mcap"):
+        assert (messages(tmp_path / "files" / name, "/mireg/pose_merged")
+                == messages(tmp_path / "whole" / name, "/mireg/pose_merged"))
+    # Another seed is other links: the file is refused, named.
+    with pytest.raises(ValueError, match="pair_0_1.json"):
+        mireg.merge([a, b], tmp_path / "seed", seed=1, links_dir=links)
+
+
 def test_localize_is_the_cli(tmp_path, sessions):
     _, b = sessions
     log = FIXTURES / "icl_livingroom1.mcap"
