@@ -273,16 +273,22 @@ fn print_summary(s: &RegisterSummary) {
             s.feature_voxel_m, s.feature_points
         );
     }
-    // The first frame is neither tracked nor registered: it defines the world.
-    let global = s.frames.saturating_sub(1 + s.tracked_frames);
+    // The first frame is neither tracked nor registered: it defines the world. Every other
+    // frame not tracked tried global registration; the failed ones are among them.
+    let tried = s.frames.saturating_sub(1 + s.tracked_frames);
+    let global = tried.saturating_sub(s.failed_frames);
+    let failed = match tried - global {
+        0 => String::new(),
+        n => format!(", {n} more tried and failed"),
+    };
     if s.tracked_frames > 0 {
         println!(
-            "tracked {} frames on the local map from the motion so far, registered {global} globally (MI-RANSAC, mean inliers {:.1}; --global-every-frame registers all)",
+            "tracked {} frames on the local map from the motion so far, registered {global} globally{failed} (MI-RANSAC, mean inliers {:.1}; --global-every-frame registers all)",
             s.tracked_frames, s.mean_inliers
         );
     } else {
         println!(
-            "registered {global} frames globally (MI-RANSAC, mean inliers {:.1})",
+            "registered {global} frames globally{failed} (MI-RANSAC, mean inliers {:.1})",
             s.mean_inliers
         );
     }
