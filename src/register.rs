@@ -29,7 +29,7 @@ use closure::KeyframeCache;
 pub use closure::LoopSummary;
 pub(crate) use closure::loop_pair_config;
 pub(crate) use clouds::CloudKind;
-pub use clouds::{for_each_cloud, point_cloud_topic};
+pub use clouds::{for_each_cloud, for_each_cloud_where, point_cloud_topic};
 pub use options::{
     DEFAULT_MAX_POINTS_PER_CLOUD, DEFAULT_REFERENCE_TOPIC, DeskewMode, OnFrame, OutputMessages,
     QUEUE_CAPACITY, REORDER_WINDOW, REORDER_WINDOW_BYTES, RegisterOptions, default_output,

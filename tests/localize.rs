@@ -126,7 +126,9 @@ fn the_log_localizes_in_priors_that_start_elsewhere() {
         );
         // A keyframe of the log stops at its first LOCALIZE_LINKS_PER_KEYFRAME verified
         // appearance links: no more are accepted, and one that has them tried no candidate
-        // after them (all are tried where the first ones fail).
+        // after them (all are tried where the first ones fail). One that the solve then holds
+        // by none gets place candidates: every keyframe linked ends localised (with one link
+        // each and no second try, 19 of the 25 did).
         let links = json_messages(&out, "/mireg/session_links");
         let mut by_frame: std::collections::BTreeMap<u64, Vec<bool>> = Default::default();
         for l in links.iter().filter(|l| l["found_by"] == "appearance") {
@@ -137,7 +139,14 @@ fn the_log_localizes_in_priors_that_start_elsewhere() {
                 .push(l["verdict"] == "accepted");
         }
         let wanted = mireg::merge::LOCALIZE_LINKS_PER_KEYFRAME;
-        assert!(by_frame.values().any(|v| v.len() > 1), "{by_frame:?}");
+        let status = statuses(&out);
+        for (frame, verdicts) in &by_frame {
+            assert!(
+                !verdicts.contains(&true) || status[*frame as usize] == "localized",
+                "frame {frame}: {verdicts:?}, {}",
+                status[*frame as usize]
+            );
+        }
         for (frame, verdicts) in &by_frame {
             let accepted = verdicts.iter().filter(|&&a| a).count();
             let stopped = accepted == wanted && verdicts.last() == Some(&true);

@@ -71,7 +71,7 @@ pub(super) fn run_localize(args: &LocalizeArgs) -> Result<()> {
     }
     println!(
         "localized {} of {} frames in {} ({} tracking, {} outside the map, {} lost), {} links of {} \
-         candidates, {:.2} s -> {}",
+         candidates, {:.2} s (register {:.2}, prepare {:.2}, link {:.2}, write {:.2}) -> {}",
         s.localized,
         s.frames,
         s.map_frame,
@@ -81,6 +81,10 @@ pub(super) fn run_localize(args: &LocalizeArgs) -> Result<()> {
         s.links,
         s.candidates,
         s.elapsed_s,
+        s.timings_s.register,
+        s.timings_s.prepare,
+        s.timings_s.link,
+        s.timings_s.write,
         s.output.display()
     );
     println!("  {}", s.reason);

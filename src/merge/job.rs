@@ -463,6 +463,54 @@ impl<'s> Linker<'s> {
             attempts.extend(self.verify_candidates((a, b), &tried, LinkSource::Place)?);
             agreeing = self.agreeing(attempts, first, (a, b));
         }
+        Ok(self.outcome((a, b), attempts, first, agreeing, [by_look.len(), place]))
+    }
+
+    /// Verifies place candidates for the keyframes of `b` at the frames `frames_b` (at most
+    /// [`MergeConfig::place_per_keyframe`] each, none tried before), once `b` is aligned to `a`
+    /// by `align`, appending the attempts; then the outcome of every attempt from `first` on,
+    /// as [`Linker::link_pair`] gives it (`appearance` candidates of its, and its `place`
+    /// candidates before these). For `mireg localize`, whose solve holds some frames of the log
+    /// by no link: they get another fix in the map, where verifying a second one for every
+    /// keyframe up front cost twice as much.
+    pub(super) fn link_again(
+        &self,
+        (a, b): (usize, usize),
+        attempts: &mut Vec<Attempt>,
+        (first, [appearance, place]): (usize, [usize; 2]),
+        frames_b: &BTreeSet<usize>,
+        align: &Isometry3<f64>,
+    ) -> Result<PairOutcome> {
+        let (sa, sb) = (&self.sessions[a], &self.sessions[b]);
+        let keyframe = |s: &Session, frame: usize| s.keyframes.binary_search(&frame).ok();
+        let done: Vec<(usize, usize)> = attempts[first..]
+            .iter()
+            .filter_map(|t| Some((keyframe(sa, t.link.frame_a)?, keyframe(sb, t.link.frame_b)?)))
+            .collect();
+        let mut tried = self.place_candidates((a, b), align, &done);
+        tried.retain(|&(_, kb, _)| frames_b.contains(&sb.keyframes[kb]));
+        attempts.extend(self.verify_candidates((a, b), &tried, LinkSource::Place)?);
+        let agreeing = self.agreeing(attempts, first, (a, b));
+        Ok(self.outcome(
+            (a, b),
+            attempts,
+            first,
+            agreeing,
+            [appearance, place + tried.len()],
+        ))
+    }
+
+    /// The outcome of linking `a` and `b` by the attempts from `first` on, of which `agreeing`
+    /// agree, after `[appearance, place]` candidates.
+    fn outcome(
+        &self,
+        (a, b): (usize, usize),
+        attempts: &[Attempt],
+        first: usize,
+        agreeing: Vec<usize>,
+        [appearance, place]: [usize; 2],
+    ) -> PairOutcome {
+        let (sa, sb) = (&self.sessions[a], &self.sessions[b]);
         let verified = attempts[first..].iter().filter(|t| t.verified).count();
         let join = joining_alignment(attempts, &agreeing, self.tracks, self.config);
         let (frames_a, frames_b) = distinct_ends(attempts, &agreeing);
@@ -485,7 +533,7 @@ impl<'s> Linker<'s> {
         let report = PairReport {
             a: sa.name.clone(),
             b: sb.name.clone(),
-            appearance_candidates: by_look.len(),
+            appearance_candidates: appearance,
             place_candidates: place,
             verified,
             agreeing: agreeing.len(),
@@ -504,7 +552,7 @@ impl<'s> Linker<'s> {
                 agreeing,
             )
         });
-        Ok(PairOutcome { report, join })
+        PairOutcome { report, join }
     }
 
     /// Verifies the appearance candidates `found` (`(keyframe_a, keyframe_b)`, best first)

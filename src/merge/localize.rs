@@ -30,6 +30,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use nalgebra::{Isometry3, Point3};
+use rayon::prelude::*;
 use serde_json::json;
 
 use super::MergeConfig;
@@ -51,13 +52,17 @@ use crate::register::{
     CloudKind, RegisterOptions, StampedPose, encode_pose, pose_channels, register_log,
 };
 
-/// Verified appearance links after which a keyframe of the log stops trying its candidates: 2.
+/// Verified appearance links after which a keyframe of the log stops trying its candidates: 1.
+/// A keyframe that the solve then holds by no link (its link down-weighted, or none verified)
+/// gets place candidates once (`Linker::link_again`).
 ///
-/// NOTE: one link a keyframe (of 3 candidates) halved the verifications, but where the robust
-/// solve down-weighted that link its frame fell back to `tracking` (KAIST03 in its second half:
-/// 18 of 21 localised instead of 21); with two, the sessions bench localised as many frames as
-/// with every candidate verified, at the same errors (docs/SESSIONS.md).
-pub const LOCALIZE_LINKS_PER_KEYFRAME: usize = 2;
+/// NOTE: with one link a keyframe and no second try, where the robust solve down-weighted that
+/// link its frame fell back to `tracking` (KAIST03 in its second half: 18 of 21 localised); two
+/// a keyframe up front localised all 21, for 42 verifications. One, and a place candidate for
+/// the frames not held, localised as many frames on the sessions bench (21, 40, 25, 21 of the
+/// four logs) for 24, 68, 32 and 22 verifications instead of 42, 80, 51 and 42, at the same
+/// errors (docs/SESSIONS.md).
+pub const LOCALIZE_LINKS_PER_KEYFRAME: usize = 1;
 
 /// What [`localize`] needs.
 #[derive(Debug, Clone)]
@@ -130,6 +135,8 @@ pub struct LocalizeSummary {
     pub session_links_topic: String,
     /// Wall-clock seconds, the log's registration included.
     pub elapsed_s: f64,
+    /// Where they went.
+    pub timings_s: LocalizeTimings,
 }
 
 /// One frame's placement.
@@ -182,6 +189,13 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
     });
     registration?;
     let prior = prior?;
+    let mut timings = LocalizeTimings::default();
+    let mut lap = Instant::now();
+    let mut clock = |phase: &mut f64| {
+        *phase = lap.elapsed().as_secs_f64();
+        lap = Instant::now();
+    };
+    timings.register = t0.elapsed().as_secs_f64();
     let mut log = Session::read(&registered)?;
     // Links name the log by its own file, not the temporary one.
     log.name = opts
@@ -189,12 +203,36 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
         .file_stem()
         .map_or_else(|| "log".to_string(), |s| s.to_string_lossy().into_owned());
     let (sessions, loops, pair) = prior.with_log(log, opts)?;
+    clock(&mut timings.prepare);
     let tracks: Vec<Track<'_>> = sessions.iter().map(Session::track).collect();
     let linker = Linker::new(&sessions, &tracks, &pair, &loops, &opts.config)
         .links_per_keyframe(LOCALIZE_LINKS_PER_KEYFRAME);
     let mut attempts = Vec::new();
-    let outcome = linker.link_pair((0, 1), &mut attempts)?;
-    let (placed, weights) = place(&sessions, &attempts, outcome.join.as_ref(), &loops)?;
+    let mut outcome = linker.link_pair((0, 1), &mut attempts)?;
+    let (mut placed, mut weights) = place(&sessions, &attempts, outcome.join.as_ref(), &loops)?;
+    // The log's keyframes that no link holds after the solve get place candidates once.
+    let unheld: BTreeSet<usize> = sessions[1]
+        .keyframes
+        .iter()
+        .copied()
+        .filter(|&k| placed[k].status != FrameStatus::Localized)
+        .collect();
+    if let Some((join, _)) = &outcome.join
+        && !unheld.is_empty()
+    {
+        let counts = [
+            outcome.report.appearance_candidates,
+            outcome.report.place_candidates,
+        ];
+        let tried = attempts.len();
+        let again =
+            linker.link_again((0, 1), &mut attempts, (0, counts), &unheld, &join.a_from_b)?;
+        if attempts.len() > tried {
+            outcome = again;
+            (placed, weights) = place(&sessions, &attempts, outcome.join.as_ref(), &loops)?;
+        }
+    }
+    clock(&mut timings.link);
     let kept: BTreeSet<usize> = outcome
         .join
         .iter()
@@ -205,6 +243,7 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
     let [prior, log] = &sessions;
     let map_frame = prior.output.world_frame.clone();
     let topics = write_output(opts, log, &map_frame, &placed, &records)?;
+    clock(&mut timings.write);
     let count = |s: FrameStatus| placed.iter().filter(|p| p.status == s).count();
     Ok(LocalizeSummary {
         output: opts.output.clone(),
@@ -222,7 +261,23 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
         localization_topic: topics[2].clone(),
         session_links_topic: topics[3].clone(),
         elapsed_s: t0.elapsed().as_secs_f64(),
+        timings_s: timings,
     })
+}
+
+/// Where [`localize`]'s wall-clock time went \[s\].
+#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
+pub struct LocalizeTimings {
+    /// The log registered (odometry and loop closure), and beside it a run prior's keyframes
+    /// prepared.
+    pub register: f64,
+    /// The log's output read back and its keyframes prepared (a map file prior: also cut into
+    /// tiles and prepared).
+    pub prepare: f64,
+    /// Candidates verified against the prior, and the log placed in it.
+    pub link: f64,
+    /// The output written.
+    pub write: f64,
 }
 
 /// What `--map` named, read.
@@ -247,6 +302,13 @@ impl Prior {
         let budget = opts.config.keyframe_memory_bytes;
         let (loops, pair) = prepare_sessions(&mut sessions, budget, opts.seed)?;
         let [run] = sessions;
+        // The normals of the kept keyframes' ICP clouds, which their first verification
+        // estimates (and keeps) otherwise: here they fill the registration's idle cores.
+        run.frames.par_iter().flatten().for_each(|frame| {
+            if let Some(icp) = &frame.icp {
+                icp.normals();
+            }
+        });
         Ok(Prior::PreparedRun(Box::new((run, loops, pair))))
     }
 

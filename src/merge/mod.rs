@@ -36,7 +36,7 @@ mod write;
 pub use job::{MergeOptions, MergeSummary, PairReport, SessionReport, merge};
 pub use links::{AgreementConfig, LinkSource, SessionLink};
 pub use localize::{
-    FrameStatus, LOCALIZE_LINKS_PER_KEYFRAME, LocalizeOptions, LocalizeSummary,
+    FrameStatus, LOCALIZE_LINKS_PER_KEYFRAME, LocalizeOptions, LocalizeSummary, LocalizeTimings,
     localization_json_schema, localize,
 };
 pub use map_prior::{MAP_MIN_REVERSE_FITNESS, MAX_TILES, MIN_TILE_POINTS};

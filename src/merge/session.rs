@@ -16,7 +16,7 @@ use crate::io::poses::read_mcap_pose_topic;
 use crate::loops::{Descriptor, LoopConfig, select_keyframes};
 use crate::odometry::OdometryConfig;
 use crate::pipeline::{PairConfig, PreparedFrame, prepare_frame, with_feature_voxel};
-use crate::register::{Segment, for_each_cloud, loop_pair_config, read_segment};
+use crate::register::{Segment, for_each_cloud_where, loop_pair_config, read_segment};
 use crate::{Error, Result};
 
 /// A session: its output read back, the trajectory placing its frames, and its keyframes.
@@ -192,31 +192,58 @@ impl Session {
 
     /// Streams the output's clouds once, calling `f(frame, prepared)` for each frame of `keys`
     /// (frame indices) whose cloud prepares with features, in the file's order, one at a time.
+    /// Only those clouds are decoded; they are prepared [`PREPARE_BATCH_PER_THREAD`] a thread
+    /// at a time, in parallel.
     fn for_each_prepared(
         &self,
         keys: &[usize],
         pair: &PairConfig,
         mut f: impl FnMut(usize, PreparedFrame),
     ) -> Result<()> {
-        let by_stamp: BTreeMap<i64, usize> = keys
-            .iter()
-            .map(|&k| (self.output.frames[k].stamp_ns, k))
-            .collect();
+        let frames = &self.output.frames;
+        let by_stamp: BTreeMap<i64, usize> =
+            keys.iter().map(|&k| (frames[k].stamp_ns, k)).collect();
+        let logged: BTreeSet<u64> = keys.iter().map(|&k| frames[k].log_time).collect();
+        let batch = PREPARE_BATCH_PER_THREAD * rayon::current_num_threads().max(1);
+        let mut pending: Vec<(usize, Vec<Point3<f64>>)> = Vec::with_capacity(batch);
+        let mut flush = |pending: &mut Vec<(usize, Vec<Point3<f64>>)>| {
+            let prepared: Vec<(usize, Option<PreparedFrame>)> = pending
+                .par_drain(..)
+                .map(|(k, points)| {
+                    let frame = prepare_frame(&points, pair)
+                        .ok()
+                        .filter(|frame| !frame.features.is_empty());
+                    (k, frame)
+                })
+                .collect();
+            for (k, frame) in prepared {
+                if let Some(frame) = frame {
+                    f(k, frame);
+                }
+            }
+        };
         let mut seen = BTreeSet::new();
         let topic = self.output.meta.get("topic").cloned();
-        for_each_cloud(&self.output.path, topic.as_deref(), |_, cloud| {
+        let wanted = |log_time: u64| logged.contains(&log_time);
+        for_each_cloud_where(&self.output.path, topic.as_deref(), wanted, |_, cloud| {
             if let Some(&k) = by_stamp.get(&cloud.header.stamp.to_ns())
                 && seen.insert(k)
-                && let Ok(frame) = prepare_frame(&cloud.points, pair)
-                && !frame.features.is_empty()
             {
-                f(k, frame);
+                pending.push((k, cloud.points));
+                if pending.len() == batch {
+                    flush(&mut pending);
+                }
             }
             Ok(std::ops::ControlFlow::Continue(()))
         })?;
+        flush(&mut pending);
         Ok(())
     }
 }
+
+/// Keyframe clouds prepared at once per thread of the pool, each on one thread: 2. A cloud's
+/// own preparation keeps two cores busy only part of the time.
+pub const PREPARE_BATCH_PER_THREAD: usize = 2;
 
 /// `frame`, counted into `kept_bytes`, while the frames kept and it fit `budget` bytes (by
 /// [`PreparedFrame::idle_bytes`]); else `None` (it is prepared again when needed).

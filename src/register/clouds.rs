@@ -232,6 +232,20 @@ pub(super) fn choose_topic(
 pub fn for_each_cloud(
     input: &Path,
     topic: Option<&str>,
+    f: impl FnMut(u64, codec::PointCloud) -> Result<std::ops::ControlFlow<()>>,
+) -> Result<String> {
+    for_each_cloud_where(input, topic, |_| true, f)
+}
+
+/// [`for_each_cloud`] over the clouds whose log time \[ns\] `wanted` accepts: the others are
+/// not decoded (a reader that wants a few keyframes of a long log pays for those only).
+///
+/// # Errors
+/// As [`for_each_cloud`].
+pub fn for_each_cloud_where(
+    input: &Path,
+    topic: Option<&str>,
+    wanted: impl Fn(u64) -> bool,
     mut f: impl FnMut(u64, codec::PointCloud) -> Result<std::ops::ControlFlow<()>>,
 ) -> Result<String> {
     let (log, catalog) = crate::io::input_log::InputLog::open(input)?;
@@ -244,6 +258,7 @@ pub fn for_each_cloud(
         .collect();
     log.for_each_message_until(|h, data| {
         if ids.contains(&h.channel_id)
+            && wanted(h.log_time)
             && let Ok(cloud) = kind.decode(data)
         {
             return f(h.log_time, cloud);
