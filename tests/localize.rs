@@ -8,13 +8,15 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use mcap::records::Record;
 use mireg::io::cloud_file::write_npy;
-use mireg::io::mcap::log::for_each_record;
 use mireg::io::poses::read_mcap_pose_topic;
 use mireg::merge::MergeConfig;
 use mireg::trajectory::Trajectory;
 use nalgebra::Isometry3;
+
+#[path = "common/log_contents.rs"]
+mod log_contents;
+use log_contents::topic_messages;
 
 fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -83,20 +85,10 @@ fn localize(log: &Path, prior: &Path, out: &Path, threads: Option<&str>) {
 
 /// The JSON messages on `topic`, in file order.
 fn json_messages(path: &Path, topic: &str) -> Vec<serde_json::Value> {
-    let mut id = None;
-    let mut out = Vec::new();
-    for_each_record(path, |r| {
-        match r {
-            Record::Channel(c) if c.topic == topic => id = Some(c.id),
-            Record::Message { header, data } if Some(header.channel_id) == id => {
-                out.push(serde_json::from_slice(&data).unwrap());
-            }
-            _ => {}
-        }
-        Ok(())
-    })
-    .unwrap();
-    out
+    topic_messages(path, topic)
+        .iter()
+        .map(|m| serde_json::from_slice(m).unwrap())
+        .collect()
 }
 
 fn statuses(path: &Path) -> Vec<String> {

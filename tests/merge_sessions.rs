@@ -9,14 +9,16 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
 
-use mcap::records::Record;
 use mireg::evaluate::ate_rmse;
-use mireg::io::mcap::log::for_each_record;
 use mireg::io::poses::read_mcap_pose_topic;
 use mireg::map::{MapOptions, build_map, build_map_of_runs};
 use mireg::merge::{MergeConfig, MergeOptions, merge};
 use mireg::trajectory::Trajectory;
 use nalgebra::Isometry3;
+
+#[path = "common/log_contents.rs"]
+mod log_contents;
+use log_contents::topic_messages;
 
 const REFERENCE: &str = "/ground_truth/pose";
 
@@ -128,24 +130,11 @@ fn report(dir: &Path) -> serde_json::Value {
 }
 
 fn accepted_links(path: &Path) -> Vec<serde_json::Value> {
-    let mut id = None;
-    let mut links = Vec::new();
-    for_each_record(path, |r| {
-        match r {
-            Record::Channel(c) if c.topic == "/mireg/session_links" => id = Some(c.id),
-            Record::Message { header, data } if Some(header.channel_id) == id => {
-                let v: serde_json::Value = serde_json::from_slice(&data).unwrap();
-                if v["verdict"] == "accepted" {
-                    links.push(v);
-                }
-            }
-            _ => {}
-        }
-        Ok(())
-    })
-    .unwrap();
-    assert!(id.is_some(), "{}: no /mireg/session_links", path.display());
-    links
+    topic_messages(path, "/mireg/session_links")
+        .iter()
+        .map(|m| serde_json::from_slice::<serde_json::Value>(m).unwrap())
+        .filter(|v| v["verdict"] == "accepted")
+        .collect()
 }
 
 fn pose_of(v: &serde_json::Value) -> Isometry3<f64> {
@@ -366,24 +355,6 @@ fn keyframes_prepared_again_give_the_same_poses() {
     assert_eq!(poses[0], poses[1]);
 }
 
-/// Every message of `topic` in `path`, as bytes, in order.
-fn messages(path: &Path, topic: &str) -> Vec<Vec<u8>> {
-    let mut id = None;
-    let mut out = Vec::new();
-    for_each_record(path, |r| {
-        match r {
-            Record::Channel(c) if c.topic == topic => id = Some(c.id),
-            Record::Message { header, data } if Some(header.channel_id) == id => {
-                out.push(data.into_owned());
-            }
-            _ => {}
-        }
-        Ok(())
-    })
-    .unwrap();
-    out
-}
-
 #[test]
 fn pairs_linked_apart_merge_as_in_one_process() {
     let out = tempfile::tempdir().unwrap();
@@ -411,7 +382,11 @@ fn pairs_linked_apart_merge_as_in_one_process() {
         );
         assert_eq!(merged(&p).poses, merged(&q).poses, "{name}");
         let topic = "/mireg/session_links";
-        assert_eq!(messages(&p, topic), messages(&q, topic), "{name}");
+        assert_eq!(
+            topic_messages(&p, topic),
+            topic_messages(&q, topic),
+            "{name}"
+        );
     }
     let (mut r, mut s) = (report(&whole), report(&apart));
     for v in [&mut r, &mut s] {

@@ -469,15 +469,16 @@ impl<'s> Linker<'s> {
     /// Verifies place candidates for the keyframes of `b` at the frames `frames_b` (at most
     /// [`MergeConfig::place_per_keyframe`] each, none tried before), once `b` is aligned to `a`
     /// by `align`, appending the attempts; then the outcome of every attempt from `first` on,
-    /// as [`Linker::link_pair`] gives it (`appearance` candidates of its, and its `place`
-    /// candidates before these). For `mireg localize`, whose solve holds some frames of the log
-    /// by no link: they get another fix in the map, where verifying a second one for every
-    /// keyframe up front cost twice as much.
+    /// as [`Linker::link_pair`] gives it, its report counting the candidates of `previous` (that
+    /// link's) and these. For `mireg localize`, whose solve holds some frames of the log by no
+    /// link: they get another fix in the map, where verifying a second one for every keyframe
+    /// up front cost twice as much.
     pub(super) fn link_again(
         &self,
         (a, b): (usize, usize),
         attempts: &mut Vec<Attempt>,
-        (first, [appearance, place]): (usize, [usize; 2]),
+        first: usize,
+        previous: &PairReport,
         frames_b: &BTreeSet<usize>,
         align: &Isometry3<f64>,
     ) -> Result<PairOutcome> {
@@ -496,7 +497,10 @@ impl<'s> Linker<'s> {
             attempts,
             first,
             agreeing,
-            [appearance, place + tried.len()],
+            [
+                previous.appearance_candidates,
+                previous.place_candidates + tried.len(),
+            ],
         ))
     }
 

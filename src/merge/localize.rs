@@ -220,13 +220,15 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
     if let Some((join, _)) = &outcome.join
         && !unheld.is_empty()
     {
-        let counts = [
-            outcome.report.appearance_candidates,
-            outcome.report.place_candidates,
-        ];
         let tried = attempts.len();
-        let again =
-            linker.link_again((0, 1), &mut attempts, (0, counts), &unheld, &join.a_from_b)?;
+        let again = linker.link_again(
+            (0, 1),
+            &mut attempts,
+            0,
+            &outcome.report,
+            &unheld,
+            &join.a_from_b,
+        )?;
         if attempts.len() > tried {
             outcome = again;
             (placed, weights) = place(&sessions, &attempts, outcome.join.as_ref(), &loops)?;

@@ -347,6 +347,7 @@ impl LocalMap {
             Some(previous) => previous.into_storage(),
             None => Default::default(),
         };
+        let voxel = self.config.voxel_size_m;
         let Self {
             voxels,
             order,
@@ -368,7 +369,6 @@ impl LocalMap {
         // (all are sorted again when the grid's axes change).
         order.retain(|s| held(s.id));
         r.fresh.clear();
-        let voxel = self.config.voxel_size_m;
         r.fresh
             .extend(created.drain(..).filter(|&id| held(id)).map(|id| Stored {
                 key: voxel_key(&voxels[id as usize].first, voxel),
@@ -435,13 +435,12 @@ impl LocalMap {
             (s.start, s.stored) = (new_start, holds);
             from += waits;
         }
-        let v = self.config.voxel_size_m;
-        let (grid, spare) = if v >= cell_edge(max_distance_m) {
+        let (grid, spare) = if voxel >= cell_edge(max_distance_m) {
             let max_columns = default_max_columns(points.len());
             let grid = RadiusGrid::from_sorted_lattice(
                 &points,
                 &r.cells,
-                v,
+                voxel,
                 max_distance_m,
                 max_columns,
                 spare,

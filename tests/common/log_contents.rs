@@ -47,6 +47,26 @@ pub fn contents(path: &Path) -> Contents {
     c
 }
 
+/// The messages of `topic` in `path`, as bytes, in file order. Panics when `path` has no channel
+/// of that topic.
+pub fn topic_messages(path: &Path, topic: &str) -> Vec<Vec<u8>> {
+    let mut id = None;
+    let mut out = Vec::new();
+    for_each_record(path, |r| {
+        match r {
+            Record::Channel(c) if c.topic == topic => id = Some(c.id),
+            Record::Message { header, data } if Some(header.channel_id) == id => {
+                out.push(data.into_owned());
+            }
+            _ => {}
+        }
+        Ok(())
+    })
+    .unwrap();
+    assert!(id.is_some(), "{}: no {topic}", path.display());
+    out
+}
+
 /// Every message, metadata record and attachment of `input` is in `output`, unchanged.
 pub fn assert_superset(input: &Contents, output: &Contents) {
     let mut out = output.messages.clone();
