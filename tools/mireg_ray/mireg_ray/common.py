@@ -111,3 +111,21 @@ def progress(done: int, total: int, what: str) -> None:
     filled = width * done // max(total, 1)
     print(f"[{'#' * filled}{'.' * (width - filled)}] {done}/{total} {what}", file=sys.stderr,
           flush=True)
+
+
+def gather(ray, pending: dict, record) -> None:
+    """Waits for the tasks of ``pending`` (object ref -> its context) as they finish, each
+    passed to ``record(context, result)`` (which returns its name for the progress line) with
+    its result, or with a failure where its retries ran out."""
+    total, done = len(pending), 0
+    while pending:
+        ready, _ = ray.wait(list(pending), num_returns=1)
+        context = pending.pop(ready[0])
+        try:
+            result = ray.get(ready[0])
+        except Exception as e:  # noqa: BLE001 -- retries exhausted: a failure like any
+            result = {"status": "failed", "error": f"{type(e).__name__}: {e}",
+                      "summary": None, "elapsed_s": None}
+        name = record(context, result)
+        done += 1
+        progress(done, total, f"{result['status']}: {name}")

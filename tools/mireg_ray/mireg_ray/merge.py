@@ -84,19 +84,14 @@ def merge(binary: str, outputs: list[str], target: str, args) -> int:
             retry_exceptions=[common.ProcessKilled])
         pending = {remote.remote(binary, outputs, pair, str(links), args.cpus_per_task):
                    (key, file) for pair, key, file in todo}
-        done = 0
-        while pending:
-            ready, _ = ray.wait(list(pending), num_returns=1)
-            key, file = pending.pop(ready[0])
-            try:
-                result = ray.get(ready[0])
-            except Exception as e:  # noqa: BLE001 -- retries exhausted: a failure like any
-                result = {"status": "failed", "error": f"{type(e).__name__}: {e}",
-                          "summary": None, "elapsed_s": None}
+
+        def record(context, result):
+            key, file = context
             entries[key] = {"input": key, "file": file, "signature": sig, **result}
             run.write_manifest(manifest_path, entries, {})
-            done += 1
-            common.progress(done, len(todo), f"{result['status']}: {key}")
+            return key
+
+        common.gather(ray, pending, record)
         ray.shutdown()
     failed = [e for k, e in entries.items() if k in keys and e["status"] == "failed"]
     if failed:

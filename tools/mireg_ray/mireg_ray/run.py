@@ -178,20 +178,15 @@ def drive(args, mireg_args: list[str]) -> int:
                 Path(output).parent.mkdir(parents=True, exist_ok=True)
             ref = remote.remote(binary, key, output, mireg_args, args.cpus_per_task, options)
             pending[ref] = (key, output, sig)
-        done = 0
-        while pending:
-            ready, _ = ray.wait(list(pending), num_returns=1)
-            key, output, sig = pending.pop(ready[0])
-            try:
-                result = ray.get(ready[0])
-            except Exception as e:  # noqa: BLE001 -- retries exhausted: a failure like any
-                result = {"status": "failed", "error": f"{type(e).__name__}: {e}",
-                          "summary": None, "elapsed_s": None}
+
+        def record(context, result):
+            key, output, sig = context
             entries[key] = {"input": key, "output": output, "signature": sig,
                             "config_hash": chash, **result}
             write_manifest(manifest_path, entries, options)
-            done += 1
-            common.progress(done, len(todo), f"{result['status']}: {key}")
+            return key
+
+        common.gather(ray, pending, record)
         ray.shutdown()
     if store.is_remote(out):
         # Temporary objects of this run's outputs (and of the manifest) that a task or driver
