@@ -245,6 +245,48 @@ fn the_map_fine_stage_tracks_known_motion() {
     assert!(est[1..].iter().all(|e| e.map.unwrap().fine_iterations == 0));
 }
 
+/// Global registration on a cloud coarse enough that the map ICP's coarse source is at most a
+/// quarter of the ICP cloud, with the fine stage on: the fine stage follows every coarse stage
+/// that converged below its iteration cap directly (no update of the whole ICP cloud,
+/// `MAP_FINE_FINISHES_MIN_STRIDE`), and the known motion, a dropped frame and a 90° jump are
+/// kept as well. Without the fine stage the whole cloud finishes as before.
+#[test]
+fn the_fine_stage_finishes_a_sparse_coarse_stage() {
+    let base = map_fine_config();
+    let config = OdometryConfig {
+        pair: mireg::pipeline::with_feature_voxel(
+            &PairConfig {
+                voxel_size_m: 0.05,
+                ..base.pair.clone()
+            },
+            0.3,
+        ),
+        ..base
+    };
+    let cap = config.pair.icp_max_iterations;
+    let est = tracks_a_drop_and_a_jump(90.0, &config, |map| {
+        map.used && map.fine_iterations > 0 && (map.coarse_iterations == cap || map.iterations == 0)
+    });
+    assert!(
+        est[1..]
+            .iter()
+            .any(|e| e.map.unwrap().coarse_iterations > 0),
+        "no frame ran the coarse stage"
+    );
+    let off = OdometryConfig {
+        map_fine: false,
+        ..config
+    };
+    let (est, _, _) = run_with(&motion_with_a_drop_and_a_jump(90.0), &off);
+    assert!(
+        est[1..]
+            .iter()
+            .filter_map(|e| e.map)
+            .filter(|m| m.used && m.coarse_iterations > 0)
+            .all(|m| m.iterations > 0)
+    );
+}
+
 /// Frames thinned to the input points the map's fine stage uses (`keep_map_fine_points`, as
 /// `mireg register`'s preparing thread does) give the same poses, bit for bit, as frames that
 /// carry all of them; they carry fewer.

@@ -6,9 +6,9 @@ use nalgebra::{Isometry3, Point3};
 use super::map_input::{add_to_map, add_to_map_and_target};
 use super::retry::RetryInputs;
 use super::{
-    InitialGuess, MAP_FINE_MAX_ITERATIONS, MAP_FINE_MAX_POINTS, MAP_FINE_POINTS_PER_ICP_POINT,
-    MAP_ICP_MAX_ITERATIONS_AFTER_COARSE, MAP_ICP_MIN_UPDATE, MAP_ICP_RELATIVE_CHANGE, MapFit,
-    Odometry, Rival,
+    InitialGuess, MAP_FINE_FINISHES_MIN_STRIDE, MAP_FINE_MAX_ITERATIONS, MAP_FINE_MAX_POINTS,
+    MAP_FINE_POINTS_PER_ICP_POINT, MAP_ICP_MAX_ITERATIONS_AFTER_COARSE, MAP_ICP_MIN_UPDATE,
+    MAP_ICP_RELATIVE_CHANGE, MapFit, Odometry, Rival,
 };
 use crate::Result;
 use crate::pipeline::refine::{FineInputs, fine_stage};
@@ -199,6 +199,7 @@ impl Odometry {
         // fifth of the map ICP's instructions (callgrind).
         let coarse_icp = dense_icp.measure_final_pose(false);
         let finish_icp = finish_icp.measure_final_pose(fine.is_none());
+        let fine_finishes = fine.is_some() && stride >= MAP_FINE_FINISHES_MIN_STRIDE;
         Ok(Some(MapIcpPlan {
             target,
             target_s,
@@ -210,6 +211,7 @@ impl Odometry {
             distance,
             coarse_icp,
             finish_icp,
+            fine_finishes,
         }))
     }
 }
@@ -231,21 +233,37 @@ struct MapIcpPlan<'a> {
     distance: f64,
     coarse_icp: IcpConfig,
     finish_icp: IcpConfig,
+    /// The fine stage follows a converged coarse stage directly, without the whole ICP cloud
+    /// between them ([`MAP_FINE_FINISHES_MIN_STRIDE`]).
+    fine_finishes: bool,
 }
 
 impl MapIcpPlan<'_> {
     /// The refinement from `start`, its result labelled `guess`.
     fn fit(&self, guess: InitialGuess, start: &Isometry3<f64>) -> Result<(Isometry3<f64>, MapFit)> {
         let target = self.target;
-        let (start, coarse_iterations) = match self.coarse.as_deref() {
-            Some(points) => {
-                let r = registration_icp_point_to_plane(points, target, start, &self.coarse_icp)?;
-                (r.target_from_source, r.iterations)
-            }
-            None => (*start, 0),
+        let coarse = match self.coarse.as_deref() {
+            Some(points) => Some(registration_icp_point_to_plane(
+                points,
+                target,
+                start,
+                &self.coarse_icp,
+            )?),
+            None => None,
         };
-        let mut r =
-            registration_icp_point_to_plane(self.icp_points, target, &start, &self.finish_icp)?;
+        let coarse_iterations = coarse.as_ref().map_or(0, |c| c.iterations);
+        // The whole ICP cloud finishes the coarse stage unless the fine stage can: see
+        // [`MAP_FINE_FINISHES_MIN_STRIDE`]. A coarse stage stopped by its iteration cap had not
+        // converged (a frame after a gap: 30 updates), and the whole cloud finishes it.
+        let mut r = match coarse {
+            Some(c) if self.fine_finishes && c.iterations < self.coarse_icp.max_iterations => {
+                IcpResult { iterations: 0, ..c }
+            }
+            _ => {
+                let from = coarse.map_or(*start, |c| c.target_from_source);
+                registration_icp_point_to_plane(self.icp_points, target, &from, &self.finish_icp)?
+            }
+        };
         let mut fine_iterations = 0;
         if let Some(points) = self.fine.as_deref() {
             let inputs = FineInputs {
