@@ -54,7 +54,7 @@ use crate::register::{
 
 /// Verified appearance links after which a keyframe of the log stops trying its candidates: 1.
 /// A keyframe that the solve then holds by no link (its link down-weighted, or none verified)
-/// gets place candidates once (`Linker::link_again`).
+/// gets place candidates (`Linker::link_again`), in up to [`LOCALIZE_PLACE_ROUNDS`] rounds.
 ///
 /// NOTE: with one link a keyframe and no second try, where the robust solve down-weighted that
 /// link its frame fell back to `tracking` (KAIST03 in its second half: 18 of 21 localised); two
@@ -63,6 +63,12 @@ use crate::register::{
 /// four logs) for 24, 68, 32 and 22 verifications instead of 42, 80, 51 and 42, at the same
 /// errors (docs/SESSIONS.md).
 pub const LOCALIZE_LINKS_PER_KEYFRAME: usize = 1;
+
+/// Rounds of place candidates for the log's keyframes that the solve holds by no link: 3. Each
+/// round's new links move the solution, and may let go of a keyframe the previous solve held
+/// (KAIST03 after c0d3738: frame 19's one link down-weighted to 0.41 only once frames 17 and 20
+/// had their place links, and it ended `tracking`). A round that tries nothing new ends them.
+pub const LOCALIZE_PLACE_ROUNDS: usize = 3;
 
 /// What [`localize`] needs.
 #[derive(Debug, Clone)]
@@ -210,29 +216,29 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
     let mut attempts = Vec::new();
     let mut outcome = linker.link_pair((0, 1), &mut attempts)?;
     let (mut placed, mut weights) = place(&sessions, &attempts, outcome.join.as_ref(), &loops)?;
-    // The log's keyframes that no link holds after the solve get place candidates once.
-    let unheld: BTreeSet<usize> = sessions[1]
-        .keyframes
-        .iter()
-        .copied()
-        .filter(|&k| placed[k].status != FrameStatus::Localized)
-        .collect();
-    if let Some((join, _)) = &outcome.join
-        && !unheld.is_empty()
-    {
-        let tried = attempts.len();
-        let again = linker.link_again(
-            (0, 1),
-            &mut attempts,
-            0,
-            &outcome.report,
-            &unheld,
-            &join.a_from_b,
-        )?;
-        if attempts.len() > tried {
-            outcome = again;
-            (placed, weights) = place(&sessions, &attempts, outcome.join.as_ref(), &loops)?;
+    // The log's keyframes that no link holds after the solve get place candidates; again after
+    // a solve that lets go of others (the new links move the solution), a few times at most.
+    for _ in 0..LOCALIZE_PLACE_ROUNDS {
+        let unheld: BTreeSet<usize> = sessions[1]
+            .keyframes
+            .iter()
+            .copied()
+            .filter(|&k| placed[k].status != FrameStatus::Localized)
+            .collect();
+        let Some(align) = outcome.join.as_ref().map(|(join, _)| join.a_from_b) else {
+            break;
+        };
+        if unheld.is_empty() {
+            break;
         }
+        let tried = attempts.len();
+        let again =
+            linker.link_again((0, 1), &mut attempts, 0, &outcome.report, &unheld, &align)?;
+        if attempts.len() == tried {
+            break;
+        }
+        outcome = again;
+        (placed, weights) = place(&sessions, &attempts, outcome.join.as_ref(), &loops)?;
     }
     clock(&mut timings.link);
     let kept: BTreeSet<usize> = outcome
