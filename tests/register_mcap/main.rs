@@ -10,7 +10,7 @@ use mireg::io::log_order::ChunkTimes;
 
 #[path = "../common/log_contents.rs"]
 mod log_contents;
-use log_contents::{Contents, assert_superset, contents};
+use log_contents::{Contents, assert_superset, contents, topic_messages};
 #[path = "../common/synthetic_log.rs"]
 mod synthetic_log;
 use mireg::io::mcap::log::for_each_record;
@@ -153,21 +153,13 @@ fn write_synthetic_log_in_order(path: &Path, order: &[usize], frames_per_chunk: 
 
 /// Poses on `topic` in file order.
 fn poses_in_file_order(path: &Path, topic: &str) -> Vec<(i64, Isometry3<f64>)> {
-    let mut channel = None;
-    let mut out = Vec::new();
-    for_each_record(path, |r| {
-        match r {
-            Record::Channel(ch) if ch.topic == topic => channel = Some(ch.id),
-            Record::Message { header, data } if Some(header.channel_id) == channel => {
-                let (h, p) = cdr::decode_pose_stamped(&data).unwrap();
-                out.push((h.stamp.to_ns(), p));
-            }
-            _ => {}
-        }
-        Ok(())
-    })
-    .unwrap();
-    out
+    topic_messages(path, topic)
+        .iter()
+        .map(|data| {
+            let (h, p) = cdr::decode_pose_stamped(data).unwrap();
+            (h.stamp.to_ns(), p)
+        })
+        .collect()
 }
 
 /// Clouds written out of log-time order are registered in log-time order, both where the chunk
