@@ -10,7 +10,7 @@ use std::process::Command;
 
 use mireg::io::cloud_file::write_npy;
 use mireg::io::poses::read_mcap_pose_topic;
-use mireg::merge::MergeConfig;
+use mireg::merge::{LogLoops, MergeConfig};
 use mireg::trajectory::Trajectory;
 use nalgebra::Isometry3;
 
@@ -317,6 +317,7 @@ fn a_map_file_localizes_alike_when_no_tile_fits_the_memory_budget() {
                 ..Default::default()
             },
             topic: None,
+            log_loops: Default::default(),
             command_line: String::new(),
         };
         mireg::merge::localize(&opts).unwrap();
@@ -327,4 +328,50 @@ fn a_map_file_localizes_alike_when_no_tile_fits_the_memory_budget() {
     }
     assert!(!runs[0].0.is_empty() && !runs[0].1.is_empty());
     assert_eq!(runs[0], runs[1]);
+}
+
+#[test]
+fn the_log_inside_the_map_closes_its_own_loops_only_when_asked() {
+    // Every frame of the fixture is within reach of the prior from 30: by default its own loops
+    // are not closed (the links to the map close them); `Always` closes them in its one
+    // registration. The reference scores both: the links hold the log either way.
+    let dir = tempfile::tempdir().unwrap();
+    let reference_log = reference(&fixture());
+    let prior = prior(dir.path(), 30);
+    let mut placed = Vec::new();
+    for log_loops in [LogLoops::Auto, LogLoops::Always] {
+        let out = dir.path().join(format!("loc_{log_loops:?}.mcap"));
+        let opts = mireg::merge::LocalizeOptions {
+            log: fixture(),
+            prior: prior.clone(),
+            output: out.clone(),
+            force: false,
+            seed: 0,
+            config: MergeConfig::default(),
+            topic: None,
+            log_loops,
+            command_line: String::new(),
+        };
+        let summary = mireg::merge::localize(&opts).unwrap();
+        assert_eq!(summary.log_loops_closed, log_loops == LogLoops::Always);
+        assert_eq!(summary.outside_map, 0);
+        assert_eq!(summary.timings_s.log_loops, 0.0, "no second registration");
+        let (rmse, max) = placed_error(&out, &prior, &reference_log);
+        assert!(rmse < 0.035 && max < 0.07, "{log_loops:?}: {rmse}, {max}");
+        placed.push((
+            statuses(&out),
+            read_mcap_pose_topic(&out, "/mireg/pose").unwrap(),
+        ));
+    }
+    let (auto, always) = (&placed[0], &placed[1]);
+    let apart = auto
+        .1
+        .poses
+        .iter()
+        .zip(&always.1.poses)
+        .map(|(a, b)| (a.translation.vector - b.translation.vector).norm())
+        .fold(0.0, f64::max);
+    // Measured: the same statuses, no pose more than 0.1 mm apart.
+    assert_eq!(auto.0, always.0);
+    assert!(apart < 0.01, "{apart}");
 }

@@ -1,10 +1,10 @@
 //! Bindings of `mireg merge` and `mireg localize` ([`mireg::merge`]): options in, the report
 //! as JSON out.
 
-use pyo3::exceptions::PyRuntimeError;
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 
-use mireg::merge::{LocalizeOptions, MergeConfig, MergeOptions};
+use mireg::merge::{LocalizeOptions, LogLoops, MergeConfig, MergeOptions};
 
 use crate::py_err;
 
@@ -39,10 +39,11 @@ pub(crate) fn merge(
     serde_json::to_string(&summary).map_err(|e| PyRuntimeError::new_err(e.to_string()))
 }
 
-/// `localize(log, map, output, force, seed, min_links, topic) -> str`: `mireg localize LOG
-/// --map MAP -o OUTPUT`; returns the summary as JSON.
+/// `localize(log, map, output, force, seed, min_links, topic, log_loops) -> str`: `mireg
+/// localize LOG --map MAP -o OUTPUT`; `log_loops` is `"auto"` (default) or `"always"`, as
+/// `--log-loops`; returns the summary as JSON.
 #[pyfunction]
-#[pyo3(signature = (log, map, output, force=false, seed=0, min_links=2, topic=None))]
+#[pyo3(signature = (log, map, output, force=false, seed=0, min_links=2, topic=None, log_loops="auto"))]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn localize(
     py: Python<'_>,
@@ -53,7 +54,17 @@ pub(crate) fn localize(
     seed: u64,
     min_links: usize,
     topic: Option<String>,
+    log_loops: &str,
 ) -> PyResult<String> {
+    let log_loops = match log_loops {
+        "auto" => LogLoops::Auto,
+        "always" => LogLoops::Always,
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "log_loops: {other:?}, expected \"auto\" or \"always\""
+            )));
+        }
+    };
     let opts = LocalizeOptions {
         log,
         prior: map,
@@ -65,6 +76,7 @@ pub(crate) fn localize(
             ..MergeConfig::default()
         },
         topic,
+        log_loops,
         command_line: std::env::args().collect::<Vec<_>>().join(" "),
     };
     let summary = py

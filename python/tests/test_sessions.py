@@ -74,6 +74,9 @@ def test_localize_is_the_cli(tmp_path, sessions):
                                                                        "/mireg/pose")
     with pytest.raises(ValueError, match="register"):
         mireg.localize(log, log, tmp_path / "x.mcap")
+    assert not summary["log_loops_closed"]
+    with pytest.raises(ValueError, match="log_loops"):
+        mireg.localize(log, b, tmp_path / "y.mcap", log_loops="sometimes")
 
 
 def test_view_of_a_merge_draws_sessions_and_links(tmp_path, sessions):

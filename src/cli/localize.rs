@@ -4,7 +4,7 @@ use anyhow::Result;
 use clap::Args;
 use std::path::PathBuf;
 
-use crate::merge::{LocalizeOptions, MergeConfig};
+use crate::merge::{LocalizeOptions, LogLoops, MergeConfig};
 
 /// Arguments of `mireg localize`.
 #[derive(Debug, Args)]
@@ -33,12 +33,26 @@ pub struct LocalizeArgs {
     /// them. A candidate verifies the same either way; 0 keeps none.
     #[arg(long, value_name = "MIB", default_value_t = crate::loops::closure::DEFAULT_LOOP_MEMORY_BYTES >> 20)]
     pub keyframe_memory: usize,
+    /// When the log's own loops are closed: `auto` only where a frame ends outside the map (the
+    /// log is then registered a second time, with loop closure: inside the map its links to the
+    /// map close its loops), `always` in its one registration.
+    #[arg(long, value_enum, value_name = "WHEN", default_value_t = LogLoopsArg::Auto)]
+    pub log_loops: LogLoopsArg,
     /// Replace an existing output.
     #[arg(long)]
     pub force: bool,
     /// Print the summary as JSON.
     #[arg(long)]
     pub json: bool,
+}
+
+/// `--log-loops`: see [`LogLoops`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LogLoopsArg {
+    /// Only where a frame ends outside the map.
+    Auto,
+    /// Always.
+    Always,
 }
 
 /// `mireg localize`.
@@ -62,6 +76,10 @@ pub(super) fn run_localize(args: &LocalizeArgs) -> Result<()> {
             ..MergeConfig::default()
         },
         topic: args.topic.clone(),
+        log_loops: match args.log_loops {
+            LogLoopsArg::Auto => LogLoops::Auto,
+            LogLoopsArg::Always => LogLoops::Always,
+        },
         command_line: super::process::command_line(),
     };
     let s = crate::merge::localize(&opts)?;

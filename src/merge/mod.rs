@@ -37,7 +37,7 @@ pub use job::{MergeOptions, MergeSummary, PairReport, SessionReport, merge};
 pub use links::{AgreementConfig, LinkSource, SessionLink};
 pub use localize::{
     FrameStatus, LOCALIZE_LINKS_PER_KEYFRAME, LocalizeOptions, LocalizeSummary, LocalizeTimings,
-    localization_json_schema, localize,
+    LogLoops, localization_json_schema, localize,
 };
 pub use map_prior::{MAP_MIN_REVERSE_FITNESS, MAX_TILES, MIN_TILE_POINTS};
 pub use pair_links::{PAIR_LINKS_FORMAT, link_pair_file, pair_links_path};
