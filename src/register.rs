@@ -31,8 +31,9 @@ pub(crate) use closure::loop_pair_config;
 pub(crate) use clouds::CloudKind;
 pub use clouds::{for_each_cloud, for_each_cloud_where, point_cloud_topic};
 pub use options::{
-    DEFAULT_MAX_POINTS_PER_CLOUD, DEFAULT_REFERENCE_TOPIC, DeskewMode, OnFrame, OutputMessages,
-    QUEUE_CAPACITY, REORDER_WINDOW, REORDER_WINDOW_BYTES, RegisterOptions, default_output,
+    DEFAULT_MAX_POINTS_PER_CLOUD, DEFAULT_REFERENCE_TOPIC, DeskewMode, KeptKeyframes, KeyframeSink,
+    OnFrame, OutputMessages, QUEUE_CAPACITY, REORDER_WINDOW, REORDER_WINDOW_BYTES, RegisterOptions,
+    default_output,
 };
 use output::Outputs;
 pub(crate) use output::{
@@ -80,10 +81,20 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         &mut writer,
         &loop_config,
     )?;
+    let cached = cached.map(KeyframeCache::into_frames).unwrap_or_default();
     let loops = if opts.loops {
-        let cached = cached.map(KeyframeCache::into_frames).unwrap_or_default();
         close_loops(&plan, opts, &writer.estimates, loop_config, cached)
     } else {
+        if let Some(sink) = &opts.keep_keyframes {
+            let kept = KeptKeyframes {
+                loops: loop_config,
+                pair: closure::loop_pair_config(&plan.config.pair, &loop_config),
+                frames: cached,
+            };
+            *sink
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(kept);
+        }
         None
     };
     let topic = plan.topic.clone();
@@ -162,8 +173,9 @@ fn run_stages(
         let (recycle_tx, recycle_rx) = std::sync::mpsc::channel();
         let prepare = &prepare;
         let preparing = scope.spawn(move || prepare.run(cloud_rx, prep_tx, motion_rx, recycle_tx));
-        let cache = (opts.loops && loop_config.keep_odometry_frames)
-            .then(|| KeyframeCache::new(loop_config));
+        let keep = opts.loops || opts.keep_keyframes.is_some();
+        let cache =
+            (keep && loop_config.keep_odometry_frames).then(|| KeyframeCache::new(loop_config));
         let registrar =
             scope.spawn(move || registrar::run(odometry, prep_rx, out_tx, motion_tx, cache));
         let read = reader::read(plan, opts, log, writer, cloud_tx, recycle_rx, &out_rx);

@@ -361,6 +361,7 @@ fn the_log_inside_the_map_closes_its_own_loops_only_when_asked() {
         placed.push((
             statuses(&out),
             read_mcap_pose_topic(&out, "/mireg/pose").unwrap(),
+            json_messages(&out, "/mireg/session_links"),
         ));
     }
     let (auto, always) = (&placed[0], &placed[1]);
@@ -374,4 +375,7 @@ fn the_log_inside_the_map_closes_its_own_loops_only_when_asked() {
     // Measured: the same statuses, no pose more than 0.1 mm apart.
     assert_eq!(auto.0, always.0);
     assert!(apart < 0.01, "{apart}");
+    // `Auto` verifies the log's keyframes as its odometry prepared them (`keep_keyframes`),
+    // `Always` as prepared again from the registered output: the same frames, the same links.
+    assert_eq!(auto.2, always.2);
 }

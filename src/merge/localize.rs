@@ -38,7 +38,7 @@ use super::graph::{Fix, solve_in_prior};
 use super::job::{Attempt, Linker, link_records};
 use super::links::Track;
 use super::map_prior::{MAP_MIN_REVERSE_FITNESS, is_map_file, map_session, read_map, tiling_for};
-use super::session::{Session, prepare_sessions};
+use super::session::{Session, merge_settings, prepare_sessions};
 use super::write::{LinkRecord, session_links_json_schema, write_links};
 use crate::Result;
 use crate::io::atomic_file::{check_not_an_input, check_target};
@@ -49,7 +49,8 @@ use crate::loops::LoopConfig;
 use crate::odometry::OdometryConfig;
 use crate::pipeline::PairConfig;
 use crate::register::{
-    CloudKind, RegisterOptions, StampedPose, encode_pose, pose_channels, register_log,
+    CloudKind, KeptKeyframes, KeyframeSink, RegisterOptions, StampedPose, encode_pose,
+    pose_channels, register_log,
 };
 
 /// Verified appearance links after which a keyframe of the log stops trying its candidates: 1.
@@ -207,6 +208,11 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
     ropts.topic.clone_from(&opts.topic);
     ropts.config.pair.seed = opts.seed;
     ropts.loops = opts.log_loops == LogLoops::Always;
+    // Without its loop closure the registration leaves the keyframes its odometry prepared.
+    let kept = KeyframeSink::default();
+    if !ropts.loops {
+        ropts.keep_keyframes = Some(kept.clone());
+    }
     // A run prior's keyframes are prepared at its own settings, while the log registers: the
     // registration leaves part of two cores idle (it waits on its preparing thread, and that
     // one on it).
@@ -233,7 +239,12 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
         .log
         .file_stem()
         .map_or_else(|| "log".to_string(), |s| s.to_string_lossy().into_owned());
-    let (mut sessions, loops, pair) = prior.with_log(log, opts)?;
+    let kept = kept
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+        .take();
+    ropts.keep_keyframes = None;
+    let (mut sessions, loops, pair) = prior.with_log(log, kept, opts)?;
     clock(&mut timings.prepare);
     let tracks: Vec<Track<'_>> = sessions.iter().map(Session::track).collect();
     let linker = Linker::new(&sessions, &tracks, &pair, &loops, &opts.config)
@@ -370,21 +381,21 @@ impl Prior {
     fn with_log(
         self,
         mut log: Session,
+        kept: Option<KeptKeyframes>,
         opts: &LocalizeOptions,
     ) -> Result<([Session; 2], LoopConfig, PairConfig)> {
         let budget = opts.config.keyframe_memory_bytes;
         match self {
-            Prior::Run(_) => self.prepared(opts)?.with_log(log, opts),
+            Prior::Run(_) => self.prepared(opts)?.with_log(log, kept, opts),
             Prior::PreparedRun(prepared) => {
                 let (prior, loops, pair) = *prepared;
-                log.prepare_keyframes(&loops, &pair)?;
+                log.prepare_keyframes_from(&loops, &pair, kept)?;
                 Ok(([prior, log], loops, pair))
             }
             Prior::Map(points) => {
-                let mut only = [log];
-                let (mut loops, pair) = prepare_sessions(&mut only, budget, opts.seed)?;
+                let (mut loops, pair) = merge_settings(&log, budget, opts.seed);
+                log.prepare_keyframes_from(&loops, &pair, kept)?;
                 loops.verify.min_reverse_fitness = MAP_MIN_REVERSE_FITNESS;
-                let [log] = only;
                 let voxels = (log.voxel_m, log.feature_voxel_m);
                 let tiling = tiling_for(&log)?;
                 let map = map_session(&opts.prior, points, tiling, voxels, (&pair, budget))?;

@@ -16,7 +16,9 @@ use crate::io::poses::read_mcap_pose_topic;
 use crate::loops::{Descriptor, LoopConfig, select_keyframes};
 use crate::odometry::OdometryConfig;
 use crate::pipeline::{PairConfig, PreparedFrame, prepare_frame, with_feature_voxel};
-use crate::register::{Segment, for_each_cloud_where, loop_pair_config, read_segment};
+use crate::register::{
+    KeptKeyframes, Segment, for_each_cloud_where, loop_pair_config, read_segment,
+};
 use crate::{Error, Result};
 
 /// A session: its output read back, the trajectory placing its frames, and its keyframes.
@@ -134,17 +136,51 @@ impl Session {
         config: &LoopConfig,
         pair: &PairConfig,
     ) -> Result<()> {
+        self.prepare_keyframes_from(config, pair, None)
+    }
+
+    /// [`Session::prepare_keyframes`], taking the keyframes' frames from `kept` where it has
+    /// them and was prepared by the same `config.keyframes` and `pair` (the frames `register`'s
+    /// odometry prepared, [`crate::register::RegisterOptions::keep_keyframes`]): only the others
+    /// are read and prepared. The keyframes come in frame order either way.
+    pub(super) fn prepare_keyframes_from(
+        &mut self,
+        config: &LoopConfig,
+        pair: &PairConfig,
+        kept: Option<KeptKeyframes>,
+    ) -> Result<()> {
         let keys = select_keyframes(&self.poses, &self.travelled_m, &config.keyframes)?;
+        let mut reused: BTreeMap<usize, PreparedFrame> = kept
+            .filter(|kept| kept.pair == *pair && kept.loops.keyframes == config.keyframes)
+            .map(|kept| kept.frames)
+            .unwrap_or_default();
+        reused.retain(|k, _| keys.binary_search(k).is_ok());
+        let missing: Vec<usize> = keys
+            .iter()
+            .copied()
+            .filter(|k| !reused.contains_key(k))
+            .collect();
         let mut bytes = 0usize;
         let budget = config.memory_budget_bytes;
         let (mut keyframes, mut frames, mut descriptors) = (Vec::new(), Vec::new(), Vec::new());
         let mut reach = Vec::new();
-        self.for_each_prepared(&keys, pair, |k, frame| {
+        let mut add = |k: usize, frame: PreparedFrame| {
             descriptors.push(Descriptor::from_prepared(&frame));
             reach.push(percentile_range(&frame.points, 0.9));
             keyframes.push(k);
             frames.push(keep_within(&mut bytes, budget, frame));
+        };
+        // The reused frames before each one prepared, so that all come in frame order.
+        self.for_each_prepared(&missing, pair, |k, frame| {
+            while let Some(entry) = reused.first_entry().filter(|e| *e.key() < k) {
+                let (r, f) = entry.remove_entry();
+                add(r, f);
+            }
+            add(k, frame);
         })?;
+        while let Some((r, f)) = reused.pop_first() {
+            add(r, f);
+        }
         (self.keyframes, self.frames, self.descriptors) = (keyframes, frames, descriptors);
         self.reach_m = reach;
         Ok(())
