@@ -636,10 +636,20 @@ impl<'s> Linker<'s> {
                 .collect()
         };
         let done: BTreeSet<(usize, usize)> = done.iter().copied().collect();
+        // NOTE: a map file's tiles stand at the mean of their grid cell's points, up to a cell
+        // from the log's path and below the sensor: at the loop place radius (3 m) a keyframe
+        // of the log rarely had a tile to try (KAIST03's gap log in the PLY map of its second
+        // half: frame 7 none after its one link was down-weighted). Within a cell's edge, the
+        // tiles whose points surround it (a tile reaches twice as far).
+        let radius = self.loops.candidates.place_radius_m;
+        let radius = sa
+            .tiles
+            .as_ref()
+            .map_or(radius, |t| radius.max(t.spacing_m()));
         let mut near = place_candidates(
             &positions(sa, &Isometry3::identity()),
             &positions(sb, align),
-            self.loops.candidates.place_radius_m,
+            radius,
             self.config.place_per_keyframe,
         );
         near.retain(|c| !done.contains(c));

@@ -133,11 +133,12 @@ pub(super) struct TileIndex {
     points: Vec<Point3<f64>>,
     buckets: BTreeMap<[i64; 3], Vec<u32>>,
     radius: f64,
+    spacing: f64,
 }
 
 impl TileIndex {
-    /// `points` bucketed for tiles of `radius` \[m\].
-    fn new(points: Vec<Point3<f64>>, radius: f64) -> Self {
+    /// `points` bucketed for tiles of `radius` \[m\], their centres on a grid of `spacing` \[m\].
+    fn new(points: Vec<Point3<f64>>, radius: f64, spacing: f64) -> Self {
         let mut buckets: BTreeMap<[i64; 3], Vec<u32>> = BTreeMap::new();
         for (i, p) in points.iter().enumerate() {
             buckets.entry(key(p, radius)).or_default().push(i as u32);
@@ -146,7 +147,14 @@ impl TileIndex {
             points,
             buckets,
             radius,
+            spacing,
         }
+    }
+
+    /// The edge of the grid whose occupied cells gave the tiles' centres \[m\]: a place of the
+    /// map lies within about this distance of a tile's centre.
+    pub(super) fn spacing_m(&self) -> f64 {
+        self.spacing
     }
 
     /// The map's points within the radius of `centre`, in the centre's frame, in map order.
@@ -230,7 +238,7 @@ pub(super) fn map_session(
             ),
         ));
     }
-    let index = TileIndex::new(points, tiling.radius_m);
+    let index = TileIndex::new(points, tiling.radius_m, spacing);
     let mut tiles: Vec<Tile> = Vec::new();
     let mut bytes = 0usize;
     for chunk in centres.chunks(TILES_AT_A_TIME) {
@@ -321,7 +329,7 @@ mod tests {
             .collect();
         let centres = tile_centres(&points, 2.5);
         assert_eq!(centres.len(), 16);
-        let index = TileIndex::new(points.clone(), 3.0);
+        let index = TileIndex::new(points.clone(), 3.0, 1.5);
         for c in &centres {
             let tile = index.cloud(c);
             let expected: Vec<Point3<f64>> = points
