@@ -27,13 +27,12 @@ mod writer;
 
 use closure::KeyframeCache;
 pub use closure::LoopSummary;
-pub(crate) use closure::loop_pair_config;
+pub(crate) use closure::{KeptKeyframes, loop_pair_config};
 pub(crate) use clouds::CloudKind;
 pub use clouds::{for_each_cloud, for_each_cloud_where, point_cloud_topic};
 pub use options::{
-    DEFAULT_MAX_POINTS_PER_CLOUD, DEFAULT_REFERENCE_TOPIC, DeskewMode, KeptKeyframes, KeyframeSink,
-    OnFrame, OutputMessages, QUEUE_CAPACITY, REORDER_WINDOW, REORDER_WINDOW_BYTES, RegisterOptions,
-    default_output,
+    DEFAULT_MAX_POINTS_PER_CLOUD, DEFAULT_REFERENCE_TOPIC, DeskewMode, OnFrame, OutputMessages,
+    QUEUE_CAPACITY, REORDER_WINDOW, REORDER_WINDOW_BYTES, RegisterOptions, default_output,
 };
 use output::Outputs;
 pub(crate) use output::{
@@ -65,6 +64,15 @@ use crate::odometry::Odometry;
 /// `writer.rs`, then loop closure (`closure.rs`) over the whole trajectory (docs/ARCHITECTURE.md).
 /// On any error the output path is left untouched.
 pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
+    register_log_keeping_keyframes(opts, false).map(|(summary, _)| summary)
+}
+
+/// [`register_log`]; with `keep_keyframes` and loop closure off, also the keyframes' frames
+/// the odometry prepared, kept as loop closure keeps them (within its memory budget).
+pub(crate) fn register_log_keeping_keyframes(
+    opts: &RegisterOptions,
+    keep_keyframes: bool,
+) -> Result<(RegisterSummary, Option<KeptKeyframes>)> {
     let start = Instant::now();
     check_not_an_input(&opts.output, [opts.input.as_path()], "the input")?;
     // Before the input is opened: a missing folder or an existing output fails at once.
@@ -80,28 +88,25 @@ pub fn register_log(opts: &RegisterOptions) -> Result<RegisterSummary> {
         &mut log,
         &mut writer,
         &loop_config,
+        keep_keyframes,
     )?;
     let cached = cached.map(KeyframeCache::into_frames).unwrap_or_default();
-    let loops = if opts.loops {
-        close_loops(&plan, opts, &writer.estimates, loop_config, cached)
+    let (loops, kept) = if opts.loops {
+        let loops = close_loops(&plan, opts, &writer.estimates, loop_config, cached);
+        (loops, None)
     } else {
-        if let Some(sink) = &opts.keep_keyframes {
-            let kept = KeptKeyframes {
-                loops: loop_config,
-                pair: closure::loop_pair_config(&plan.config.pair, &loop_config),
-                frames: cached,
-            };
-            *sink
-                .lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(kept);
-        }
-        None
+        let kept = keep_keyframes.then(|| KeptKeyframes {
+            loops: loop_config,
+            pair: closure::loop_pair_config(&plan.config.pair, &loop_config),
+            frames: cached,
+        });
+        (None, kept)
     };
     let topic = plan.topic.clone();
     let summary = writer.finish(log, plan, opts, copied, start, loops)?;
     // On stderr, even with --quiet or --json: points were dropped or clouds left skewed.
     times.warn(&opts.input, &topic);
-    Ok(summary)
+    Ok((summary, kept))
 }
 
 /// The output log, created (unnamed until complete) with the input's schemas and channels and
@@ -143,8 +148,8 @@ fn loop_config(opts: &RegisterOptions, voxel_m: f64) -> LoopConfig {
 
 /// The streaming stages: the reader and the writer on the calling thread, prepare and register
 /// on a thread each, bounded queues between them. Returns the input records copied, the
-/// keyframes the odometry kept for loop closure (when it keeps them) and the clouds whose point
-/// times were unusable.
+/// keyframes the odometry kept for loop closure (when it keeps them: with loop closure, or
+/// `keep_keyframes`) and the clouds whose point times were unusable.
 fn run_stages(
     opts: &RegisterOptions,
     plan: &Plan,
@@ -152,6 +157,7 @@ fn run_stages(
     log: &mut OutputLog,
     writer: &mut Writer,
     loop_config: &LoopConfig,
+    keep_keyframes: bool,
 ) -> Result<(u64, Option<KeyframeCache>, TimeTally)> {
     let prepare = Prepare {
         plan,
@@ -173,7 +179,7 @@ fn run_stages(
         let (recycle_tx, recycle_rx) = std::sync::mpsc::channel();
         let prepare = &prepare;
         let preparing = scope.spawn(move || prepare.run(cloud_rx, prep_tx, motion_rx, recycle_tx));
-        let keep = opts.loops || opts.keep_keyframes.is_some();
+        let keep = opts.loops || keep_keyframes;
         let cache =
             (keep && loop_config.keep_odometry_frames).then(|| KeyframeCache::new(loop_config));
         let registrar =

@@ -10,7 +10,7 @@ use std::process::Command;
 
 use mireg::io::cloud_file::write_npy;
 use mireg::io::poses::read_mcap_pose_topic;
-use mireg::merge::{LogLoops, MergeConfig};
+use mireg::merge::{LocalizeOptions, LogLoops, MergeConfig};
 use mireg::trajectory::Trajectory;
 use nalgebra::Isometry3;
 
@@ -67,6 +67,21 @@ fn map_file(dir: &Path, run: &Path, name: &str) -> PathBuf {
         None,
     );
     out
+}
+
+/// The library's options to localise the fixture in `prior` into `out`, at their defaults.
+fn options(prior: &Path, out: &Path) -> LocalizeOptions {
+    LocalizeOptions {
+        log: fixture(),
+        prior: prior.to_path_buf(),
+        output: out.to_path_buf(),
+        force: false,
+        seed: 0,
+        config: MergeConfig::default(),
+        topic: None,
+        log_loops: LogLoops::default(),
+        command_line: String::new(),
+    }
 }
 
 fn localize(log: &Path, prior: &Path, out: &Path, threads: Option<&str>) {
@@ -306,19 +321,12 @@ fn a_map_file_localizes_alike_when_no_tile_fits_the_memory_budget() {
     let mut runs = Vec::new();
     for budget in [MergeConfig::default().keyframe_memory_bytes, 0] {
         let out = dir.path().join(format!("loc_{budget}.mcap"));
-        let opts = mireg::merge::LocalizeOptions {
-            log: fixture(),
-            prior: map.clone(),
-            output: out.clone(),
-            force: false,
-            seed: 0,
+        let opts = LocalizeOptions {
             config: MergeConfig {
                 keyframe_memory_bytes: budget,
                 ..Default::default()
             },
-            topic: None,
-            log_loops: Default::default(),
-            command_line: String::new(),
+            ..options(&map, &out)
         };
         mireg::merge::localize(&opts).unwrap();
         runs.push((
@@ -341,16 +349,9 @@ fn the_log_inside_the_map_closes_its_own_loops_only_when_asked() {
     let mut placed = Vec::new();
     for log_loops in [LogLoops::Auto, LogLoops::Always] {
         let out = dir.path().join(format!("loc_{log_loops:?}.mcap"));
-        let opts = mireg::merge::LocalizeOptions {
-            log: fixture(),
-            prior: prior.clone(),
-            output: out.clone(),
-            force: false,
-            seed: 0,
-            config: MergeConfig::default(),
-            topic: None,
+        let opts = LocalizeOptions {
             log_loops,
-            command_line: String::new(),
+            ..options(&prior, &out)
         };
         let summary = mireg::merge::localize(&opts).unwrap();
         assert_eq!(summary.log_loops_closed, log_loops == LogLoops::Always);
@@ -375,7 +376,8 @@ fn the_log_inside_the_map_closes_its_own_loops_only_when_asked() {
     // Measured: the same statuses, no pose more than 0.1 mm apart.
     assert_eq!(auto.0, always.0);
     assert!(apart < 0.01, "{apart}");
-    // `Auto` verifies the log's keyframes as its odometry prepared them (`keep_keyframes`),
-    // `Always` as prepared again from the registered output: the same frames, the same links.
+    // `Auto` verifies the log's keyframes as its odometry prepared them (kept by its
+    // registration), `Always` as prepared again from the registered output: the same frames,
+    // the same links.
     assert_eq!(auto.2, always.2);
 }

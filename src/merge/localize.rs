@@ -3,12 +3,13 @@
 //!
 //! The log is registered first (`mireg register`'s odometry, into a temporary file beside the
 //! output), so that its own trajectory bridges the frames that see nothing of the map; its own
-//! loops are closed where it leaves the map ([`LogLoops`]). Then, as [`super::merge`] links two sessions, with the prior as the first: its
-//! keyframes against the log's by appearance (prior-free: the log may start anywhere in the map,
-//! at any heading — the kidnapped robot), each verified by MI-RANSAC + ICP; the links that agree
-//! on one placement kept, at least [`super::MergeConfig::min_links`] at distinct keyframes to
-//! localise at all; then by place once placed. The log's trajectory is solved into the prior's
-//! world with the prior's poses fixed ([`super::graph::solve_in_prior`]).
+//! loops are closed where it leaves the map ([`LogLoops`]). Then, as [`super::merge`] links two
+//! sessions, with the prior as the first: its keyframes against the log's by appearance
+//! (prior-free: the log may start anywhere in the map, at any heading — the kidnapped robot),
+//! each verified by MI-RANSAC + ICP; the links that agree on one placement kept, at least
+//! [`super::MergeConfig::min_links`] at distinct keyframes to localise at all; then by place once
+//! placed. The log's trajectory is solved into the prior's world with the prior's poses fixed
+//! ([`super::graph::solve_in_prior`]).
 //!
 //! Each frame's status on `…/localization`: `localized` (a link to the map holds it), `tracking`
 //! (placed by its own trajectory between fixes, within reach of the map), `outside_map` (placed
@@ -49,8 +50,8 @@ use crate::loops::LoopConfig;
 use crate::odometry::OdometryConfig;
 use crate::pipeline::PairConfig;
 use crate::register::{
-    CloudKind, KeptKeyframes, KeyframeSink, RegisterOptions, StampedPose, encode_pose,
-    pose_channels, register_log,
+    CloudKind, KeptKeyframes, RegisterOptions, StampedPose, encode_pose, pose_channels,
+    register_log, register_log_keeping_keyframes,
 };
 
 /// Verified appearance links after which a keyframe of the log stops trying its candidates: 1.
@@ -208,23 +209,19 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
     ropts.topic.clone_from(&opts.topic);
     ropts.config.pair.seed = opts.seed;
     ropts.loops = opts.log_loops == LogLoops::Always;
-    // Without its loop closure the registration leaves the keyframes its odometry prepared.
-    let kept = KeyframeSink::default();
-    if !ropts.loops {
-        ropts.keep_keyframes = Some(kept.clone());
-    }
     // A run prior's keyframes are prepared at its own settings, while the log registers: the
     // registration leaves part of two cores idle (it waits on its preparing thread, and that
     // one on it).
+    // Without its loop closure the registration keeps the keyframes its odometry prepared.
     let (registration, prior) = std::thread::scope(|scope| {
         let prior = scope.spawn(|| prior.prepared(opts));
-        let registration = register_log(&ropts);
+        let registration = register_log_keeping_keyframes(&ropts, !ropts.loops);
         let prior = prior
             .join()
             .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
         (registration, prior)
     });
-    registration?;
+    let (_, kept) = registration?;
     let prior = prior?;
     let mut timings = LocalizeTimings::default();
     let mut lap = Instant::now();
@@ -239,11 +236,6 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
         .log
         .file_stem()
         .map_or_else(|| "log".to_string(), |s| s.to_string_lossy().into_owned());
-    let kept = kept
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner)
-        .take();
-    ropts.keep_keyframes = None;
     let (mut sessions, loops, pair) = prior.with_log(log, kept, opts)?;
     clock(&mut timings.prepare);
     let tracks: Vec<Track<'_>> = sessions.iter().map(Session::track).collect();

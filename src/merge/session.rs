@@ -141,7 +141,7 @@ impl Session {
 
     /// [`Session::prepare_keyframes`], taking the keyframes' frames from `kept` where it has
     /// them and was prepared by the same `config.keyframes` and `pair` (the frames `register`'s
-    /// odometry prepared, [`crate::register::RegisterOptions::keep_keyframes`]): only the others
+    /// odometry prepared, [`crate::register::register_log_keeping_keyframes`]): only the others
     /// are read and prepared. The keyframes come in frame order either way.
     pub(super) fn prepare_keyframes_from(
         &mut self,

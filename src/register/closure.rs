@@ -102,6 +102,21 @@ pub(crate) fn loop_pair_config(pair: &PairConfig, config: &LoopConfig) -> PairCo
     }
 }
 
+/// The keyframes' frames the odometry prepared, by frame index, with the settings they are
+/// loop closure's frames for: chosen by `loops.keyframes` on the odometry's poses, prepared as
+/// `pair` prepares them (the odometry's extra points for the map's fine stage dropped). What
+/// [`super::register_log_keeping_keyframes`] leaves without loop closure, for a caller that
+/// verifies them against something else (`localize`).
+#[derive(Debug)]
+pub(crate) struct KeptKeyframes {
+    /// Loop closure's settings at the run's voxel.
+    pub(crate) loops: LoopConfig,
+    /// Loop verification's registration settings: the odometry's, with loop closure's ICP.
+    pub(crate) pair: PairConfig,
+    /// The frames kept, by index.
+    pub(crate) frames: BTreeMap<usize, PreparedFrame>,
+}
+
 /// The prepared frames of the keyframes, kept from the odometry for verification: each frame's
 /// pose is [`Self::push_pose`]d as it is registered, deciding whether it is a keyframe by the
 /// rule [`close_loops`] applies ([`KeyframeSelector`]), and each frame the odometry retires is

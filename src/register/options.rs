@@ -2,15 +2,12 @@
 //! share: a room of its own below `register.rs`, so that the stage files import it without
 //! importing their parent.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
 
 use crate::io::codec::livox::LivoxTags;
 use crate::io::damage::ReadPolicy;
 use crate::loops::LoopConfig;
 use crate::odometry::OdometryConfig;
-use crate::pipeline::{PairConfig, PreparedFrame};
 
 use super::window::WindowBound;
 
@@ -89,27 +86,6 @@ pub struct RegisterOptions {
     pub livox_tags: LivoxTags,
     /// Called after each frame is written. Default `None`.
     pub on_frame: Option<OnFrame>,
-    /// Without loop closure ([`RegisterOptions::loops`] off): where to leave the keyframes'
-    /// frames the odometry prepared, kept as loop closure keeps them (within its memory budget),
-    /// for a caller that verifies them against something else (`localize`). Default `None`.
-    pub keep_keyframes: Option<KeyframeSink>,
-}
-
-/// Where [`crate::register::register_log`] leaves the keyframes it kept
-/// ([`RegisterOptions::keep_keyframes`]).
-pub type KeyframeSink = Arc<Mutex<Option<KeptKeyframes>>>;
-
-/// The keyframes' frames the odometry prepared, by frame index, with the settings they are
-/// loop closure's frames for: chosen by `loops.keyframes` on the odometry's poses, prepared
-/// as `pair` prepares them (the odometry's extra points for the map's fine stage dropped).
-#[derive(Debug)]
-pub struct KeptKeyframes {
-    /// Loop closure's settings at the run's voxel.
-    pub loops: LoopConfig,
-    /// Loop verification's registration settings: the odometry's, with loop closure's ICP.
-    pub pair: PairConfig,
-    /// The frames kept, by index.
-    pub frames: BTreeMap<usize, PreparedFrame>,
 }
 
 /// A callback `register` calls after writing each frame with (frames written so far, clouds
@@ -150,7 +126,6 @@ impl RegisterOptions {
             read_policy: ReadPolicy::default(),
             livox_tags: LivoxTags::default(),
             on_frame: None,
-            keep_keyframes: None,
             loop_config: None,
             loop_memory_bytes: None,
         }

@@ -207,7 +207,6 @@ impl RegisterSettings {
             copy_window_only: self.copy_window,
             loops: !self.no_loops,
             loop_config: None,
-            keep_keyframes: None,
             loop_memory_bytes: Some(self.loop_memory.saturating_mul(1 << 20)),
             read_policy: ReadPolicy {
                 strict: self.strict,
