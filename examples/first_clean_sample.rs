@@ -54,8 +54,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     };
     let (s, t) = (prepare_frame(&src, &config)?, prepare_frame(&tgt, &config)?);
     let m = match_features_with(
-        &s.features,
-        &t.features,
+        s.features(),
+        t.features(),
         &MatchConfig {
             count_radius: Some(PAPER_DESCRIPTOR_RADIUS as f32),
             ..Default::default()

@@ -69,7 +69,7 @@ fn real(args: &[String]) {
     let mut out = Matches::default();
     for _ in 0..repeats {
         let start = Instant::now();
-        out = match_features_with(&s.features, &t.features, &MatchConfig::default());
+        out = match_features_with(s.features(), t.features(), &MatchConfig::default());
         times.push(start.elapsed().as_secs_f64());
     }
     times.sort_by(f64::total_cmp);
@@ -85,8 +85,8 @@ fn real(args: &[String]) {
         });
     println!(
         "{} x {} real descriptors: min {:.1} ms, median {:.1} ms over {repeats}; checksum {checksum:016x}",
-        s.features.len(),
-        t.features.len(),
+        s.features().len(),
+        t.features().len(),
         times[0] * 1e3,
         times[repeats / 2] * 1e3
     );

@@ -51,7 +51,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     .resolved()?;
     let (s, t) = (prepare_frame(&src, &config)?, prepare_frame(&tgt, &config)?);
-    let m = match_features_with(&s.features, &t.features, &MatchConfig::default());
+    let m = match_features_with(s.features(), t.features(), &MatchConfig::default());
     let ranking = rank_by_ratio(&m.distance, &m.second_distance);
     let sp = ranking.gather(&m.source_index, &s.points);
     let tp = ranking.gather(&m.target_index, &t.points);

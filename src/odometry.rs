@@ -488,6 +488,14 @@ impl Odometry {
         self.retired.take()
     }
 
+    /// The frame the odometry holds as the previous one, with its index: after [`Self::push`],
+    /// the frame pushed unless it was too poor to register.
+    pub fn previous_frame(&self) -> Option<(usize, &PreparedFrame)> {
+        self.previous
+            .as_ref()
+            .map(|(f, _)| (self.previous_index, f))
+    }
+
     /// The frame the odometry holds as the previous one (with its index), taking it: for the
     /// end of a trajectory, after which the odometry registers no more frames.
     pub fn take_previous(&mut self) -> Option<(usize, PreparedFrame)> {

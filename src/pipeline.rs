@@ -232,8 +232,8 @@ fn fresh_result(source: &PreparedFrame, target: &PreparedFrame) -> PairResult {
         icp_hessian: None,
         timings_s: PairTimings {
             downsample: source.timings.downsample + target.timings.downsample,
-            normals: source.timings.normals + target.timings.normals,
-            features: source.timings.features + target.timings.features,
+            normals: source.stage_timings().normals + target.stage_timings().normals,
+            features: source.stage_timings().features + target.stage_timings().features,
             ..Default::default()
         },
     }
@@ -280,7 +280,7 @@ fn match_and_prepare(
                 count_radius,
                 ..Default::default()
             };
-            let (s, t_features) = (&source.features, &target.features);
+            let (s, t_features) = (source.features(), target.features());
             // The prepared structures serve the search without a count radius only: the
             // other builds its own.
             let prepared = count_radius.is_none().then(|| target.match_target());
@@ -303,6 +303,10 @@ fn register_prepared_with(
     refined: bool,
 ) -> Result<PairResult> {
     let c = config.resolved()?;
+    // Features that preparing deferred are computed first, both at once (distinct frames): no
+    // task of the parallel stages below then waits on another's first use of them, and their
+    // seconds are the frames' own ([`PreparedFrame::stage_timings`]), as if prepared with them.
+    rayon::join(|| source.features(), || target.features());
     let start = Instant::now();
     let mut out = fresh_result(source, target);
     let finish = |mut out: PairResult| {

@@ -164,7 +164,6 @@ fn run_stages(
         input: &opts.input,
         max_points: opts.max_points_per_cloud,
         deskew_mode: opts.deskew,
-        descriptors: opts.loops,
     };
     std::thread::scope(|scope| -> Result<_> {
         let (cloud_tx, cloud_rx) = sync_channel(QUEUE_CAPACITY);
@@ -179,11 +178,11 @@ fn run_stages(
         let (recycle_tx, recycle_rx) = std::sync::mpsc::channel();
         let prepare = &prepare;
         let preparing = scope.spawn(move || prepare.run(cloud_rx, prep_tx, motion_rx, recycle_tx));
-        let keep = opts.loops || keep_keyframes;
-        let cache =
-            (keep && loop_config.keep_odometry_frames).then(|| KeyframeCache::new(loop_config));
-        let registrar =
-            scope.spawn(move || registrar::run(odometry, prep_rx, out_tx, motion_tx, cache));
+        let keep = (opts.loops || keep_keyframes) && loop_config.keep_odometry_frames;
+        let cache = (opts.loops || keep).then(|| KeyframeCache::new(loop_config, keep));
+        let describe = opts.loops;
+        let registrar = scope
+            .spawn(move || registrar::run(odometry, (prep_rx, out_tx, motion_tx), cache, describe));
         let read = reader::read(plan, opts, log, writer, cloud_tx, recycle_rx, &out_rx);
         let copied = writer.drain(log, out_rx, read)?;
         let cached = registrar

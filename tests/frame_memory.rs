@@ -34,7 +34,7 @@ fn dropping_search_structures_restores_the_idle_size_and_changes_no_result() {
         // Idle, the frame holds at least its clouds: feature points and FPFH, ICP points.
         let idle = target.heap_bytes();
         let icp_points = target.icp.as_ref().map_or(0, |t| t.points().len());
-        let floor = target.points.len() * 24 + target.features.len() * 4 * 33 + icp_points * 24;
+        let floor = target.points.len() * 24 + target.features().len() * 4 * 33 + icp_points * 24;
         assert!(idle >= floor, "{icp_voxel:?}: idle {idle} B < {floor} B");
 
         // What it will hold idle after serving as a target, predicted before.
@@ -53,7 +53,7 @@ fn dropping_search_structures_restores_the_idle_size_and_changes_no_result() {
         let used = target.heap_bytes();
         // Serving as a target builds its matching target at least (one entry per descriptor).
         assert!(
-            used >= idle + target.features.len() * 4 * 33,
+            used >= idle + target.features().len() * 4 * 33,
             "{icp_voxel:?}: in use {used} B, idle {idle} B"
         );
 

@@ -53,7 +53,7 @@ fn worst_descriptor_change(orient_to_centroid: bool, seed: u64) -> f64 {
     assert_eq!(b.points.len(), points.len());
     let back = pose.inverse();
     let mut worst = 0.0f64;
-    for (q, fb) in b.points.iter().zip(&b.features) {
+    for (q, fb) in b.points.iter().zip(b.features()) {
         let q = back * q;
         let k = (0..a.points.len())
             .min_by(|&i, &j| {
@@ -63,7 +63,7 @@ fn worst_descriptor_change(orient_to_centroid: bool, seed: u64) -> f64 {
             })
             .unwrap();
         assert!((a.points[k] - q).norm() < 1e-9, "counterpart found");
-        let fa = &a.features[k];
+        let fa = &a.features()[k];
         let diff: f64 = fa
             .iter()
             .zip(fb)

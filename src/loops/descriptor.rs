@@ -125,7 +125,7 @@ impl Descriptor {
 
     /// The descriptor of a prepared frame (its feature cloud and FPFH).
     pub fn from_prepared(frame: &PreparedFrame) -> Self {
-        Self::new(&frame.points, &frame.features)
+        Self::new(&frame.points, frame.features())
     }
 
     /// Distance in `[0, 1]`: [`Self::weighted_distance`] with [`DEFAULT_WEIGHTS`] (the mean of

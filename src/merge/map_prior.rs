@@ -188,7 +188,7 @@ impl TileIndex {
         (cloud.len() >= MIN_TILE_POINTS)
             .then(|| prepare_frame(&cloud, pair).ok())
             .flatten()
-            .filter(|f| !f.features.is_empty() && f.icp.is_some())
+            .filter(|f| f.has_features() && f.icp.is_some())
     }
 }
 

@@ -248,7 +248,7 @@ impl Session {
                 .map(|(k, points)| {
                     let frame = prepare_frame(&points, pair)
                         .ok()
-                        .filter(|frame| !frame.features.is_empty());
+                        .filter(|frame| frame.has_features());
                     (k, frame)
                 })
                 .collect();

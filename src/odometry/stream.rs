@@ -13,7 +13,7 @@ use crate::Result;
 use crate::geometry::deskew::{deskew, screw_fraction};
 use crate::pipeline::{
     FailureReason, PrepareScratch, PreparedFrame, feature_voxel_for_cloud, prepare_frame,
-    prepare_frame_with, voxel_for_cloud, with_feature_voxel,
+    prepare_frame_deferring_features, voxel_for_cloud, with_feature_voxel,
 };
 
 /// `config` as `register` runs it once it has seen its first usable cloud `first`: the voxel
@@ -91,7 +91,8 @@ pub fn deskew_cloud(
     (motion, dt, mean)
 }
 
-/// `points` prepared for registration ([`prepare_frame_with`], the map's fine points kept), or
+/// `points` prepared for registration ([`prepare_frame_deferring_features`]: the features
+/// computed where first needed; the map's fine points kept), or
 /// an empty frame and why, for a cloud that cannot be prepared.
 ///
 /// # Errors
@@ -101,7 +102,7 @@ pub fn prepare(
     config: &OdometryConfig,
     scratch: &mut PrepareScratch,
 ) -> Result<(PreparedFrame, Option<(FailureReason, String)>)> {
-    match prepare_frame_with(points, &config.pair, scratch) {
+    match prepare_frame_deferring_features(points, &config.pair, scratch) {
         Ok(mut frame) => {
             keep_map_fine_points(&mut frame);
             Ok((frame, None))

@@ -38,8 +38,13 @@ pub struct PreparedFrame {
     pub num_points: usize,
     /// Voxel-downsampled feature cloud.
     pub points: Vec<Point3<f64>>,
-    /// FPFH per feature-cloud point.
-    pub features: Vec<Fpfh>,
+    /// FPFH per feature-cloud point ([`PreparedFrame::features`]): computed while preparing, or
+    /// on first use where preparing deferred them ([`prepare_frame_deferring_features`]).
+    features: std::sync::OnceLock<Vec<Fpfh>>,
+    /// How to compute the FPFH on first use, where preparing deferred them.
+    deferred_features: Option<FeatureSettings>,
+    /// The seconds that computing deferred features took (normals and features; zero until).
+    deferred_timings: std::sync::OnceLock<FrameTimings>,
     /// The ICP cloud with normals and its kd-tree (as target); its points serve as ICP source.
     pub icp: Option<IcpTarget>,
     /// Input points drawn for the fine ICP stage ([`PairConfig::icp_fine`]); empty without.
@@ -56,7 +61,8 @@ pub struct PreparedFrame {
     fine_seed: u64,
     /// The fine stage's source made from `fine`, built when the frame first serves as a source.
     fine_source: std::sync::OnceLock<Vec<Point3<f64>>>,
-    /// Time spent.
+    /// Time spent preparing (features deferred to their first use not included:
+    /// [`PreparedFrame::stage_timings`]).
     pub timings: FrameTimings,
 }
 
@@ -72,8 +78,8 @@ impl PreparedFrame {
     /// whole 14–15 MB).
     pub fn heap_bytes(&self) -> usize {
         let point = std::mem::size_of::<Point3<f64>>();
-        let features =
-            self.points.capacity() * point + self.features.capacity() * std::mem::size_of::<Fpfh>();
+        let fpfh = self.features.get().map_or(0, Vec::capacity);
+        let features = self.points.capacity() * point + fpfh * std::mem::size_of::<Fpfh>();
         let icp = self
             .icp
             .as_ref()
@@ -127,8 +133,53 @@ impl PreparedFrame {
     /// ([`MatchTarget`]), built on the first call; `None` without descriptors.
     pub fn match_target(&self) -> Option<&MatchTarget> {
         self.match_target
-            .get_or_init(|| MatchTarget::new(&self.features))
+            .get_or_init(|| MatchTarget::new(self.features()))
             .as_ref()
+    }
+
+    /// The FPFH of the feature cloud, one per point of [`PreparedFrame::points`]; computed on
+    /// the first call where preparing deferred them (the same values: the same cloud, settings
+    /// and code). Empty for a cloud of fewer than 3 points.
+    ///
+    /// The first call on a deferred frame runs parallel loops: callers that fan out over
+    /// registrations sharing a frame call it first, so that no task waits for another's
+    /// initialisation on its own thread.
+    pub fn features(&self) -> &[Fpfh] {
+        self.features.get_or_init(|| {
+            let Some(settings) = &self.deferred_features else {
+                return Vec::new();
+            };
+            let mut timings = FrameTimings::default();
+            let computed = normals_and_features(
+                &self.points,
+                settings,
+                &mut PrepareScratch::default(),
+                &mut timings,
+            );
+            let _ = self.deferred_timings.set(timings);
+            // The same computation succeeded for other frames of the stream; a cloud it fails
+            // on (none known) has no features, as a cloud too small to have them.
+            computed.map_or_else(|_| Vec::new(), |(_, features, _)| features)
+        })
+    }
+
+    /// [`PreparedFrame::timings`] with the seconds that computing deferred features took, once
+    /// they have been.
+    pub fn stage_timings(&self) -> FrameTimings {
+        let mut t = self.timings;
+        if let Some(deferred) = self.deferred_timings.get() {
+            t.normals += deferred.normals;
+            t.features += deferred.features;
+        }
+        t
+    }
+
+    /// Whether the frame has FPFH (computed, or deferred for a cloud of at least 3 points),
+    /// without computing deferred ones.
+    pub fn has_features(&self) -> bool {
+        self.features
+            .get()
+            .map_or(self.deferred_features.is_some(), |f| !f.is_empty())
     }
 
     /// The fine stage's target when this frame is the target ([`refine::fine_target`] of its
@@ -201,6 +252,36 @@ pub fn prepare_frame_with(
     config: &PairConfig,
     scratch: &mut PrepareScratch,
 ) -> Result<PreparedFrame> {
+    prepare(points, config, scratch, false)
+}
+
+/// [`prepare_frame_with`], the FPFH (and the feature cloud's normals, which only they use)
+/// deferred to their first use ([`PreparedFrame::features`]) where the ICP cloud is a cloud of
+/// its own; where it is the feature cloud, its normals are needed now and the FPFH come with
+/// them. The same frame, features and all, once they are computed.
+///
+/// NOTE: `mireg register`'s odometry refines most frames of a 10 Hz log on its local map from
+/// the motion's prediction ([`crate::odometry::OdometryConfig::track_first`]); such a frame's
+/// features serve only if the next frame needs a global registration, or the frame is a
+/// keyframe of loop closure (its descriptor). Computing them for every frame was a fifth of
+/// the CPU of a simulated 10 Hz Livox Avia log whose frames were nearly all tracked
+/// (docs/ODOMETRY.md).
+pub fn prepare_frame_deferring_features(
+    points: &[Point3<f64>],
+    config: &PairConfig,
+    scratch: &mut PrepareScratch,
+) -> Result<PreparedFrame> {
+    prepare(points, config, scratch, true)
+}
+
+/// [`prepare_frame_with`], deferring the features where `defer` and the ICP cloud is a cloud
+/// of its own ([`prepare_frame_deferring_features`]).
+fn prepare(
+    points: &[Point3<f64>],
+    config: &PairConfig,
+    scratch: &mut PrepareScratch,
+    defer: bool,
+) -> Result<PreparedFrame> {
     let c = config.resolved()?;
     let origin = c.sensor_origin.map(Point3::from);
     let mut timings = FrameTimings::default();
@@ -234,7 +315,9 @@ pub fn prepare_frame_with(
         return Ok(PreparedFrame {
             num_points: points.len(),
             points: down,
-            features: Vec::new(),
+            features: std::sync::OnceLock::from(Vec::new()),
+            deferred_features: None,
+            deferred_timings: Default::default(),
             icp: None,
             fine: Vec::new(),
             fine_voxels: Vec::new(),
@@ -259,8 +342,7 @@ pub fn prepare_frame_with(
                 points,
                 &down,
                 finer_icp_cloud,
-                &c,
-                origin,
+                (&c, origin, defer),
                 scratch,
                 &mut timings,
             )
@@ -280,10 +362,19 @@ pub fn prepare_frame_with(
         }
         _ => (Vec::new(), Vec::new()),
     };
+    let (features, deferred_features) = match features {
+        Some(features) => (std::sync::OnceLock::from(features), None),
+        None => (
+            std::sync::OnceLock::new(),
+            Some(feature_settings(&c, origin)),
+        ),
+    };
     Ok(PreparedFrame {
         num_points: points.len(),
         points: down,
         features,
+        deferred_features,
+        deferred_timings: Default::default(),
         icp,
         fine,
         fine_voxels,
@@ -310,31 +401,42 @@ fn downsample(cloud: &[Point3<f64>], voxel_m: f64, indexed: bool) -> Result<Down
 
 /// What [`describe`] makes of a downsampled frame.
 struct Described {
-    features: Vec<Fpfh>,
+    /// `None`: deferred.
+    features: Option<Vec<Fpfh>>,
     icp: Option<IcpTarget>,
     /// Each input point's voxel of the ICP cloud, when the fine stage draws and the ICP cloud
     /// was made by [`describe`].
     icp_voxels: Option<Vec<u32>>,
 }
 
-/// The feature cloud's normals and FPFH, the ICP target (`None` without ICP) and, when the
-/// fine stage draws and the ICP cloud is made here, each input point's voxel of it: the part of
-/// [`prepare_frame_with`] after downsampling. `down` has at least 3 points.
+/// The feature cloud's normals and FPFH (unless deferred: `defer` and an ICP cloud of its own),
+/// the ICP target (`None` without ICP) and, when the fine stage draws and the ICP cloud is made
+/// here, each input point's voxel of it: the part of [`prepare`] after downsampling. `down` has
+/// at least 3 points; `origin` orients the normals.
 fn describe(
     points: &[Point3<f64>],
     down: &[Point3<f64>],
     finer_icp_cloud: Option<Vec<Point3<f64>>>,
-    c: &PairConfig,
-    origin: Option<Point3<f64>>,
+    (c, origin, defer): (&PairConfig, Option<Point3<f64>>, bool),
     scratch: &mut PrepareScratch,
     timings: &mut FrameTimings,
 ) -> Result<Described> {
     let icp_voxel = c.icp_voxel_size_m.unwrap();
     let mut icp_ids = None;
-    let (normals, features, tree) = normals_and_features(down, c, origin, scratch, timings)?;
+    let separate = icp_voxel == 0.0 || (icp_voxel > 0.0 && icp_voxel != c.voxel_size_m);
+    if c.icp && separate && defer {
+        let (icp, ids) = separate_icp_target(points, finer_icp_cloud, c, origin, timings)?;
+        return Ok(Described {
+            features: None,
+            icp: Some(icp),
+            icp_voxels: ids,
+        });
+    }
+    let settings = feature_settings(c, origin);
+    let (normals, features, tree) = normals_and_features(down, &settings, scratch, timings)?;
     let icp = if !c.icp {
         None
-    } else if icp_voxel == 0.0 || (icp_voxel > 0.0 && icp_voxel != c.voxel_size_m) {
+    } else if separate {
         let (icp, ids) = separate_icp_target(points, finer_icp_cloud, c, origin, timings)?;
         icp_ids = ids;
         Some(icp)
@@ -344,10 +446,32 @@ fn describe(
         Some(IcpTarget::new(down, &normals)?)
     };
     Ok(Described {
-        features,
+        features: Some(features),
         icp,
         icp_voxels: icp_ids,
     })
+}
+
+/// What the feature cloud's normals and FPFH are computed with ([`normals_and_features`]).
+#[derive(Debug, Clone, Copy)]
+struct FeatureSettings {
+    normal_radius_m: f64,
+    normal_max_nn: usize,
+    feature_radius_m: f64,
+    feature_max_nn: usize,
+    /// Orient the normals towards this point.
+    origin: Option<Point3<f64>>,
+}
+
+/// The [`FeatureSettings`] of the resolved `c`, the normals oriented towards `origin`.
+fn feature_settings(c: &PairConfig, origin: Option<Point3<f64>>) -> FeatureSettings {
+    FeatureSettings {
+        normal_radius_m: c.normal_radius_m.unwrap(),
+        normal_max_nn: c.normal_max_nn,
+        feature_radius_m: c.feature_radius_m.unwrap(),
+        feature_max_nn: c.feature_max_nn,
+        origin,
+    }
 }
 
 /// The normals, FPFH and kd-tree (if a search built one) of a feature cloud
@@ -360,8 +484,7 @@ type NormalsAndFeatures = (Vec<Vector3<f64>>, Vec<Fpfh>, Option<KdTree>);
 /// kd-tree.
 fn normals_and_features(
     down: &[Point3<f64>],
-    c: &PairConfig,
-    origin: Option<Point3<f64>>,
+    c: &FeatureSettings,
     scratch: &mut PrepareScratch,
     timings: &mut FrameTimings,
 ) -> Result<NormalsAndFeatures> {
@@ -370,7 +493,7 @@ fn normals_and_features(
     // neighbourhoods of most clouds, and ICP builds its own tree on first use. Building it for
     // every frame cost 2 % of a bunny pair's instructions, and `mireg register` dropped it unused.
     let mut tree = None;
-    let (normal_radius, feature_radius) = (c.normal_radius_m.unwrap(), c.feature_radius_m.unwrap());
+    let (normal_radius, feature_radius, origin) = (c.normal_radius_m, c.feature_radius_m, c.origin);
     let (normals, features) =
         if feature_radius >= normal_radius && c.feature_max_nn >= c.normal_max_nn {
             // One neighbourhood pass serves both: the normals' neighbourhoods are prefixes of the

@@ -135,11 +135,14 @@ pub(super) struct KeyframeCache {
     bytes: usize,
     budget_bytes: usize,
     max_frames: usize,
+    /// Whether frames are kept at all (else the cache only tells the keyframes).
+    keep_frames: bool,
 }
 
 impl KeyframeCache {
-    /// An empty cache for loop closure by `config`.
-    pub(super) fn new(config: &LoopConfig) -> Self {
+    /// An empty cache for loop closure by `config`, keeping the keyframes' frames if
+    /// `keep_frames` (else it only tells which frames are keyframes).
+    pub(super) fn new(config: &LoopConfig, keep_frames: bool) -> Self {
         Self {
             selector: KeyframeSelector::new(&config.keyframes),
             travelled: 0.0,
@@ -149,22 +152,35 @@ impl KeyframeCache {
             bytes: 0,
             budget_bytes: config.memory_budget_bytes,
             max_frames: config.frames_in_memory,
+            keep_frames,
         }
     }
 
-    /// The next frame's odometry pose (`world_from_frame`, as the writer records it).
-    pub(super) fn push_pose(&mut self, pose: &Isometry3<f64>) {
+    /// Whether the cache keeps the keyframes' frames ([`Self::offer`]).
+    pub(super) fn keeps_frames(&self) -> bool {
+        self.keep_frames
+    }
+
+    /// The next frame's odometry pose (`world_from_frame`, as the writer records it); whether
+    /// that frame is a keyframe.
+    pub(super) fn push_pose(&mut self, pose: &Isometry3<f64>) -> bool {
         if let Some(last) = &self.last_pose {
             self.travelled += (pose.translation.vector - last.translation.vector).norm();
         }
         self.last_pose = Some(*pose);
         let key = self.selector.push(pose, self.travelled);
         self.keyframe.push(key);
+        key
     }
 
     /// Frame `k`, retired by the odometry: kept when it is a keyframe with features and fits.
     pub(super) fn offer(&mut self, k: usize, mut frame: PreparedFrame) {
-        if !self.keyframe.get(k).copied().unwrap_or(false) || frame.features.is_empty() {
+        if !self.keep_frames || !self.keyframe.get(k).copied().unwrap_or(false) {
+            return;
+        }
+        // Features the odometry deferred are computed now, before the frame is kept: its
+        // verifications run in parallel and share it.
+        if !frame.has_features() || frame.features().is_empty() {
             return;
         }
         frame.keep_fine(Vec::new());
@@ -393,7 +409,7 @@ fn describe(plan: &Plan, opts: &RegisterOptions, estimates: &mut [Estimate]) -> 
         let Some(frame) = prepare() else {
             return Ok(false);
         };
-        if !frame.features.is_empty() {
+        if frame.has_features() {
             descriptors[k] = Some(Descriptor::from_prepared(&frame));
         }
         Ok(true)

@@ -11,7 +11,6 @@ use nalgebra::{Isometry3, Point3};
 use crate::io::codec;
 use crate::io::codec::MAX_COORDINATE_M;
 use crate::io::point_time::POINT_TIME_BOUND_S;
-use crate::loops::Descriptor;
 use crate::odometry::stream::{self, Deskewed, deskew_cloud, deskew_for};
 use crate::pipeline::{FailureReason, PrepareScratch, prepare_frame};
 use crate::{Error, Result};
@@ -29,8 +28,6 @@ pub(super) struct Prepare<'a> {
     /// [`super::options::RegisterOptions::max_points_per_cloud`].
     pub(super) max_points: usize,
     pub(super) deskew_mode: DeskewMode,
-    /// Compute each frame's loop-closure descriptor ([`Descriptor`]).
-    pub(super) descriptors: bool,
 }
 
 /// The clouds whose per-point times were unusable, or that had points beyond
@@ -195,8 +192,9 @@ impl Prepare<'_> {
         }
         .map(|(frame, invalid)| PreparedMsg {
             cloud: CloudInfo {
-                descriptor: (self.descriptors && invalid.is_none() && !frame.features.is_empty())
-                    .then(|| Descriptor::from_prepared(&frame)),
+                // The keyframes' descriptors are computed as the frames are registered
+                // (`registrar.rs`): only they need the features.
+                descriptor: None,
                 invalid,
                 time_field: times.field,
                 deskewed: times.deskewed,

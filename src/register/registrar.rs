@@ -12,6 +12,7 @@ use crate::odometry::stream::MeanTimeMotions;
 
 use super::closure::KeyframeCache;
 use super::frames::{FrameOut, PreparedMsg};
+use crate::loops::Descriptor;
 
 /// Frames between two returns of the allocator's free memory to the system
 /// ([`crate::heap::trim`]), which keeps the peak RSS of a long log within a few percent of a short
@@ -31,25 +32,35 @@ fn on_pool<R: Send>(f: impl FnOnce() -> R + Send) -> R {
     rayon::scope(|_| f())
 }
 
+/// The registering thread's channels: the prepared frames in, the results out, each frame's
+/// motion back to the preparing thread.
+pub(super) type Channels = (
+    Receiver<Result<PreparedMsg>>,
+    Sender<Result<FrameOut>>,
+    Sender<(usize, Isometry3<f64>, f64)>,
+);
+
 /// Registers the frames of `prepared` in order, sending each result on `out` and each frame's
 /// motion (`prev_from_curr` and its seconds) on `motions` for deskewing a later frame. Stops at
-/// the first error (sent on) or when the writer hangs up. With a `cache`, the keyframes' frames
-/// are offered to it as the odometry retires them, the last one at the end (returned).
+/// the first error (sent on) or when the writer hangs up. With a `cache`, each frame's pose
+/// tells it the keyframes; with `describe` too, each keyframe's loop-closure descriptor is
+/// computed as it is registered (the features it needs are computed then, where the odometry
+/// deferred them); where the cache keeps frames, the keyframes' are offered to it as the
+/// odometry retires them, the last one at the end (returned).
 pub(super) fn run(
     odometry: &mut Odometry,
-    prepared: Receiver<Result<PreparedMsg>>,
-    out: Sender<Result<FrameOut>>,
-    motions: Sender<(usize, Isometry3<f64>, f64)>,
+    (prepared, out, motions): Channels,
     mut cache: Option<KeyframeCache>,
+    describe: bool,
 ) -> Option<KeyframeCache> {
-    odometry.keep_retired(cache.is_some());
+    odometry.keep_retired(cache.as_ref().is_some_and(KeyframeCache::keeps_frames));
     // The motions for deskewing, between mean point times ([`MeanTimeMotions`]).
     let mut mean_time = MeanTimeMotions::default();
     for (k, msg) in prepared.into_iter().enumerate() {
         if k % TRIM_EVERY_FRAMES == TRIM_EVERY_FRAMES - 1 {
             crate::heap::trim();
         }
-        let r = msg.and_then(|m| {
+        let r = msg.and_then(|mut m| {
             let prep = m.frame.timings;
             let t = Instant::now();
             let mut est = on_pool(|| odometry.push(m.frame))?;
@@ -62,7 +73,13 @@ pub(super) fn run(
                 mean_time.push(&mut est, m.cloud.header.stamp.to_ns(), m.cloud.deskewed);
             let _ = motions.send((k, motion, dt));
             if let Some(cache) = cache.as_mut() {
-                cache.push_pose(&est.world_from_frame);
+                let keyframe = cache.push_pose(&est.world_from_frame);
+                if keyframe && describe && m.cloud.invalid.is_none() {
+                    m.cloud.descriptor = odometry
+                        .previous_frame()
+                        .filter(|(j, frame)| *j == k && frame.has_features())
+                        .map(|(_, frame)| on_pool(|| Descriptor::from_prepared(frame)));
+                }
                 if let Some((j, frame)) = odometry.take_retired() {
                     cache.offer(j, frame);
                 }
