@@ -27,7 +27,10 @@ Usage:
 The logs docs/BENCHMARKS.md uses: the KITTI replay (`cargo run --release --example
 make_lidar_mcap -- 40 /tmp/k40.mcap`), and from `tools/make_loop_logs.py --all --out-dir /tmp`
 the KAIST03 out-and-back, its 70 degree cone (~7k points, Livox-like) and micro211; plus
-fixtures/icl_livingroom1.mcap.
+fixtures/icl_livingroom1.mcap; and a 10 Hz Livox Avia log (`tools/make_livox_log.py --out-dir
+/tmp/livox`: 80 frames ray cast into the KAIST03 world, ~15k points a frame, a Livox CustomMsg
+log, read for the peers as mireg reads it by default, noise-tagged points dropped; the peers do
+not deskew, mireg does by the points' offset_time).
 """
 
 import argparse
@@ -57,7 +60,7 @@ def run_mireg(binary, log, extra):
 def bench_log(args, log):
     topic, clouds, reference = read_log(log, args.topic, args.reference_topic)
     if not clouds:
-        raise SystemExit(f"{log}: no sensor_msgs/msg/PointCloud2 topic")
+        raise SystemExit(f"{log}: no sensor_msgs/msg/PointCloud2 or Livox CustomMsg topic")
     if not reference:
         raise SystemExit(f"{log}: no PoseStamped on {args.reference_topic}")
     points = statistics.mean(len(xyz(msg)) for _s, msg, _m in clouds)

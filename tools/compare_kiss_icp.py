@@ -36,6 +36,9 @@ import mireg_run
 from make_kaist03_mcap import parse_frames  # noqa: E402
 
 CLOUD = "sensor_msgs/msg/PointCloud2"
+# Livox CustomMsg (ROS 2 driver packages), read as mireg reads it with its default --livox-tags
+# drop-noise: spatial noise bits 01 or 10, or intensity noise bits 01, dropped.
+LIVOX = ("livox_ros_driver2/msg/CustomMsg", "livox_ros_driver/msg/CustomMsg")
 POSE = "geometry_msgs/msg/PoseStamped"
 DTYPES = {7: "<f4", 8: "<f8"}
 
@@ -44,7 +47,17 @@ def stamp_ns(h):
     return h.stamp.sec * 1_000_000_000 + h.stamp.nanosec
 
 
+def livox_xyz(msg):
+    """The points of a Livox CustomMsg that mireg keeps by default (x, y, z as float64)."""
+    keep = [p for p in msg.points if (p.tag & 0x3) not in (1, 2) and (p.tag >> 2) & 0x3 != 1]
+    p = np.array([(q.x, q.y, q.z) for q in keep], dtype=np.float64).reshape(-1, 3)
+    p = p[np.all(np.isfinite(p), axis=1)]
+    return p[np.any(p != 0.0, axis=1)]
+
+
 def xyz(msg):
+    if hasattr(msg, "points") and not hasattr(msg, "fields"):
+        return livox_xyz(msg)
     fields = {f.name: f for f in msg.fields}
     step = msg.point_step
     data = np.frombuffer(bytes(msg.data), dtype=np.uint8)
@@ -84,7 +97,7 @@ def read_log(path, topic, reference_topic):
     clouds, reference, cloud_topic = [], {}, topic
     with open(path, "rb") as f:
         for schema, channel, message, msg in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
-            if schema.name == CLOUD and (cloud_topic is None or channel.topic == cloud_topic):
+            if schema.name in (CLOUD, *LIVOX) and (cloud_topic is None or channel.topic == cloud_topic):
                 cloud_topic = channel.topic
                 clouds.append((stamp_ns(msg.header), msg, message))
             elif schema.name == POSE and channel.topic == reference_topic:
