@@ -80,6 +80,7 @@ fn options(prior: &Path, out: &Path) -> LocalizeOptions {
         config: MergeConfig::default(),
         topic: None,
         log_loops: LogLoops::default(),
+        map_reach_m: None,
         command_line: String::new(),
     }
 }
@@ -380,4 +381,80 @@ fn the_log_inside_the_map_closes_its_own_loops_only_when_asked() {
     // registration), `Always` as prepared again from the registered output: the same frames,
     // the same links.
     assert_eq!(auto.2, always.2);
+}
+
+#[test]
+fn a_log_leaving_the_map_closes_its_own_loops_as_always_does() {
+    // Placed by its own trajectory farther than the map's reach from every keyframe of the
+    // prior, a frame is `outside_map`. The fixture never leaves its prior from 30 by more than
+    // ~1 m, within the default reach (80 voxels: 3.9 m), so the reach is set to 0.5 m here.
+    // By default the log is then registered a second time, with its own loops, and placed again
+    // by the same links: what `Always` gives in its one registration.
+    let dir = tempfile::tempdir().unwrap();
+    let reference_log = reference(&fixture());
+    let prior = prior(dir.path(), 30);
+    let reach = 0.5;
+    let mut placed = Vec::new();
+    for log_loops in [LogLoops::Auto, LogLoops::Always] {
+        let out = dir.path().join(format!("reach_{log_loops:?}.mcap"));
+        let opts = LocalizeOptions {
+            log_loops,
+            map_reach_m: Some(reach),
+            ..options(&prior, &out)
+        };
+        let summary = mireg::merge::localize(&opts).unwrap();
+        assert!(summary.log_loops_closed, "{log_loops:?}");
+        assert!(summary.outside_map > 0, "{log_loops:?}");
+        assert_eq!(
+            summary.timings_s.log_loops > 0.0,
+            log_loops == LogLoops::Auto,
+            "a second registration only by default"
+        );
+        let (rmse, max) = placed_error(&out, &prior, &reference_log);
+        assert!(rmse < 0.035 && max < 0.07, "{log_loops:?}: {rmse}, {max}");
+        // The status follows the distance to the map, by the reach given.
+        for v in json_messages(&out, "/mireg/localization") {
+            let d = v["distance_to_map_m"].as_f64().unwrap();
+            match v["status"].as_str().unwrap() {
+                "outside_map" => assert!(d > reach, "{v}"),
+                "tracking" => assert!(d <= reach, "{v}"),
+                _ => {}
+            }
+        }
+        placed.push((
+            statuses(&out),
+            read_mcap_pose_topic(&out, "/mireg/pose").unwrap(),
+            json_messages(&out, "/mireg/session_links"),
+        ));
+    }
+    let (auto, always) = (&placed[0], &placed[1]);
+    let apart = auto
+        .1
+        .poses
+        .iter()
+        .zip(&always.1.poses)
+        .map(|(a, b)| (a.translation.vector - b.translation.vector).norm())
+        .fold(0.0, f64::max);
+    assert_eq!(auto.0, always.0);
+    assert!(apart < 0.01, "{apart}");
+    assert_eq!(auto.2, always.2);
+}
+
+#[test]
+fn a_map_reach_that_is_not_a_positive_distance_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("never.mcap");
+    for reach in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+        let opts = LocalizeOptions {
+            map_reach_m: Some(reach),
+            // Checked before the prior is read.
+            ..options(&dir.path().join("no_such_prior.mcap"), &out)
+        };
+        let e = mireg::merge::localize(&opts).unwrap_err().to_string();
+        assert!(
+            e.contains("map_reach_m") && e.contains("--map-reach"),
+            "{e}"
+        );
+        assert!(!out.exists());
+    }
 }

@@ -169,21 +169,24 @@ def merge(runs: list, output_dir: PathLike, force: bool = False, seed: int = 0,
 
 def localize(log: PathLike, map: PathLike, output: Optional[PathLike] = None,
              force: bool = False, seed: int = 0, min_links: int = 2,
-             topic: Optional[str] = None, log_loops: str = "auto") -> dict:
+             topic: Optional[str] = None, log_loops: str = "auto",
+             map_reach_m: Optional[float] = None) -> dict:
     """``mireg localize LOG --map MAP``: the log placed in a prior map (a ``register`` or
     ``merge`` output, or a ``.ply``/``.pcd``/``.npy`` map file as ``mireg map`` writes it),
     wherever it starts, the map held fixed (docs/SESSIONS.md). The output (default
     ``LOG.localized.mcap`` beside the log) keeps the log's messages and adds ``/mireg/pose``,
     ``/tf`` and ``/mireg/localization`` (per frame: localized, tracking, outside_map, lost).
     ``log_loops``: ``"auto"`` closes the log's own loops only where a frame ends outside the map,
-    ``"always"`` in its one registration (``--log-loops``). Returns the summary as a dict.
+    ``"always"`` in its one registration (``--log-loops``). ``map_reach_m``: how far from the
+    map's nearest keyframe a frame still counts as tracking, metres (``--map-reach``; default
+    80 voxels). Returns the summary as a dict.
     """
     log = os.fspath(log)
     if output is None:
         stem = os.path.splitext(os.path.basename(log.rstrip("/")))[0]
         output = os.path.join(os.path.dirname(log.rstrip("/")), f"{stem}.localized.mcap")
     return json.loads(_mireg.localize(log, os.fspath(map), os.fspath(output), force, seed,
-                                      min_links, topic, log_loops))
+                                      min_links, topic, log_loops, map_reach_m))
 
 
 class Odometry:

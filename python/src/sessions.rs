@@ -43,7 +43,7 @@ pub(crate) fn merge(
 /// localize LOG --map MAP -o OUTPUT`; `log_loops` is `"auto"` (default) or `"always"`, as
 /// `--log-loops`; returns the summary as JSON.
 #[pyfunction]
-#[pyo3(signature = (log, map, output, force=false, seed=0, min_links=2, topic=None, log_loops="auto"))]
+#[pyo3(signature = (log, map, output, force=false, seed=0, min_links=2, topic=None, log_loops="auto", map_reach_m=None))]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn localize(
     py: Python<'_>,
@@ -55,6 +55,7 @@ pub(crate) fn localize(
     min_links: usize,
     topic: Option<String>,
     log_loops: &str,
+    map_reach_m: Option<f64>,
 ) -> PyResult<String> {
     let log_loops = match log_loops {
         "auto" => LogLoops::Auto,
@@ -77,6 +78,7 @@ pub(crate) fn localize(
         },
         topic,
         log_loops,
+        map_reach_m,
         command_line: std::env::args().collect::<Vec<_>>().join(" "),
     };
     let summary = py

@@ -77,6 +77,9 @@ def test_localize_is_the_cli(tmp_path, sessions):
     assert not summary["log_loops_closed"]
     with pytest.raises(ValueError, match="log_loops"):
         mireg.localize(log, b, tmp_path / "y.mcap", log_loops="sometimes")
+    with pytest.raises(ValueError, match="map_reach_m"):
+        mireg.localize(log, b, tmp_path / "z.mcap", map_reach_m=0.0)
+    assert not (tmp_path / "z.mcap").exists()
 
 
 def test_view_of_a_merge_draws_sessions_and_links(tmp_path, sessions):

@@ -38,6 +38,12 @@ pub struct LocalizeArgs {
     /// map close its loops), `always` in its one registration.
     #[arg(long, value_enum, value_name = "WHEN", default_value_t = LogLoopsArg::Auto)]
     pub log_loops: LogLoopsArg,
+    /// How far from the map's nearest keyframe (or tile) a frame placed by its own trajectory
+    /// still counts as `tracking`, metres; farther it is `outside_map` (and with `--log-loops
+    /// auto` the log's own loops are closed) [default: 80 voxels, as loop closure's largest
+    /// place radius].
+    #[arg(long, value_name = "METRES")]
+    pub map_reach: Option<f64>,
     /// Replace an existing output.
     #[arg(long)]
     pub force: bool,
@@ -80,6 +86,7 @@ pub(super) fn run_localize(args: &LocalizeArgs) -> Result<()> {
             LogLoopsArg::Auto => LogLoops::Auto,
             LogLoopsArg::Always => LogLoops::Always,
         },
+        map_reach_m: args.map_reach,
         command_line: super::process::command_line(),
     };
     let s = crate::merge::localize(&opts)?;

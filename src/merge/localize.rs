@@ -41,7 +41,6 @@ use super::links::Track;
 use super::map_prior::{MAP_MIN_REVERSE_FITNESS, is_map_file, map_session, read_map, tiling_for};
 use super::session::{Session, merge_settings, prepare_sessions};
 use super::write::{LinkRecord, session_links_json_schema, write_links};
-use crate::Result;
 use crate::io::atomic_file::{check_not_an_input, check_target};
 use crate::io::codec::Time;
 use crate::io::input_log::InputLog;
@@ -53,6 +52,7 @@ use crate::register::{
     CloudKind, KeptKeyframes, RegisterOptions, StampedPose, encode_pose, pose_channels,
     register_log, register_log_keeping_keyframes,
 };
+use crate::{Error, Result};
 
 /// Verified appearance links after which a keyframe of the log stops trying its candidates: 1.
 /// A keyframe that the solve then holds by no link (its link down-weighted, or none verified)
@@ -113,6 +113,11 @@ pub struct LocalizeOptions {
     pub topic: Option<String>,
     /// When the log's own loops are closed. Default [`LogLoops::Auto`].
     pub log_loops: LogLoops,
+    /// How far from the prior's nearest keyframe (or tile) a frame placed by its own trajectory
+    /// is still `tracking` \[m\]; farther it is `outside_map`. `None` (the default): loop
+    /// closure's largest place radius at the log's voxel (80 voxels: 29.6 m on KAIST03's 0.37 m,
+    /// 3.9 m indoors at 0.049 m).
+    pub map_reach_m: Option<f64>,
     /// Recorded in the output's metadata.
     pub command_line: String,
 }
@@ -188,6 +193,13 @@ struct Placed {
 /// errors. A log that does not localise is not an error: its frames are `lost`.
 pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
     let t0 = Instant::now();
+    if let Some(r) = opts.map_reach_m
+        && !(r.is_finite() && r > 0.0)
+    {
+        return Err(Error::InvalidInput(format!(
+            "localize: map_reach_m (--map-reach) must be finite and > 0 metres, got {r}"
+        )));
+    }
     let inputs = [opts.log.as_path(), opts.prior.as_path()];
     check_not_an_input(&opts.output, inputs, "one of the inputs")?;
     check_target(&opts.output, opts.force)?;
@@ -238,12 +250,16 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
         .map_or_else(|| "log".to_string(), |s| s.to_string_lossy().into_owned());
     let (mut sessions, loops, pair) = prior.with_log(log, kept, opts)?;
     clock(&mut timings.prepare);
+    let reach = opts
+        .map_reach_m
+        .unwrap_or(loops.candidates.max_place_radius_m);
     let tracks: Vec<Track<'_>> = sessions.iter().map(Session::track).collect();
     let linker = Linker::new(&sessions, &tracks, &pair, &loops, &opts.config)
         .links_per_keyframe(LOCALIZE_LINKS_PER_KEYFRAME);
     let mut attempts = Vec::new();
     let mut outcome = linker.link_pair((0, 1), &mut attempts)?;
-    let (mut placed, mut weights) = place(&sessions, &attempts, outcome.join.as_ref(), &loops)?;
+    let (mut placed, mut weights) =
+        place(&sessions, &attempts, outcome.join.as_ref(), (&loops, reach))?;
     // The log's keyframes that no link holds after the solve get place candidates; again after
     // a solve that lets go of others (the new links move the solution), a few times at most.
     for _ in 0..LOCALIZE_PLACE_ROUNDS {
@@ -266,7 +282,7 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
             break;
         }
         outcome = again;
-        (placed, weights) = place(&sessions, &attempts, outcome.join.as_ref(), &loops)?;
+        (placed, weights) = place(&sessions, &attempts, outcome.join.as_ref(), (&loops, reach))?;
     }
     clock(&mut timings.link);
     let mut log_loops_closed = ropts.loops;
@@ -280,7 +296,7 @@ pub fn localize(opts: &LocalizeOptions) -> Result<LocalizeSummary> {
         let log = &mut sessions[1];
         (log.poses, log.travelled_m) = (closed.poses, closed.travelled_m);
         log.pose_topic = closed.pose_topic;
-        (placed, weights) = place(&sessions, &attempts, outcome.join.as_ref(), &loops)?;
+        (placed, weights) = place(&sessions, &attempts, outcome.join.as_ref(), (&loops, reach))?;
         log_loops_closed = true;
         clock(&mut timings.log_loops);
     }
@@ -398,13 +414,14 @@ impl Prior {
 }
 
 /// Each frame of the log (`sessions[1]`) placed in the prior's world (`sessions[0]`) by the
-/// agreeing links of `join`, or lost without one; and each attempt's robust weight at the
-/// optimum (0 outside the graph).
+/// agreeing links of `join`, or lost without one (`outside_map` farther than `reach` \[m\] from
+/// every keyframe of the prior; `loops` solves the log's own loops with the links); and each
+/// attempt's robust weight at the optimum (0 outside the graph).
 fn place(
     sessions: &[Session; 2],
     attempts: &[Attempt],
     join: Option<&(super::Join, Vec<usize>)>,
-    loops: &LoopConfig,
+    (loops, reach): (&LoopConfig, f64),
 ) -> Result<(Vec<Placed>, Vec<f64>)> {
     let [prior, log] = sessions;
     let mut weights = vec![0.0; attempts.len()];
@@ -446,7 +463,6 @@ fn place(
         .iter()
         .map(|&k| prior.poses[k] * Point3::origin())
         .collect();
-    let reach = loops.candidates.max_place_radius_m;
     let placed = solution.poses[0]
         .iter()
         .enumerate()
