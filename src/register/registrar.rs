@@ -75,10 +75,17 @@ pub(super) fn run(
             if let Some(cache) = cache.as_mut() {
                 let keyframe = cache.push_pose(&est.world_from_frame);
                 if keyframe && describe && m.cloud.invalid.is_none() {
+                    // A frame whose deferred features come out empty (none known) has no
+                    // descriptor, as one too small to have features.
                     m.cloud.descriptor = odometry
                         .previous_frame()
                         .filter(|(j, frame)| *j == k && frame.has_features())
-                        .map(|(_, frame)| on_pool(|| Descriptor::from_prepared(frame)));
+                        .and_then(|(_, frame)| {
+                            on_pool(|| {
+                                (!frame.features().is_empty())
+                                    .then(|| Descriptor::from_prepared(frame))
+                            })
+                        });
                 }
                 if let Some((j, frame)) = odometry.take_retired() {
                     cache.offer(j, frame);
