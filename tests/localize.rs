@@ -339,11 +339,15 @@ fn a_map_file_localizes_alike_when_no_tile_fits_the_memory_budget() {
     assert_eq!(runs[0], runs[1]);
 }
 
-#[test]
-fn the_log_inside_the_map_closes_its_own_loops_only_when_asked() {
-    // Every frame of the fixture is within reach of the prior from 30: by default its own loops
-    // are not closed (the links to the map close them); `Always` closes them in its one
-    // registration. The reference scores both: the links hold the log either way.
+/// The fixture localised in its prior from 30 with `Auto` and with `Always` (at `map_reach_m`),
+/// each output within the reference bounds and checked by `check` (its mode, summary and
+/// output), then the two against each other: the same statuses, no pose more than 1 cm apart,
+/// the same links (`Auto` verifies the log's keyframes as its odometry prepared them, kept by
+/// its registration, `Always` as prepared again from the registered output: the same frames).
+fn localize_both_ways(
+    map_reach_m: Option<f64>,
+    check: impl Fn(LogLoops, &mireg::merge::LocalizeSummary, &Path),
+) {
     let dir = tempfile::tempdir().unwrap();
     let reference_log = reference(&fixture());
     let prior = prior(dir.path(), 30);
@@ -352,12 +356,11 @@ fn the_log_inside_the_map_closes_its_own_loops_only_when_asked() {
         let out = dir.path().join(format!("loc_{log_loops:?}.mcap"));
         let opts = LocalizeOptions {
             log_loops,
+            map_reach_m,
             ..options(&prior, &out)
         };
         let summary = mireg::merge::localize(&opts).unwrap();
-        assert_eq!(summary.log_loops_closed, log_loops == LogLoops::Always);
-        assert_eq!(summary.outside_map, 0);
-        assert_eq!(summary.timings_s.log_loops, 0.0, "no second registration");
+        check(log_loops, &summary, &out);
         let (rmse, max) = placed_error(&out, &prior, &reference_log);
         assert!(rmse < 0.035 && max < 0.07, "{log_loops:?}: {rmse}, {max}");
         placed.push((
@@ -374,13 +377,22 @@ fn the_log_inside_the_map_closes_its_own_loops_only_when_asked() {
         .zip(&always.1.poses)
         .map(|(a, b)| (a.translation.vector - b.translation.vector).norm())
         .fold(0.0, f64::max);
-    // Measured: the same statuses, no pose more than 0.1 mm apart.
+    // Measured inside the map: the same statuses, no pose more than 0.1 mm apart.
     assert_eq!(auto.0, always.0);
     assert!(apart < 0.01, "{apart}");
-    // `Auto` verifies the log's keyframes as its odometry prepared them (kept by its
-    // registration), `Always` as prepared again from the registered output: the same frames,
-    // the same links.
     assert_eq!(auto.2, always.2);
+}
+
+#[test]
+fn the_log_inside_the_map_closes_its_own_loops_only_when_asked() {
+    // Every frame of the fixture is within reach of the prior from 30: by default its own loops
+    // are not closed (the links to the map close them); `Always` closes them in its one
+    // registration. The reference scores both: the links hold the log either way.
+    localize_both_ways(None, |log_loops, summary, _| {
+        assert_eq!(summary.log_loops_closed, log_loops == LogLoops::Always);
+        assert_eq!(summary.outside_map, 0);
+        assert_eq!(summary.timings_s.log_loops, 0.0, "no second registration");
+    });
 }
 
 #[test]
@@ -390,19 +402,8 @@ fn a_log_leaving_the_map_closes_its_own_loops_as_always_does() {
     // ~1 m, within the default reach (80 voxels: 3.9 m), so the reach is set to 0.5 m here.
     // By default the log is then registered a second time, with its own loops, and placed again
     // by the same links: what `Always` gives in its one registration.
-    let dir = tempfile::tempdir().unwrap();
-    let reference_log = reference(&fixture());
-    let prior = prior(dir.path(), 30);
     let reach = 0.5;
-    let mut placed = Vec::new();
-    for log_loops in [LogLoops::Auto, LogLoops::Always] {
-        let out = dir.path().join(format!("reach_{log_loops:?}.mcap"));
-        let opts = LocalizeOptions {
-            log_loops,
-            map_reach_m: Some(reach),
-            ..options(&prior, &out)
-        };
-        let summary = mireg::merge::localize(&opts).unwrap();
+    localize_both_ways(Some(reach), |log_loops, summary, out| {
         assert!(summary.log_loops_closed, "{log_loops:?}");
         assert!(summary.outside_map > 0, "{log_loops:?}");
         assert_eq!(
@@ -410,10 +411,8 @@ fn a_log_leaving_the_map_closes_its_own_loops_as_always_does() {
             log_loops == LogLoops::Auto,
             "a second registration only by default"
         );
-        let (rmse, max) = placed_error(&out, &prior, &reference_log);
-        assert!(rmse < 0.035 && max < 0.07, "{log_loops:?}: {rmse}, {max}");
         // The status follows the distance to the map, by the reach given.
-        for v in json_messages(&out, "/mireg/localization") {
+        for v in json_messages(out, "/mireg/localization") {
             let d = v["distance_to_map_m"].as_f64().unwrap();
             match v["status"].as_str().unwrap() {
                 "outside_map" => assert!(d > reach, "{v}"),
@@ -421,23 +420,7 @@ fn a_log_leaving_the_map_closes_its_own_loops_as_always_does() {
                 _ => {}
             }
         }
-        placed.push((
-            statuses(&out),
-            read_mcap_pose_topic(&out, "/mireg/pose").unwrap(),
-            json_messages(&out, "/mireg/session_links"),
-        ));
-    }
-    let (auto, always) = (&placed[0], &placed[1]);
-    let apart = auto
-        .1
-        .poses
-        .iter()
-        .zip(&always.1.poses)
-        .map(|(a, b)| (a.translation.vector - b.translation.vector).norm())
-        .fold(0.0, f64::max);
-    assert_eq!(auto.0, always.0);
-    assert!(apart < 0.01, "{apart}");
-    assert_eq!(auto.2, always.2);
+    });
 }
 
 #[test]
