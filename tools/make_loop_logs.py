@@ -132,6 +132,7 @@ class Kaist03:
         self.data = args.data or kaist.DEFAULT_DATA
         self.ouster_time = args.ouster_time
         self.cone = (args.cone, args.cone_azimuth) if args.cone else None
+        self.ring_stride = getattr(args, "ring_stride", 1) or 1
         poses = kaist.read_kitti_poses(os.path.join(self.data, "poses_kitti.txt"))
         self.poses = dict(enumerate(poses))
         self.frames = kaist.parse_frames(args.frames, len(poses))
@@ -140,6 +141,8 @@ class Kaist03:
         self.describe = f"KAIST03 keyframes {args.frames or 'all'} ({len(self.frames)})"
         if self.cone:
             self.describe += f", cut to a {args.cone:g} deg cone about azimuth {args.cone_azimuth:g} deg"
+        if self.ring_stride > 1:
+            self.describe += f", every {self.ring_stride}th of the 64 beams"
         self._cache = {}
 
     def cloud(self, k, t_ns):
@@ -147,6 +150,8 @@ class Kaist03:
             n, data = kaist.read_pcd_xyzi(kaist.scan_path(self.data, k))
             if self.cone:
                 n, data = cut_to_cone(n, data, *self.cone)
+            if self.ring_stride > 1:
+                n, data = keep_rings(n, data, self.ring_stride)
             self._cache[k] = (n, data)
         n, data = self._cache[k]
         return kaist.cloud_message(t_ns, n, data, self.ouster_time)
@@ -181,6 +186,24 @@ def cut_to_cone(n, data, width_deg, azimuth_deg):
         d = math.atan2(y, x) - centre
         d = (d + math.pi) % (2 * math.pi) - math.pi
         if abs(d) <= half:
+            kept += raw
+    return len(kept) // 16, bytes(kept)
+
+
+# The OS1-64's beams in KAIST03's keyframes: elevations from -15.7 to 17.8 deg, 64 of them about
+# 0.532 deg apart (peaks of the elevation histogram of scan 0, 0.05 deg bins).
+OS1_LOWEST_BEAM_DEG = -15.7
+OS1_BEAM_SPACING_DEG = (17.8 - -15.7) / 63
+
+
+def keep_rings(n, data, stride):
+    """The points (x, y, z, intensity float32, 16 bytes each) of every `stride`-th beam of the
+    OS1-64, the beam found by elevation atan2(z, hypot(x, y)): with stride 4, 16 beams 2.1 deg
+    apart, the vertical density of a Velodyne VLP-16 (2 deg), from the same real scans."""
+    kept = bytearray()
+    for (x, y, z, _i), raw in zip(struct.iter_unpack("<4f", data), (data[i:i + 16] for i in range(0, 16 * n, 16))):
+        elevation = math.degrees(math.atan2(z, math.hypot(x, y)))
+        if round((elevation - OS1_LOWEST_BEAM_DEG) / OS1_BEAM_SPACING_DEG) % stride == 0:
             kept += raw
     return len(kept) // 16, bytes(kept)
 
@@ -328,11 +351,12 @@ def main(argv):
     ap.add_argument("--frames", default="", help="kaist03: scans to use, e.g. 0-3,8-10 (default: all 21)")
     ap.add_argument("--cone", type=float, help="kaist03: keep only a cone this wide [deg] (e.g. 70, Livox-like)")
     ap.add_argument("--cone-azimuth", type=float, default=180.0, help="kaist03: the cone's centre azimuth [deg] (default 180)")
+    ap.add_argument("--ring-stride", type=int, default=1, help="kaist03: keep every n-th of the 64 beams (4: 16 beams 2.1 deg apart, VLP-16-like)")
     ap.add_argument("--degenerate", help="kaist03: messages (indices in the log, e.g. 5,12) cut to their ground points")
     ap.add_argument("--ground-z", type=float, default=-1.5, help="--degenerate: keep points below this z [m] (default -1.5: KAIST03's road lies at about -1.6 to -1.9 m)")
     ap.add_argument("--ouster-time", action="store_true", help="kaist03: add the inferred per-point time t")
     args = ap.parse_args(argv)
-    if args.repeat < 1 or args.frame_stride < 1 or args.pixel_stride < 1:
+    if args.repeat < 1 or args.frame_stride < 1 or args.pixel_stride < 1 or args.ring_stride < 1:
         ap.error("--repeat and the strides must be >= 1")
     if args.all:
         for name, source, kind, opts in ALL:

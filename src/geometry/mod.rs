@@ -10,7 +10,7 @@ pub mod voxel;
 
 pub use kdtree::{KdTree, Neighbour, Neighbourhoods};
 pub use normals::{
-    NormalEstimate, estimate_normals, estimate_normals_from_neighbourhoods,
+    NO_PLANE, NormalEstimate, estimate_normals, estimate_normals_from_neighbourhoods,
     estimate_normals_with_grid, estimate_normals_with_tree,
 };
 pub use radius_grid::RadiusGrid;

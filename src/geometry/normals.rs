@@ -15,6 +15,19 @@ pub const FALLBACK_NORMAL: Vector3<f64> = Vector3::new(0.0, 0.0, 1.0);
 /// Fewest neighbours (the query point included) for which a covariance is computed (Open3D: 3).
 pub const MIN_NEIGHBOURS: usize = 3;
 
+/// Normal that [`NormalEstimate`] gives a point whose neighbourhood cannot define a plane (as
+/// [`FALLBACK_NORMAL`]): zero, which ICP reads as "no plane here" and matches point to point
+/// ([`crate::refine::icp`]).
+///
+/// NOTE: Open3D gives such a point +z. Among an ICP target's points those are the isolated ones:
+/// far points and, on a LiDAR of few beams, points between its rings. A +z normal constrains them
+/// along z alone, with the lever arm of their range: on KAIST03's scans cut to 16 of their 64
+/// beams (a VLP-16's spacing) the map registrations' rotation information came out 30–125 times
+/// weaker in its weakest direction than in its strongest (0.31–0.66 with point-to-point rows), no
+/// frame tracked and every loop failed verification as degenerate (docs/ODOMETRY.md, "Points with
+/// no plane"). Features keep Open3D's +z (their histograms are Open3D's).
+pub const NO_PLANE: Vector3<f64> = Vector3::new(0.0, 0.0, 0.0);
+
 /// Estimates one unit normal per point.
 ///
 /// For each point, the neighbourhood is every point strictly within `radius_m` (metres), at most the
@@ -69,6 +82,7 @@ pub fn estimate_normals_with_tree(
         radius_m,
         max_nn,
         towards_sensor,
+        FALLBACK_NORMAL,
     ))
 }
 
@@ -81,10 +95,17 @@ fn tree_normals(
     radius_m: f64,
     max_nn: usize,
     towards_sensor: Option<Point3<f64>>,
+    fallback: Vector3<f64>,
 ) -> Vec<Vector3<f64>> {
     let normal = |p: &Point3<f64>| {
         let nn = tree.within_radius(p, radius_m, max_nn);
-        oriented_normal(points, p, nn.iter().map(|n| n.index), towards_sensor)
+        oriented_normal(
+            points,
+            p,
+            nn.iter().map(|n| n.index),
+            towards_sensor,
+            fallback,
+        )
     };
     match at {
         None => points.par_iter().map(normal).collect(),
@@ -130,6 +151,7 @@ pub fn estimate_normals_with_grid(
         None,
         max_nn,
         towards_sensor,
+        FALLBACK_NORMAL,
     )))
 }
 
@@ -141,6 +163,7 @@ fn grid_normals(
     at: Option<&[u32]>,
     max_nn: usize,
     towards_sensor: Option<Point3<f64>>,
+    fallback: Vector3<f64>,
 ) -> Vec<Vector3<f64>> {
     let normal = |members: &mut Vec<u128>, p: &Point3<f64>| {
         members.clear();
@@ -150,7 +173,7 @@ fn grid_normals(
             members.sort_unstable();
         }
         let indices = members.iter().map(|&key| key as u32 as usize);
-        oriented_normal(points, p, indices, towards_sensor)
+        oriented_normal(points, p, indices, towards_sensor, fallback)
     };
     match at {
         None => points.par_iter().map_init(Vec::new, normal).collect(),
@@ -217,10 +240,12 @@ impl NormalEstimate {
         }
         let (radius, max_nn, towards) = (self.radius_m, self.max_nn, self.towards_sensor);
         if let Some(grid) = RadiusGrid::new(points, radius, self.max_columns)? {
-            return Ok(grid_normals(&grid, points, at, max_nn, towards));
+            return Ok(grid_normals(&grid, points, at, max_nn, towards, NO_PLANE));
         }
         let tree = KdTree::new(points)?;
-        Ok(tree_normals(&tree, points, at, radius, max_nn, towards))
+        Ok(tree_normals(
+            &tree, points, at, radius, max_nn, towards, NO_PLANE,
+        ))
     }
 }
 
@@ -263,7 +288,7 @@ pub fn estimate_normals_from_neighbourhoods(
             );
             keep_nearest(members, max_nn);
             let indices = members.iter().map(|&key| key as u32 as usize);
-            oriented_normal(points, p, indices, towards_sensor)
+            oriented_normal(points, p, indices, towards_sensor, FALLBACK_NORMAL)
         })
         .collect())
 }
@@ -288,11 +313,12 @@ fn oriented_normal(
     p: &Point3<f64>,
     members: impl ExactSizeIterator<Item = usize> + Clone,
     towards_sensor: Option<Point3<f64>>,
+    fallback: Vector3<f64>,
 ) -> Vector3<f64> {
     let normal = if members.len() < MIN_NEIGHBOURS {
-        FALLBACK_NORMAL
+        fallback
     } else {
-        smallest_eigenvector(&covariance(points, members)).unwrap_or(FALLBACK_NORMAL)
+        smallest_eigenvector(&covariance(points, members)).unwrap_or(fallback)
     };
     match towards_sensor {
         Some(o) if normal.dot(&(o - p)) < 0.0 => -normal,
@@ -644,6 +670,44 @@ mod tests {
                 .install(|| estimate_normals(&cloud, 0.05, 30, None).unwrap())
         };
         assert_eq!(run(1), run(3));
+    }
+
+    #[test]
+    fn an_icp_target_estimate_gives_isolated_points_no_plane_and_others_the_same_normal() {
+        // A floor patch 2 cm apart and two points far from it: `NormalEstimate` (ICP targets)
+        // gives those two zero, Open3D's estimate +z; the floor's normals are the same.
+        let mut points: Vec<Point3<f64>> = (0..20)
+            .flat_map(|i| (0..20).map(move |j| Point3::new(0.02 * i as f64, 0.02 * j as f64, 0.0)))
+            .collect();
+        points.extend([Point3::new(3.0, 0.0, 1.0), Point3::new(3.05, 0.0, 1.0)]);
+        let sensor = Some(Point3::new(0.1, 0.1, 1.0));
+        let open3d = estimate_normals(&points, 0.1, 30, sensor).unwrap();
+        let estimate = NormalEstimate::new(0.1, 30, sensor, 1 << 20).unwrap();
+        let icp = estimate.estimate(&points, None).unwrap();
+        let floor = points.len() - 2;
+        // (Ties at equal distances in the regular grid may take other members: equal to
+        // rounding, not bit for bit.)
+        let close = |a: &[Vector3<f64>], b: &[Vector3<f64>]| {
+            a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).norm() < 1e-12)
+        };
+        assert!(close(&icp[..floor], &open3d[..floor]));
+        assert!(
+            open3d[..floor]
+                .iter()
+                .all(|n| (n - Vector3::z()).norm() < 1e-12)
+        );
+        assert_eq!(&open3d[floor..], &[FALLBACK_NORMAL; 2]);
+        assert_eq!(&icp[floor..], &[NO_PLANE; 2]);
+        // The same through the kd-tree (a cloud too wide for the grid's columns) and for a few.
+        let narrow = NormalEstimate::new(0.1, 30, sensor, 1).unwrap();
+        let by_tree = narrow.estimate(&points, None).unwrap();
+        assert!(close(&by_tree[..floor], &icp[..floor]));
+        assert_eq!(&by_tree[floor..], &[NO_PLANE; 2]);
+        let at = [0u32, floor as u32 + 1];
+        assert_eq!(
+            estimate.estimate(&points, Some(&at)).unwrap(),
+            vec![icp[0], NO_PLANE]
+        );
     }
 
     /// A noisy surface patch plus scattered points (every tenth): full, partial and tiny

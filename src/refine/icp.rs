@@ -8,8 +8,17 @@
 //! Low ("Linear least-squares optimization for point-to-plane ICP surface registration", TR04-004,
 //! UNC 2004): `R ≈ I + [ω]ₓ`, which makes the residual linear in `x = (ω, t)`:
 //! `r_i(x) ≈ r_i + (p_i × n_i) · ω + n_i · t` with `p_i = T s_i`.
+//!
+//! A target point whose normal is zero has no plane ([`crate::geometry::NO_PLANE`]: too few
+//! neighbours to fit one). It is matched point to point: three rows, one per axis `e`, each a
+//! point-to-plane row with `n = e`. The two kinds of rows are weighed by their shares of the
+//! correspondences, as GenZ-ICP weighs its point-to-plane and point-to-point terms (Lee, Lim and
+//! Han, RA-L 2025): `α` for the planar rows, `1 − α` for the others, `α = planar / all`.
+//!
+//! NOTE: not Open3D's, whose point-to-plane ICP reads every normal as a plane (and gives a point
+//! without neighbours +z). Without zero normals the two are the same, bit for bit.
 
-use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector6};
+use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
 use rayon::prelude::*;
 
 use crate::geometry::RadiusGrid;
@@ -230,9 +239,11 @@ pub struct IcpHessian {
     /// `Σ w J Jᵀ` in (rotation, translation) order. Units: m² (rotation block), m (mixed), 1
     /// (translation block).
     pub jtj: Matrix6<f64>,
-    /// `Σ w r²` of the point-to-plane residuals `r = (p − q) · n` \[m²\].
+    /// `Σ w r²` of the point-to-plane residuals `r = (p − q) · n` \[m²\] (with point-to-point
+    /// rows, each kind weighed by its share: see the module doc).
     pub residual_sq_sum_m2: f64,
-    /// Correspondences that contributed (weight above 0).
+    /// Rows that contributed (weight above 0): one per point-to-plane correspondence, up to
+    /// three per point-to-point one.
     pub count: usize,
 }
 
@@ -289,30 +300,37 @@ pub struct RegistrationEvaluation {
     pub num_inliers: usize,
 }
 
-/// Sums over one pass of correspondence search at a fixed pose.
+/// Least-squares sums of one kind of residual row: `Σ w J Jᵀ` (upper triangle, row-major),
+/// `Σ w J r`, `Σ w r²` and the rows summed.
 #[derive(Clone, Copy)]
-struct PassSums {
-    /// Upper triangle (row-major) of `Σ w J Jᵀ` with `J = (p × n, n)`.
+struct RowSums {
     jtj_upper: [f64; 21],
-    /// `Σ w J r`.
     jtr: [f64; 6],
-    /// `Σ w r²` \[m²\] and the number of weighted residuals.
     residual_sq_sum: f64,
-    num_residuals: usize,
-    /// `Σ |p − q|²` over inliers \[m²\].
-    squared_distance_sum: f64,
-    num_inliers: usize,
+    rows: usize,
 }
 
-impl PassSums {
-    fn zero() -> Self {
-        Self {
-            jtj_upper: [0.0; 21],
-            jtr: [0.0; 6],
-            residual_sq_sum: 0.0,
-            num_residuals: 0,
-            squared_distance_sum: 0.0,
-            num_inliers: 0,
+impl RowSums {
+    const ZERO: Self = Self {
+        jtj_upper: [0.0; 21],
+        jtr: [0.0; 6],
+        residual_sq_sum: 0.0,
+        rows: 0,
+    };
+
+    /// Adds the row `r ≈ residual + jac · x` at weight `w`.
+    fn add_row(&mut self, jac: &[f64; 6], residual: f64, w: f64) {
+        self.residual_sq_sum += w * residual * residual;
+        self.rows += 1;
+        // Upper triangle only; mirrored once per pass.
+        let mut u = 0;
+        for a in 0..6 {
+            let wa = w * jac[a];
+            for jb in &jac[a..] {
+                self.jtj_upper[u] += wa * jb;
+                u += 1;
+            }
+            self.jtr[a] += wa * residual;
         }
     }
 
@@ -323,32 +341,90 @@ impl PassSums {
         for (a, b) in self.jtr.iter_mut().zip(&other.jtr) {
             *a += b;
         }
+        self.residual_sq_sum += other.residual_sq_sum;
+        self.rows += other.rows;
+    }
+
+    /// `self · a + other · b`, term by term.
+    fn blend(&self, a: f64, other: &Self, b: f64) -> Self {
+        let mut out = Self::ZERO;
+        for (o, (x, y)) in out
+            .jtj_upper
+            .iter_mut()
+            .zip(self.jtj_upper.iter().zip(&other.jtj_upper))
+        {
+            *o = a * x + b * y;
+        }
+        for (o, (x, y)) in out.jtr.iter_mut().zip(self.jtr.iter().zip(&other.jtr)) {
+            *o = a * x + b * y;
+        }
+        out.residual_sq_sum = a * self.residual_sq_sum + b * other.residual_sq_sum;
+        out.rows = self.rows + other.rows;
+        out
+    }
+}
+
+/// Sums over one pass of correspondence search at a fixed pose.
+#[derive(Clone, Copy)]
+struct PassSums {
+    /// Point-to-plane rows, `J = (p × n, n)`.
+    plane: RowSums,
+    /// Point-to-point rows of the targets with no plane (zero normal): one per axis `e`,
+    /// `J = (p × e, e)`, three per correspondence.
+    point: RowSums,
+    /// Correspondences that gave point-to-point rows.
+    point_pairs: usize,
+    /// `Σ |p − q|²` over inliers \[m²\].
+    squared_distance_sum: f64,
+    num_inliers: usize,
+}
+
+impl PassSums {
+    fn zero() -> Self {
+        Self {
+            plane: RowSums::ZERO,
+            point: RowSums::ZERO,
+            point_pairs: 0,
+            squared_distance_sum: 0.0,
+            num_inliers: 0,
+        }
+    }
+
+    fn add(&mut self, other: &Self) {
+        self.plane.add(&other.plane);
+        self.point.add(&other.point);
+        self.point_pairs += other.point_pairs;
         self.squared_distance_sum += other.squared_distance_sum;
         self.num_inliers += other.num_inliers;
-        self.residual_sq_sum += other.residual_sq_sum;
-        self.num_residuals += other.num_residuals;
+    }
+
+    /// The rows of both kinds as one system: each kind weighted by its share of the
+    /// correspondences, `α = planar / (planar + point)` for the point-to-plane rows and `1 − α`
+    /// for the point-to-point ones, the adaptive weight of GenZ-ICP (Lee, Lim and Han, "GenZ-ICP:
+    /// Generalizable and Degeneracy-Robust LiDAR Odometry Using an Adaptive Weighting", RA-L
+    /// 2025). Without point-to-point rows, the point-to-plane sums unchanged.
+    fn combined(&self) -> RowSums {
+        if self.point.rows == 0 {
+            return self.plane;
+        }
+        let (planar, point) = (self.plane.rows as f64, self.point_pairs as f64);
+        let alpha = planar / (planar + point);
+        self.plane.blend(alpha, &self.point, 1.0 - alpha)
     }
 
     fn hessian(&self) -> IcpHessian {
+        let rows = self.combined();
         IcpHessian {
-            jtj: self.normal_equations().0,
-            residual_sq_sum_m2: self.residual_sq_sum,
-            count: self.num_residuals,
+            jtj: upper_to_full(&rows.jtj_upper),
+            residual_sq_sum_m2: rows.residual_sq_sum,
+            count: rows.rows,
         }
     }
 
     /// The normal equations `(Σ w J Jᵀ, Σ w J r)`.
     fn normal_equations(&self) -> (Matrix6<f64>, Vector6<f64>) {
-        let mut jtj = Matrix6::zeros();
-        let mut u = 0;
-        for a in 0..6 {
-            for b in a..6 {
-                jtj[(a, b)] = self.jtj_upper[u];
-                jtj[(b, a)] = self.jtj_upper[u];
-                u += 1;
-            }
-        }
-        (jtj, Vector6::from(self.jtr))
+        let rows = self.combined();
+        (upper_to_full(&rows.jtj_upper), Vector6::from(rows.jtr))
     }
 
     fn evaluation(&self, num_source: usize) -> RegistrationEvaluation {
@@ -366,6 +442,20 @@ impl PassSums {
             num_inliers: self.num_inliers,
         }
     }
+}
+
+/// The symmetric matrix of an upper triangle stored row-major.
+fn upper_to_full(upper: &[f64; 21]) -> Matrix6<f64> {
+    let mut m = Matrix6::zeros();
+    let mut u = 0;
+    for a in 0..6 {
+        for b in a..6 {
+            m[(a, b)] = upper[u];
+            m[(b, a)] = upper[u];
+            u += 1;
+        }
+    }
+    m
 }
 
 /// One parallel correspondence pass. With `kernel` set, also accumulates the normal equations
@@ -410,24 +500,32 @@ fn correspondence_pass(
                 sums.squared_distance_sum += squared;
                 if let (Some(kernel), Some(normals)) = (kernel, normals) {
                     let n = normals[j];
-                    let residual = (p - q).dot(&n);
-                    let w = kernel.weight(residual);
-                    if w == 0.0 {
-                        continue;
-                    }
-                    sums.residual_sq_sum += w * residual * residual;
-                    sums.num_residuals += 1;
-                    let pxn = p.coords.cross(&n);
-                    let jac = [pxn.x, pxn.y, pxn.z, n.x, n.y, n.z];
-                    // Upper triangle only; mirrored once per pass.
-                    let mut u = 0;
-                    for a in 0..6 {
-                        let wa = w * jac[a];
-                        for jb in &jac[a..] {
-                            sums.jtj_upper[u] += wa * jb;
-                            u += 1;
+                    let d = p - q;
+                    if n != Vector3::zeros() {
+                        let residual = d.dot(&n);
+                        let w = kernel.weight(residual);
+                        if w != 0.0 {
+                            let pxn = p.coords.cross(&n);
+                            let jac = [pxn.x, pxn.y, pxn.z, n.x, n.y, n.z];
+                            sums.plane.add_row(&jac, residual, w);
                         }
-                        sums.jtr[a] += wa * residual;
+                    } else {
+                        // No plane at `q`: the three axes' rows, each residual through the
+                        // kernel (`p × e` for the unit axes e).
+                        let p = p.coords;
+                        let rows = [
+                            ([0.0, p.z, -p.y, 1.0, 0.0, 0.0], d.x),
+                            ([-p.z, 0.0, p.x, 0.0, 1.0, 0.0], d.y),
+                            ([p.y, -p.x, 0.0, 0.0, 0.0, 1.0], d.z),
+                        ];
+                        let before = sums.point.rows;
+                        for (jac, residual) in rows {
+                            let w = kernel.weight(residual);
+                            if w != 0.0 {
+                                sums.point.add_row(&jac, residual, w);
+                            }
+                        }
+                        sums.point_pairs += usize::from(sums.point.rows > before);
                     }
                 }
             }
@@ -642,3 +740,5 @@ pub(crate) fn evaluate_with_hessian(
 mod tests;
 #[cfg(test)]
 mod tests_covariance;
+#[cfg(test)]
+mod tests_no_plane;

@@ -49,7 +49,7 @@ impl std::fmt::Debug for IcpTarget {
     }
 }
 
-/// One unit normal per point, all finite.
+/// One normal per point, all finite (unit, or zero for a point with no plane).
 fn check_normals(points: &[Point3<f64>], normals: &[Vector3<f64>]) -> Result<()> {
     if normals.len() != points.len() {
         return Err(Error::InvalidInput(format!(
@@ -89,7 +89,8 @@ fn check_target_points(points: &[Point3<f64>]) -> Result<()> {
 }
 
 impl IcpTarget {
-    /// Builds the kd-tree over `points` and keeps unit `normals` (one per point) for
+    /// Builds the kd-tree over `points` and keeps unit `normals` (one per point; a zero one marks a
+    /// point with no plane, matched point to point: see [`super`]) for
     /// point-to-plane ICP. Fails on an empty cloud, a length mismatch or non-finite values.
     pub fn new(points: &[Point3<f64>], normals: &[Vector3<f64>]) -> Result<Self> {
         check_normals(points, normals)?;
