@@ -57,6 +57,8 @@ Usage:
         --gap-len 3 --out /tmp/loop_kaist03_cone40_gap3.mcap   # ... and a jump of 9 m
     python3 tools/toolbox.py make-loop-logs --source kaist03 --kind gap --cone 25 \
         --out /tmp/loop_kaist03_cone25_gap.mcap   # the narrowest view, and a jump of 7 m
+    python3 tools/toolbox.py make-loop-logs --source kaist03 --kind out-and-back \
+        --ring-stride 4 --out /tmp/loop_kaist03_r16.mcap   # 16 of the 64 beams: VLP-16-like
     python3 tools/toolbox.py make-loop-logs --all --out-dir /tmp   # the set above + micro211 gap/x10
 """
 
@@ -132,7 +134,7 @@ class Kaist03:
         self.data = args.data or kaist.DEFAULT_DATA
         self.ouster_time = args.ouster_time
         self.cone = (args.cone, args.cone_azimuth) if args.cone else None
-        self.ring_stride = getattr(args, "ring_stride", 1) or 1
+        self.ring_stride = args.ring_stride
         poses = kaist.read_kitti_poses(os.path.join(self.data, "poses_kitti.txt"))
         self.poses = dict(enumerate(poses))
         self.frames = kaist.parse_frames(args.frames, len(poses))
@@ -326,6 +328,7 @@ ALL = [
     ("loop_kaist03_cone25", "kaist03", "out-and-back", {"cone": 25.0}),
     ("loop_kaist03_cone40_gap3", "kaist03", "gap", {"cone": 40.0, "gap_len": 3}),
     ("loop_kaist03_cone25_gap", "kaist03", "gap", {"cone": 25.0}),
+    ("loop_kaist03_r16", "kaist03", "out-and-back", {"ring_stride": 4}),
 ]
 
 
