@@ -24,8 +24,8 @@ pub const MIN_NEIGHBOURS: usize = 3;
 /// along z alone, with the lever arm of their range: on KAIST03's scans cut to 16 of their 64
 /// beams (a VLP-16's spacing) the map registrations' rotation information came out 30–125 times
 /// weaker in its weakest direction than in its strongest (0.31–0.66 with point-to-point rows), no
-/// frame tracked and every loop failed verification as degenerate (docs/ODOMETRY.md, "Points with
-/// no plane"). Features keep Open3D's +z (their histograms are Open3D's).
+/// frame tracked and loop verification refused the loops as degenerate (docs/ODOMETRY.md, "Points
+/// with no plane"). Features keep Open3D's +z (their histograms are Open3D's).
 pub const NO_PLANE: Vector3<f64> = Vector3::new(0.0, 0.0, 0.0);
 
 /// Estimates one unit normal per point.
@@ -184,7 +184,8 @@ fn grid_normals(
     }
 }
 
-/// The settings of a normal estimation kept for later, so that a cloud's normals can be
+/// The settings of a normal estimation kept for later (an ICP target's: a point that cannot have
+/// a plane gets [`NO_PLANE`], not Open3D's +z), so that a cloud's normals can be
 /// estimated where and when they are needed: `mireg register` adds only the points of a frame
 /// that land in a local-map voxel not yet full, 6 % of the ICP points on the KITTI replay log.
 /// Through a [`RadiusGrid`] as [`estimate_normals_with_grid`], or a kd-tree where the grid
@@ -306,8 +307,8 @@ fn keep_nearest(members: &mut Vec<u128>, max_nn: usize) -> bool {
 }
 
 /// The normal of `p` from its neighbourhood `members` (indices into `points`, summed in this
-/// order): [`FALLBACK_NORMAL`] below [`MIN_NEIGHBOURS`] members or for coincident ones, flipped
-/// towards `towards_sensor` when given.
+/// order): `fallback` ([`FALLBACK_NORMAL`], or [`NO_PLANE`] for ICP targets) below
+/// [`MIN_NEIGHBOURS`] members or for coincident ones, flipped towards `towards_sensor` when given.
 fn oriented_normal(
     points: &[Point3<f64>],
     p: &Point3<f64>,
