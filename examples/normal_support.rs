@@ -13,7 +13,7 @@ use std::path::Path;
 
 use mireg::geometry::{KdTree, voxel_downsample};
 use mireg::pipeline::voxel_for_cloud;
-use nalgebra::{Matrix3, Point3, SymmetricEigen};
+use nalgebra::{Matrix3, SymmetricEigen};
 
 fn median(mut v: Vec<f64>) -> f64 {
     if v.is_empty() {
@@ -70,7 +70,6 @@ fn main() -> mireg::Result<()> {
             };
             lines += usize::from(line);
         }
-        let _: &[Point3<f64>] = &down;
         println!(
             "{arg}: voxel {voxel:.3} m, {} points; within 2 voxels: median {:.0}; k-th neighbour \
              (voxels) k=5 {:.2} k=10 {:.2} k=20 {:.2}; lines {:.1} %",

@@ -183,11 +183,21 @@ def cut_to_cone(n, data, width_deg, azimuth_deg):
     default."""
     half = math.radians(width_deg) / 2
     centre = math.radians(azimuth_deg)
-    kept = bytearray()
-    for (x, y, _z, _i), raw in zip(struct.iter_unpack("<4f", data), (data[i:i + 16] for i in range(0, 16 * n, 16))):
+
+    def inside(x, y, _z):
         d = math.atan2(y, x) - centre
         d = (d + math.pi) % (2 * math.pi) - math.pi
-        if abs(d) <= half:
+        return abs(d) <= half
+
+    return keep_points(n, data, inside)
+
+
+def keep_points(n, data, keep):
+    """The points (x, y, z, intensity float32, 16 bytes each) for which keep(x, y, z) holds, in
+    order: (count, bytes)."""
+    kept = bytearray()
+    for (x, y, z, _i), raw in zip(struct.iter_unpack("<4f", data), (data[i:i + 16] for i in range(0, 16 * n, 16))):
+        if keep(x, y, z):
             kept += raw
     return len(kept) // 16, bytes(kept)
 
@@ -202,12 +212,12 @@ def keep_rings(n, data, stride):
     """The points (x, y, z, intensity float32, 16 bytes each) of every `stride`-th beam of the
     OS1-64, the beam found by elevation atan2(z, hypot(x, y)): with stride 4, 16 beams 2.1 deg
     apart, the vertical density of a Velodyne VLP-16 (2 deg), from the same real scans."""
-    kept = bytearray()
-    for (x, y, z, _i), raw in zip(struct.iter_unpack("<4f", data), (data[i:i + 16] for i in range(0, 16 * n, 16))):
+
+    def on_a_kept_beam(x, y, z):
         elevation = math.degrees(math.atan2(z, math.hypot(x, y)))
-        if round((elevation - OS1_LOWEST_BEAM_DEG) / OS1_BEAM_SPACING_DEG) % stride == 0:
-            kept += raw
-    return len(kept) // 16, bytes(kept)
+        return round((elevation - OS1_LOWEST_BEAM_DEG) / OS1_BEAM_SPACING_DEG) % stride == 0
+
+    return keep_points(n, data, on_a_kept_beam)
 
 
 SOURCES = {"micro211": Micro211, "kaist03": Kaist03}

@@ -18,11 +18,11 @@
 //! NOTE: not Open3D's, whose point-to-plane ICP reads every normal as a plane (and gives a point
 //! without neighbours +z). Without zero normals the two are the same, bit for bit.
 
-use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector6};
 use rayon::prelude::*;
 
-use crate::geometry::RadiusGrid;
 use crate::geometry::radius_grid::default_max_columns;
+use crate::geometry::{NO_PLANE, RadiusGrid};
 use crate::{Error, Result};
 
 mod target;
@@ -501,7 +501,7 @@ fn correspondence_pass(
                 if let (Some(kernel), Some(normals)) = (kernel, normals) {
                     let n = normals[j];
                     let d = p - q;
-                    if n != Vector3::zeros() {
+                    if n != NO_PLANE {
                         let residual = d.dot(&n);
                         let w = kernel.weight(residual);
                         if w != 0.0 {

@@ -4,6 +4,7 @@
 
 use super::*;
 use crate::geometry::NO_PLANE;
+use nalgebra::Vector3;
 use rand::{RngExt, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
